@@ -1,4 +1,26 @@
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
-//! Placeholder.
+#![doc = include_str!("../README.md")]
+
+pub mod command;
+pub mod decoder;
+pub mod error;
+pub mod info;
+pub mod status;
+pub mod sum;
+pub mod timestamp;
+pub mod value;
+
+pub use command::{
+    Command, DataSet, EchoError, EncodeError, Request, ScanMode, ScanRequest, Tag, TimeMode,
+    BIT_RATES, REQUEST_MAX, TAG_MAX,
+};
+pub use decoder::{
+    DataLine, Decoder, DecoderStats, Event, Field, Reading, Summary, LINE_CAP, MAX_READINGS,
+};
+pub use error::{Error, ErrorKind};
+pub use info::{ModelFamily, Param, Range, RangeError, RangeLimits, SensorParams};
+pub use status::{Status, StatusKind};
+pub use sum::checksum;
+pub use timestamp::TimestampUnwrapper;
