@@ -1,4 +1,10 @@
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
-//! Placeholder.
+//! The sans-IO bridge core of scip2can: what sits between the SCIP decoder and the CAN
+//! encoder, with no hardware, clock or allocation of its own.
+//!
+//! - [`pipeline`]: the streaming scan pipeline (region of interest, range window,
+//!   intensity threshold, speckle removal, median, angular and temporal decimation).
+
+pub mod pipeline;
