@@ -1,1 +1,57 @@
-fn main() {}
+//! The `scip2can` command.
+
+use std::fs::File;
+use std::io::{self, BufWriter};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+
+/// scip2can: Hokuyo SCIP 2.x laser range finders onto a CAN bus.
+#[derive(Debug, Parser)]
+#[command(version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Debug, Subcommand)]
+enum Cmd {
+    /// Decode a raw sensor-to-host SCIP stream; print one JSON object per response.
+    ///
+    /// Damaged responses are reported in their `errors`; the rest is decoded. The exit
+    /// code is non-zero only when the input cannot be read.
+    Parse {
+        /// The stream file, or `-` for standard input.
+        file: PathBuf,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("scip2can: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Cmd::Parse { file } => {
+            let out = BufWriter::new(io::stdout().lock());
+            if file.as_os_str() == "-" {
+                scip2can_host::parse::run(io::stdin().lock(), out)
+                    .context("reading standard input")?;
+            } else {
+                let f = File::open(&file).with_context(|| format!("opening {}", file.display()))?;
+                scip2can_host::parse::run(f, out)
+                    .with_context(|| format!("reading {}", file.display()))?;
+            }
+            Ok(())
+        }
+    }
+}

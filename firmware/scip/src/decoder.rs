@@ -7,8 +7,11 @@
 //!
 //! Every response that starts ([`Event::Start`]) ends with exactly one of
 //! [`Event::End`] (intact: every line checked) or [`Event::Error`] (damaged: the decoder
-//! then skips to the next response boundary, an empty line). Errors can also arrive
-//! outside a response, for garbage between responses.
+//! then skips to the next response boundary, an empty line). While it skips the rest of a
+//! damaged measurement it still checks each line's sum and reports every further bad line
+//! as another [`Event::Error`] of the same response; [`Decoder::between_responses`] tells
+//! when the damaged response is over. Errors can also arrive outside a response, for
+//! garbage between responses.
 
 use crate::command::{Command, DataSet, EchoError, Request, ScanMode, ScanRequest, TimeMode};
 use crate::error::{Error, ErrorKind};
@@ -186,6 +189,7 @@ pub struct Decoder {
     line_start: u64,
     current_line: u64,
     state: State,
+    skip_checks_sums: bool,
     // The response being decoded.
     request: Option<Request>,
     echo_error: EchoError,
@@ -241,6 +245,7 @@ impl Decoder {
             line_start: 0,
             current_line: 0,
             state: State::Idle,
+            skip_checks_sums: false,
             request: None,
             echo_error: EchoError::UnknownCommand,
             status: Status::OK,
@@ -313,6 +318,12 @@ impl Decoder {
         self.state == State::Idle && self.len == 0 && !self.overflow
     }
 
+    /// True when no response is open: the last one ended (intact or damaged, its
+    /// remaining lines skipped). A partial next line may be buffered.
+    pub fn between_responses(&self) -> bool {
+        self.state == State::Idle
+    }
+
     /// Drops any partial line and response: the next byte starts a new line between
     /// responses. Learned limits and counters stay.
     pub fn reset(&mut self) {
@@ -352,8 +363,7 @@ impl Decoder {
     /// Tells the decoder the stream has ended: a response in progress is reported as
     /// [`ErrorKind::Truncated`]. The decoder is then idle again.
     pub fn finish(&mut self) -> Option<Event<'_>> {
-        let in_response = matches!(self.state, State::Status | State::Payload(_))
-            || (self.state == State::Idle && (self.len > 0 || self.overflow));
+        let in_response = self.state != State::Idle || self.len > 0 || self.overflow;
         self.len = 0;
         self.overflow = false;
         let line = self.line_no;
@@ -392,6 +402,11 @@ impl Decoder {
             State::Skip => {
                 if empty {
                     self.state = State::Idle;
+                } else {
+                    self.line_no = self.line_no.saturating_add(1);
+                    if self.skip_checks_sums && !self.overflow && !self.line_sum_ok() {
+                        return true;
+                    }
                 }
                 self.len = 0;
                 self.overflow = false;
@@ -421,9 +436,23 @@ impl Decoder {
         })
     }
 
+    /// True when the buffered line ends with the right sum char.
+    fn line_sum_ok(&self) -> bool {
+        match self.buf.get(..self.len) {
+            Some([body @ .., s]) => checksum(body) == *s,
+            _ => false,
+        }
+    }
+
     /// An error inside a response: skip to its end.
     fn fail(&mut self, kind: ErrorKind) -> Option<Event<'static>> {
         let line = self.line_no;
+        // Lines of a damaged measurement are still LF-framed: keep checking their sums
+        // so that every bad line is reported, while none of their values is published.
+        self.skip_checks_sums = matches!(
+            self.state,
+            State::Payload(Payload::Data | Payload::ScanTimestamp)
+        );
         self.state = State::Skip;
         self.stats.resyncs += 1;
         Some(self.error(kind, line))
@@ -463,7 +492,16 @@ impl Decoder {
                 self.line_no = self.line_no.saturating_add(1);
                 self.payload_line(p, len)
             }
-            State::Skip => None,
+            State::Skip => {
+                // Only reached for a line whose sum failed while skipping.
+                let expected = match self.buf.get(..len) {
+                    Some([body @ .., _]) => checksum(body),
+                    _ => 0,
+                };
+                let found = self.buf.get(len.wrapping_sub(1)).copied().unwrap_or(0);
+                let line = self.line_no;
+                Some(self.error(ErrorKind::BadSum { expected, found }, line))
+            }
         }
     }
 

@@ -1,0 +1,6 @@
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+//! The host side of scip2can: the pieces behind the `scip2can` command, as a library so
+//! that the integration tests run exactly what the command runs.
+
+pub mod parse;
