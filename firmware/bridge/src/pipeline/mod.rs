@@ -367,3 +367,680 @@ impl Pipeline {
         sink.point(p);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::vec::Vec;
+
+    /// Error code the URG-04LX gives for "too far / no echo".
+    const E: Option<u32> = None;
+
+    fn scan(first: u16, last: u16) -> ScanInfo {
+        ScanInfo {
+            seq: 1,
+            timestamp_ms: 0,
+            first_step: first,
+            last_step: last,
+            cluster: 1,
+        }
+    }
+
+    /// Raw points from step `first` on; `None` is an error code (distance 0).
+    fn raw(first: u16, ranges: &[Option<u32>]) -> Vec<RawPoint> {
+        (first..)
+            .zip(ranges)
+            .map(|(step, r)| RawPoint {
+                step,
+                distance: r.unwrap_or(0),
+                intensity: None,
+                valid: r.is_some(),
+            })
+            .collect()
+    }
+
+    fn pt(step: u16, r: Option<u32>, i: Option<u32>) -> Point {
+        Point {
+            step,
+            range_mm: r,
+            intensity: i,
+        }
+    }
+
+    /// Runs one intact scan; returns (announced count, output, end).
+    fn run(config: PipelineConfig, info: ScanInfo, points: &[RawPoint]) -> (usize, Vec<Point>) {
+        let mut p = Pipeline::new(config).unwrap();
+        let ScanStart::Publish { points: announced } = p.begin_scan(info) else {
+            panic!("scan not published");
+        };
+        let mut out = Vec::new();
+        let mut sink = |x: Point| out.push(x);
+        p.push_batch(points, &mut sink);
+        let end = p.end_scan(true, &mut sink);
+        assert_eq!(end, ScanEnd::Complete { points: out.len() });
+        assert_eq!(announced, out.len());
+        (announced, out)
+    }
+
+    fn ranges(points: &[Point]) -> Vec<Option<u32>> {
+        points.iter().map(|p| p.range_mm).collect()
+    }
+
+    #[test]
+    fn no_stage_passes_points_through_and_error_codes_become_invalid() {
+        let input = raw(10, &[Some(1000), E, Some(20), Some(5600)]);
+        let (_, out) = run(PipelineConfig::default(), scan(10, 13), &input);
+        assert_eq!(
+            out,
+            std::vec![
+                pt(10, Some(1000), None),
+                pt(11, None, None),
+                pt(12, Some(20), None),
+                pt(13, Some(5600), None),
+            ]
+        );
+    }
+
+    #[test]
+    fn range_window_invalidates_outside() {
+        let config = PipelineConfig {
+            range_window: Some(RangeWindow {
+                min_mm: 100,
+                max_mm: 4000,
+            }),
+            ..PipelineConfig::default()
+        };
+        let input = raw(0, &[Some(99), Some(100), Some(4000), Some(4001), E]);
+        let mut p = Pipeline::new(config).unwrap();
+        p.begin_scan(scan(0, 4));
+        let mut out = Vec::new();
+        p.push_batch(&input, &mut |x| out.push(x));
+        p.end_scan(true, &mut |x| out.push(x));
+        assert_eq!(ranges(&out), [E, Some(100), Some(4000), E, E]);
+        assert_eq!(p.stats().invalid_out_of_range, 2);
+        assert_eq!(p.stats().invalid_error_code, 1);
+        assert_eq!(p.stats().points_out_invalid, 3);
+    }
+
+    #[test]
+    fn intensity_threshold_only_where_there_is_intensity() {
+        let config = PipelineConfig {
+            min_intensity: Some(50),
+            ..PipelineConfig::default()
+        };
+        let mut input = raw(0, &[Some(1000), Some(1001), Some(1002), Some(1003)]);
+        input[0].intensity = Some(49);
+        input[1].intensity = Some(50);
+        input[2].intensity = None;
+        input[3].intensity = Some(0);
+        let (_, out) = run(config, scan(0, 3), &input);
+        assert_eq!(
+            out,
+            std::vec![
+                pt(0, None, Some(49)),
+                pt(1, Some(1001), Some(50)),
+                pt(2, Some(1002), None),
+                pt(3, None, Some(0)),
+            ]
+        );
+    }
+
+    #[test]
+    fn roi_drops_points_outside() {
+        let config = PipelineConfig {
+            roi: Some(StepWindow {
+                first: 12,
+                last: 14,
+            }),
+            ..PipelineConfig::default()
+        };
+        let input = raw(10, &[Some(1), Some(2), Some(3), E, Some(5), Some(6)]);
+        let (n, out) = run(config, scan(10, 15), &input);
+        assert_eq!(n, 3);
+        assert_eq!(
+            out,
+            std::vec![
+                pt(12, Some(3), None),
+                pt(13, E, None),
+                pt(14, Some(5), None)
+            ]
+        );
+    }
+
+    #[test]
+    fn speckle_through_the_pipeline() {
+        let config = PipelineConfig {
+            speckle: Some(SpeckleFilter { max_jump_mm: 100 }),
+            ..PipelineConfig::default()
+        };
+        // 0: 1000 edge, supported by 1 (50)     -> keep
+        // 1: 1050 supported by 0                -> keep
+        // 2: 3000 neighbours 1050, E            -> speckle
+        // 3: E                                  -> invalid
+        // 4: 2000 neighbours E, 2100 (diff 100) -> keep
+        // 5: 2100 supported by 4                -> keep
+        // 6: 2500 neighbours 2100 (400), edge   -> speckle
+        let input = raw(
+            0,
+            &[
+                Some(1000),
+                Some(1050),
+                Some(3000),
+                E,
+                Some(2000),
+                Some(2100),
+                Some(2500),
+            ],
+        );
+        let mut p = Pipeline::new(config).unwrap();
+        p.begin_scan(scan(0, 6));
+        let mut out = Vec::new();
+        p.push_batch(&input, &mut |x| out.push(x));
+        p.end_scan(true, &mut |x| out.push(x));
+        assert_eq!(
+            ranges(&out),
+            [Some(1000), Some(1050), E, E, Some(2000), Some(2100), E]
+        );
+        assert_eq!(p.stats().invalid_speckle, 2);
+    }
+
+    #[test]
+    fn median3_through_the_pipeline() {
+        let config = PipelineConfig {
+            median: Some(MedianWidth::Three),
+            ..PipelineConfig::default()
+        };
+        // 0: {100, 900} even -> pair (100, 900) holds 100 -> 100
+        // 1: {100, 900, 120} -> 120
+        // 2: {900, 120} (3 is E) -> 120
+        // 3: E -> E
+        // 4: {130} (3 is E, 4 is the end) -> 130
+        let input = raw(0, &[Some(100), Some(900), Some(120), E, Some(130)]);
+        let (_, out) = run(config, scan(0, 4), &input);
+        assert_eq!(
+            ranges(&out),
+            [Some(100), Some(120), Some(120), E, Some(130)]
+        );
+    }
+
+    #[test]
+    fn first_of_k_decimation_through_the_pipeline() {
+        let config = PipelineConfig {
+            decimation: Some(Decimation {
+                factor: 2,
+                mode: DecimationMode::First,
+            }),
+            ..PipelineConfig::default()
+        };
+        let input = raw(0, &[E, Some(5), Some(6), Some(7), Some(8)]);
+        let (_, out) = run(config, scan(0, 4), &input);
+        assert_eq!(
+            out,
+            std::vec![pt(0, E, None), pt(2, Some(6), None), pt(4, Some(8), None)]
+        );
+    }
+
+    /// ROI + median of 5 + min of 3 on a 20-point scan, worked out by hand.
+    ///
+    /// ```text
+    /// step  100  101 102  103  104  105  106  107 108 109  110  111 112  113  114 115  116  117  118  119
+    /// in   1000 1010   E 1020 5000 1030 1040 1050   E   E 2000 2010  30 2020 2030   E 2040 2050 2060 9999
+    /// ROI 102..=116 keeps j0..j14 = steps 102..116 (15 points); windows end at the ROI.
+    /// median 5 (valid centres only, valid values of the window, clamp into middle pair):
+    ///  j0 102 E                                       -> E
+    ///  j1 103 {1020 5000 1030}         sorted 1020 1030 5000        -> 1030
+    ///  j2 104 {1020 5000 1030 1040}    pair (1030,1040), 5000       -> 1040
+    ///  j3 105 {1020 5000 1030 1040 1050}                            -> 1040
+    ///  j4 106 {5000 1030 1040 1050}    pair (1040,1050), 1040       -> 1040
+    ///  j5 107 {1030 1040 1050}                                      -> 1040
+    ///  j6 108 E, j7 109 E                                           -> E, E
+    ///  j8 110 {2000 2010 30}           sorted 30 2000 2010          -> 2000
+    ///  j9 111 {2000 2010 30 2020}      pair (2000,2010), 2010       -> 2010
+    /// j10 112 {2000 2010 30 2020 2030}                              -> 2010
+    /// j11 113 {2010 30 2020 2030}      pair (2010,2020), 2020       -> 2020
+    /// j12 114 {30 2020 2030 2040}      pair (2020,2030), 2030       -> 2030
+    /// j13 115 E                                                     -> E
+    /// j14 116 {2030 2040} (cut)        pair (2030,2040), 2040       -> 2040
+    /// min of 3: [E 1030 1040]@102 -> 1030, [1040 1040 1040]@105 -> 1040,
+    ///           [E E 2000]@108 -> 2000, [2010 2010 2020]@111 -> 2010, [2030 E 2040]@114 -> 2030
+    /// ```
+    #[test]
+    fn roi_median5_min3_by_hand() {
+        let input = raw(
+            100,
+            &[
+                Some(1000),
+                Some(1010),
+                E,
+                Some(1020),
+                Some(5000),
+                Some(1030),
+                Some(1040),
+                Some(1050),
+                E,
+                E,
+                Some(2000),
+                Some(2010),
+                Some(30),
+                Some(2020),
+                Some(2030),
+                E,
+                Some(2040),
+                Some(2050),
+                Some(2060),
+                Some(9999),
+            ],
+        );
+        let config = PipelineConfig {
+            roi: Some(StepWindow {
+                first: 102,
+                last: 116,
+            }),
+            median: Some(MedianWidth::Five),
+            decimation: Some(Decimation {
+                factor: 3,
+                mode: DecimationMode::Min,
+            }),
+            ..PipelineConfig::default()
+        };
+        let (n, out) = run(config, scan(100, 119), &input);
+        assert_eq!(n, 5);
+        assert_eq!(
+            out,
+            std::vec![
+                pt(102, Some(1030), None),
+                pt(105, Some(1040), None),
+                pt(108, Some(2000), None),
+                pt(111, Some(2010), None),
+                pt(114, Some(2030), None),
+            ]
+        );
+        // Without decimation: the median stage alone.
+        let (_, out) = run(
+            PipelineConfig {
+                decimation: None,
+                ..config
+            },
+            scan(100, 119),
+            &input,
+        );
+        assert_eq!(
+            ranges(&out),
+            [
+                E,
+                Some(1030),
+                Some(1040),
+                Some(1040),
+                Some(1040),
+                Some(1040),
+                E,
+                E,
+                Some(2000),
+                Some(2010),
+                Some(2010),
+                Some(2020),
+                Some(2030),
+                E,
+                Some(2040)
+            ]
+        );
+    }
+
+    /// Range window + intensity + speckle + median 3 + mean of 4, by hand.
+    ///
+    /// ```text
+    /// step        0    1    2    3    4    5    6   7    8    9
+    /// range    1000 1020 4500 1500 1040 1060 1050   E 3000 3040
+    /// intens     80   90  100   60   70   40   75  10   90   95
+    /// window/int  .    .  out    .    .  low    .   E    .    .
+    /// speckle(50) on the survivors: 3 (1500: E | 460), 4 (1040: 460 | low) and
+    ///   6 (1050: low | E) lose their support -> invalid; 0/1 and 8/9 keep each other.
+    /// median 3: 0 {1000 1020} -> 1000, 1 {1000 1020} -> 1020, 8 {3000 3040} -> 3000,
+    ///   9 {3000 3040} -> 3040.
+    /// mean of 4: [0..3]@0 -> (1000+1020)/2 = 1010, intensity (80+90)/2 = 85
+    ///            [4..7]@4 -> invalid, no intensity
+    ///            [8..9]@8 -> 3020, intensity (90+95)/2 = 92.5 -> 93
+    /// ```
+    #[test]
+    fn window_intensity_speckle_median3_mean4_by_hand() {
+        let r = [
+            Some(1000),
+            Some(1020),
+            Some(4500),
+            Some(1500),
+            Some(1040),
+            Some(1060),
+            Some(1050),
+            E,
+            Some(3000),
+            Some(3040),
+        ];
+        let intensity = [80, 90, 100, 60, 70, 40, 75, 10, 90, 95];
+        let mut input = raw(0, &r);
+        for (p, i) in input.iter_mut().zip(intensity) {
+            p.intensity = Some(i);
+        }
+        input[7].distance = 7; // URG-04LX "neighbour error"
+        let config = PipelineConfig {
+            range_window: Some(RangeWindow {
+                min_mm: 100,
+                max_mm: 4000,
+            }),
+            min_intensity: Some(50),
+            speckle: Some(SpeckleFilter { max_jump_mm: 50 }),
+            median: Some(MedianWidth::Three),
+            decimation: Some(Decimation {
+                factor: 4,
+                mode: DecimationMode::Mean,
+            }),
+            ..PipelineConfig::default()
+        };
+        let mut p = Pipeline::new(config).unwrap();
+        assert_eq!(p.begin_scan(scan(0, 9)), ScanStart::Publish { points: 3 });
+        let mut out = Vec::new();
+        p.push_batch(&input, &mut |x| out.push(x));
+        assert_eq!(
+            p.end_scan(true, &mut |x| out.push(x)),
+            ScanEnd::Complete { points: 3 }
+        );
+        assert_eq!(
+            out,
+            std::vec![
+                pt(0, Some(1010), Some(85)),
+                pt(4, None, None),
+                pt(8, Some(3020), Some(93)),
+            ]
+        );
+        let s = p.stats();
+        assert_eq!(
+            (
+                s.invalid_error_code,
+                s.invalid_out_of_range,
+                s.invalid_low_intensity,
+                s.invalid_speckle
+            ),
+            (1, 1, 1, 3)
+        );
+        assert_eq!(
+            (s.points_in, s.points_out, s.points_out_invalid),
+            (10, 3, 1)
+        );
+        assert_eq!((s.scans_published, s.scans_complete), (1, 1));
+    }
+
+    #[test]
+    fn outputs_leave_as_soon_as_determined() {
+        // Median 5 needs 2 points of look-ahead; min of 2 then needs its pair.
+        let config = PipelineConfig {
+            median: Some(MedianWidth::Five),
+            speckle: Some(SpeckleFilter { max_jump_mm: 1000 }),
+            ..PipelineConfig::default()
+        };
+        let mut p = Pipeline::new(config).unwrap();
+        p.begin_scan(scan(0, 9));
+        let mut counts = Vec::new();
+        let mut n = 0usize;
+        for x in raw(0, &[Some(500); 10]) {
+            p.push(x, &mut |_| n += 1);
+            counts.push(n);
+        }
+        // speckle (1 ahead) + median (2 ahead): point k leaves when k + 3 arrived.
+        assert_eq!(counts, [0, 0, 0, 1, 2, 3, 4, 5, 6, 7]);
+        assert_eq!(
+            p.end_scan(true, &mut |_| n += 1),
+            ScanEnd::Complete { points: 10 }
+        );
+        assert_eq!(n, 10);
+    }
+
+    #[test]
+    fn single_point_scans() {
+        let one = raw(44, &[Some(1234)]);
+        let all = PipelineConfig {
+            range_window: Some(RangeWindow {
+                min_mm: 20,
+                max_mm: 5600,
+            }),
+            median: Some(MedianWidth::Five),
+            decimation: Some(Decimation {
+                factor: 3,
+                mode: DecimationMode::Mean,
+            }),
+            ..PipelineConfig::default()
+        };
+        let (n, out) = run(all, scan(44, 44), &one);
+        assert_eq!((n, out), (1, std::vec![pt(44, Some(1234), None)]));
+        // A lone point is a speckle.
+        let speckle = PipelineConfig {
+            speckle: Some(SpeckleFilter { max_jump_mm: 100 }),
+            ..all
+        };
+        let (_, out) = run(speckle, scan(44, 44), &one);
+        assert_eq!(out, std::vec![pt(44, None, None)]);
+    }
+
+    #[test]
+    fn all_invalid_scan_gives_invalid_points_only() {
+        let input = raw(0, &[E; 7]);
+        for mode in [
+            DecimationMode::First,
+            DecimationMode::Min,
+            DecimationMode::Mean,
+        ] {
+            let config = PipelineConfig {
+                speckle: Some(SpeckleFilter { max_jump_mm: 0 }),
+                median: Some(MedianWidth::Three),
+                decimation: Some(Decimation { factor: 2, mode }),
+                ..PipelineConfig::default()
+            };
+            let (n, out) = run(config, scan(0, 6), &input);
+            assert_eq!(n, 4);
+            assert_eq!(ranges(&out), [E; 4]);
+        }
+    }
+
+    #[test]
+    fn empty_roi_gives_no_points() {
+        let config = PipelineConfig {
+            roi: Some(StepWindow {
+                first: 500,
+                last: 600,
+            }),
+            median: Some(MedianWidth::Five),
+            ..PipelineConfig::default()
+        };
+        let (n, out) = run(config, scan(0, 9), &raw(0, &[Some(1); 10]));
+        assert_eq!((n, out.len()), (0, 0));
+    }
+
+    #[test]
+    fn cluster_steps_are_checked() {
+        let info = ScanInfo {
+            cluster: 3,
+            ..scan(10, 20)
+        };
+        // Points at 10, 13, 16, 19.
+        let good: Vec<RawPoint> = [10u16, 13, 16, 19]
+            .iter()
+            .map(|&step| RawPoint {
+                step,
+                distance: u32::from(step),
+                intensity: None,
+                valid: true,
+            })
+            .collect();
+        let (n, out) = run(PipelineConfig::default(), info, &good);
+        assert_eq!(n, 4);
+        assert_eq!(
+            out.iter().map(|p| p.step).collect::<Vec<_>>(),
+            [10, 13, 16, 19]
+        );
+        // A point at 14 instead of 13 breaks the scan.
+        let mut bad = good.clone();
+        bad[1].step = 14;
+        let mut p = Pipeline::new(PipelineConfig::default()).unwrap();
+        p.begin_scan(info);
+        let mut out = Vec::new();
+        p.push_batch(&bad, &mut |x| out.push(x));
+        assert_eq!(
+            p.end_scan(true, &mut |x| out.push(x)),
+            ScanEnd::Incomplete {
+                points: 1,
+                discarded: 0
+            }
+        );
+        assert_eq!(out.len(), 1);
+        assert_eq!(p.stats().sequence_errors, 3);
+        assert_eq!(p.stats().scans_incomplete, 1);
+    }
+
+    #[test]
+    fn extra_points_past_the_end_are_sequence_errors() {
+        let mut p = Pipeline::new(PipelineConfig::default()).unwrap();
+        p.begin_scan(scan(0, 1));
+        let mut n = 0;
+        p.push_batch(&raw(0, &[Some(1), Some(2), Some(3)]), &mut |_| n += 1);
+        assert_eq!(n, 2);
+        assert_eq!(p.stats().sequence_errors, 1);
+        assert!(matches!(
+            p.end_scan(true, &mut |_| n += 1),
+            ScanEnd::Incomplete { points: 2, .. }
+        ));
+    }
+
+    #[test]
+    fn incomplete_scans_drop_pending_points() {
+        let config = PipelineConfig {
+            median: Some(MedianWidth::Five),
+            ..PipelineConfig::default()
+        };
+        let mut p = Pipeline::new(config).unwrap();
+        p.begin_scan(scan(0, 9));
+        let mut out = Vec::new();
+        p.push_batch(&raw(0, &[Some(7); 6]), &mut |x| out.push(x));
+        // 6 of 10 arrived: points 0..=3 are determined, 4 and 5 wait for 6 and 7.
+        assert_eq!(out.len(), 4);
+        assert_eq!(
+            p.end_scan(true, &mut |x| out.push(x)),
+            ScanEnd::Incomplete {
+                points: 4,
+                discarded: 2
+            }
+        );
+        // Declared not intact although every point arrived.
+        p.begin_scan(scan(0, 2));
+        p.push_batch(&raw(0, &[Some(7); 3]), &mut |x| out.push(x));
+        assert_eq!(
+            p.end_scan(false, &mut |x| out.push(x)),
+            ScanEnd::Incomplete {
+                points: 1,
+                discarded: 2
+            }
+        );
+        // A new begin_scan abandons an open scan.
+        p.begin_scan(scan(0, 2));
+        p.push(raw(0, &[Some(7)])[0], &mut |x| out.push(x));
+        p.begin_scan(scan(0, 0));
+        p.push(raw(0, &[Some(7)])[0], &mut |x| out.push(x));
+        assert_eq!(
+            p.end_scan(true, &mut |x| out.push(x)),
+            ScanEnd::Complete { points: 1 }
+        );
+        let s = p.stats();
+        assert_eq!((s.scans_complete, s.scans_incomplete), (1, 3));
+        assert_eq!(s.points_discarded, 2 + 2 + 1);
+    }
+
+    #[test]
+    fn skipped_scans_cost_nothing_downstream() {
+        let config = PipelineConfig {
+            temporal: TemporalDecimation::EveryNth(2),
+            ..PipelineConfig::default()
+        };
+        let mut p = Pipeline::new(config).unwrap();
+        let mut n = 0;
+        let mut starts = Vec::new();
+        for _ in 0..4 {
+            starts.push(p.begin_scan(scan(0, 2)));
+            p.push_batch(&raw(0, &[Some(1); 3]), &mut |_| n += 1);
+            p.end_scan(true, &mut |_| n += 1);
+        }
+        assert_eq!(
+            starts,
+            [
+                ScanStart::Publish { points: 3 },
+                ScanStart::Skip,
+                ScanStart::Publish { points: 3 },
+                ScanStart::Skip
+            ]
+        );
+        assert_eq!(n, 6);
+        let s = p.stats();
+        assert_eq!((s.scans_skipped, s.points_ignored, s.points_in), (2, 6, 12));
+    }
+
+    #[test]
+    fn bad_geometry_and_points_outside_a_scan_are_ignored() {
+        let mut p = Pipeline::new(PipelineConfig::default()).unwrap();
+        let mut n = 0;
+        p.push(raw(0, &[Some(1)])[0], &mut |_| n += 1);
+        assert_eq!(p.begin_scan(scan(5, 4)), ScanStart::BadGeometry);
+        p.push(raw(5, &[Some(1)])[0], &mut |_| n += 1);
+        assert_eq!(p.end_scan(true, &mut |_| n += 1), ScanEnd::NotPublished);
+        assert_eq!(n, 0);
+        assert_eq!(p.stats().points_ignored, 2);
+        assert_eq!(p.stats().scans_bad_geometry, 1);
+        assert!(!p.is_publishing());
+    }
+
+    #[test]
+    fn new_settings_wait_for_the_next_scan() {
+        let mut p = Pipeline::new(PipelineConfig::default()).unwrap();
+        assert_eq!(p.begin_scan(scan(0, 3)), ScanStart::Publish { points: 4 });
+        let halve = PipelineConfig {
+            decimation: Some(Decimation {
+                factor: 2,
+                mode: DecimationMode::Min,
+            }),
+            ..PipelineConfig::default()
+        };
+        assert_eq!(
+            p.set_config(PipelineConfig {
+                roi: Some(StepWindow { first: 2, last: 1 }),
+                ..halve
+            }),
+            Err(ConfigError::RoiReversed)
+        );
+        assert_eq!(p.set_config(halve), Ok(()));
+        let mut out = Vec::new();
+        p.push_batch(&raw(0, &[Some(4), Some(3), Some(2), Some(1)]), &mut |x| {
+            out.push(x)
+        });
+        p.end_scan(true, &mut |x| out.push(x));
+        assert_eq!(out.len(), 4);
+        assert_eq!(p.config().decimation, None);
+        assert_eq!(p.begin_scan(scan(0, 3)), ScanStart::Publish { points: 2 });
+        assert_eq!(p.config(), &halve);
+    }
+
+    #[test]
+    fn invalid_settings_are_refused_at_construction() {
+        let bad = PipelineConfig {
+            decimation: Some(Decimation {
+                factor: 0,
+                mode: DecimationMode::Mean,
+            }),
+            ..PipelineConfig::default()
+        };
+        assert_eq!(
+            Pipeline::new(bad).map(|_| ()),
+            Err(ConfigError::DecimationFactorZero)
+        );
+    }
+
+    #[test]
+    fn the_pipeline_is_small() {
+        assert!(core::mem::size_of::<Pipeline>() <= 512);
+    }
+}
