@@ -413,7 +413,19 @@ impl Request {
     }
 
     /// Writes the command line (LF-terminated) into `out`; returns the bytes written.
+    /// Parameters a sensor would refuse are an error.
     pub fn encode(&self, out: &mut [u8]) -> Result<usize, EncodeError> {
+        self.write(out, true)
+    }
+
+    /// Writes the line as a sensor echoes it, LF-terminated: like [`Self::encode`] but
+    /// without refusing parameters, so that any parsed echo (e.g. a sensor's cluster
+    /// `00`) is written back byte for byte. Fields must still fit their digits.
+    pub fn encode_echo(&self, out: &mut [u8]) -> Result<usize, EncodeError> {
+        self.write(out, false)
+    }
+
+    fn write(&self, out: &mut [u8], validate: bool) -> Result<usize, EncodeError> {
         let mut w = Writer { out, pos: 0 };
         match self.command {
             Command::Scip20 => w.bytes(b"SCIP2.0")?,
@@ -427,14 +439,14 @@ impl Request {
             Command::State => w.bytes(b"%ST")?,
             Command::Sleep => w.bytes(b"%SL")?,
             Command::BitRate(rate) => {
-                if !BIT_RATES.contains(&rate) {
+                if validate && !BIT_RATES.contains(&rate) || rate > 999_999 {
                     return Err(EncodeError::BadBitRate);
                 }
                 w.bytes(b"SS")?;
                 w.digits(rate, 6)?;
             }
             Command::MotorSpeed(speed) => {
-                if speed > 10 && speed != 99 {
+                if validate && speed > 10 && speed != 99 || speed > 99 {
                     return Err(EncodeError::BadMotorSpeed);
                 }
                 w.bytes(b"CR")?;
@@ -450,7 +462,13 @@ impl Request {
             }
             Command::Sensitivity(on) => w.bytes(if on { b"HS1" } else { b"HS0" })?,
             Command::Scan(scan) => {
-                scan.validate()?;
+                if validate {
+                    scan.validate()?;
+                } else if scan.start > 9999 || scan.end > 9999 {
+                    return Err(EncodeError::StepOutOfRange);
+                } else if scan.cluster > 99 || scan.skip > 9 || scan.count > 99 {
+                    return Err(EncodeError::BadCount);
+                }
                 w.bytes(&scan.code())?;
                 w.digits(u32::from(scan.start), 4)?;
                 w.digits(u32::from(scan.end), 4)?;

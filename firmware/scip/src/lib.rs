@@ -7,6 +7,7 @@ pub mod command;
 pub mod decoder;
 pub mod error;
 pub mod info;
+pub mod response;
 pub mod status;
 pub mod sum;
 pub mod timestamp;
@@ -21,6 +22,7 @@ pub use decoder::{
 };
 pub use error::{Error, ErrorKind};
 pub use info::{ModelFamily, Param, Range, RangeError, RangeLimits, SensorParams};
+pub use response::ResponseWriter;
 pub use status::{Status, StatusKind};
 pub use sum::checksum;
 pub use timestamp::TimestampUnwrapper;
