@@ -1,0 +1,3 @@
+//! Integration tests of scip2can, one binary: each module is one topic.
+
+mod recordings;
