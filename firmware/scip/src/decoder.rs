@@ -363,10 +363,16 @@ impl Decoder {
     /// Tells the decoder the stream has ended: a response in progress is reported as
     /// [`ErrorKind::Truncated`]. The decoder is then idle again.
     pub fn finish(&mut self) -> Option<Event<'_>> {
-        let in_response = self.state != State::Idle || self.len > 0 || self.overflow;
+        let partial = self.len > 0 || self.overflow;
+        let in_response = self.state != State::Idle || partial;
         self.len = 0;
         self.overflow = false;
-        let line = self.line_no;
+        // The line cut short is the one after the last complete line.
+        let line = match self.state {
+            State::Idle => 0,
+            _ if partial => self.line_no.saturating_add(1),
+            _ => self.line_no,
+        };
         self.state = State::Idle;
         self.current_line = self.line_start;
         self.line_start = self.offset;

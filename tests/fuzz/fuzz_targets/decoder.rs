@@ -1,0 +1,128 @@
+//! Fuzzes the streaming response decoder: arbitrary bytes, fed whole, byte by byte and
+//! in a chunking derived from the first input byte, must never panic, must keep the
+//! response framing rules, and must give the same events and counters every way.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use scip::{Decoder, DecoderStats, ErrorKind, Event};
+
+/// Checks the event order rules while recording every event as text.
+#[derive(Default)]
+struct Checker {
+    log: Vec<String>,
+    /// A response started and has not ended (End or its first Error).
+    open: bool,
+    /// The open response already reported its first Error.
+    failed: bool,
+    /// Values (first echoes) and extra echoes published in the open response.
+    values: u32,
+    extra: u32,
+    /// Bytes consumed so far.
+    fed: u64,
+}
+
+impl Checker {
+    fn event(&mut self, ev: &Event<'_>) {
+        self.log.push(format!("{ev:?}"));
+        let live = self.open && !self.failed;
+        match ev {
+            Event::Start { .. } => {
+                assert!(!live, "Start while the previous response is still open");
+                self.open = true;
+                self.failed = false;
+                self.values = 0;
+                self.extra = 0;
+            }
+            Event::End(summary) => {
+                assert!(live, "End outside a live response");
+                self.open = false;
+                assert_eq!(u32::from(summary.values), self.values, "End values");
+                assert_eq!(u32::from(summary.extra_echoes), self.extra, "End echoes");
+            }
+            Event::Error(e) => {
+                assert!(e.offset <= self.fed, "error offset beyond the bytes fed");
+                if live {
+                    self.failed = true;
+                }
+            }
+            Event::Data(line) => {
+                assert!(live, "Data outside a live response (or after its Error)");
+                for r in line.readings {
+                    if r.echo == 0 {
+                        assert_eq!(u32::from(r.index), self.values, "value index");
+                        self.values += 1;
+                    } else {
+                        assert!(r.echo < 3, "echo number");
+                        assert_eq!(u32::from(r.index) + 1, self.values, "echo index");
+                        self.extra += 1;
+                    }
+                }
+            }
+            Event::Status(_)
+            | Event::Field(_)
+            | Event::Timestamp(_)
+            | Event::Payload(_) => {
+                assert!(live, "payload event outside a live response");
+            }
+        }
+    }
+}
+
+/// Feeds `stream` in pieces of the sizes `sizes` yields (the last piece takes the rest),
+/// then finishes; returns the events as text and the counters.
+fn run(stream: &[u8], mut sizes: impl FnMut() -> usize) -> (Vec<String>, DecoderStats) {
+    let mut dec = Decoder::new();
+    let mut ck = Checker::default();
+    let mut rest = stream;
+    while !rest.is_empty() {
+        let n = sizes().clamp(1, rest.len());
+        let (mut chunk, tail) = rest.split_at(n);
+        rest = tail;
+        while !chunk.is_empty() {
+            let (used, ev) = dec.feed(chunk);
+            assert!(used >= 1, "feed made no progress");
+            assert!(used <= chunk.len(), "feed consumed more than it got");
+            ck.fed += used as u64;
+            if let Some(ev) = ev {
+                ck.event(&ev);
+            }
+            chunk = &chunk[used..];
+        }
+    }
+    let live = ck.open && !ck.failed;
+    match dec.finish() {
+        Some(ev) => {
+            assert!(matches!(ev, Event::Error(e) if e.kind == ErrorKind::Truncated));
+            ck.event(&ev);
+        }
+        None => assert!(!live, "finish left a response open"),
+    }
+    assert!(dec.is_idle(), "not idle after finish");
+    let stats = *dec.stats();
+    assert_eq!(stats.bytes, stream.len() as u64);
+    (ck.log, stats)
+}
+
+fuzz_target!(|data: &[u8]| {
+    let Some((&sel, stream)) = data.split_first() else {
+        return;
+    };
+    let whole = run(stream, || usize::MAX);
+    let bytewise = run(stream, || 1);
+    assert_eq!(whole, bytewise, "byte-by-byte feeding differs from one-shot");
+    let chunked = if sel < 0x80 {
+        // Fixed chunks of 1..=128 bytes.
+        let size = usize::from(sel) + 1;
+        run(stream, || size)
+    } else {
+        // Varying chunks of 1..=80 bytes from a small xorshift sequence.
+        let mut x = u32::from(sel) | 0x9E37_7900;
+        run(stream, || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            (x % 80) as usize + 1
+        })
+    };
+    assert_eq!(whole, chunked, "chunked feeding (selector {sel}) differs from one-shot");
+});
