@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
-use scip::{Decoder, Event};
+use scip::Decoder;
 use scip2can_tests::{recordings_or_skip, sensor_streams};
 
 fn golden_dir() -> PathBuf {
@@ -32,7 +32,10 @@ fn every_recording_matches_its_golden_file() {
         return;
     };
     let streams = sensor_streams(&dir);
-    assert!(streams.len() >= 6, "expected the 6 sensor streams, found {streams:?}");
+    assert!(
+        streams.len() >= 6,
+        "expected the 6 sensor streams, found {streams:?}"
+    );
     let bless = std::env::var("BLESS").is_ok_and(|v| v == "1");
     let mut mismatches = Vec::new();
     for stream in &streams {
@@ -48,7 +51,10 @@ fn every_recording_matches_its_golden_file() {
             mismatches.push(golden.display().to_string());
         }
     }
-    assert!(mismatches.is_empty(), "output differs from {mismatches:?}; re-bless with BLESS=1 if intended");
+    assert!(
+        mismatches.is_empty(),
+        "output differs from {mismatches:?}; re-bless with BLESS=1 if intended"
+    );
 }
 
 /// Every event of a stream, as owned text, fed in the given chunk sizes (cycled).
@@ -58,7 +64,11 @@ fn events(bytes: &[u8], chunks: &[usize]) -> Vec<String> {
     let mut rest = bytes;
     let mut i = 0;
     while !rest.is_empty() {
-        let n = chunks.get(i % chunks.len().max(1)).copied().unwrap_or(1).clamp(1, rest.len());
+        let n = chunks
+            .get(i % chunks.len().max(1))
+            .copied()
+            .unwrap_or(1)
+            .clamp(1, rest.len());
         i += 1;
         let mut chunk = &rest[..n];
         rest = &rest[n..];
@@ -157,7 +167,10 @@ fn recordings_decode_with_the_values_the_sensors_sent() {
     let tag = scip2can_host::parse::parse_bytes(&read("snark_gd_0000_0010_tag.scip"));
     assert_eq!(tag.len(), 1);
     assert_eq!(tag[0].command.as_deref(), Some("GD0000001000;GD00000999"));
-    assert_eq!(tag[0].distances, [387, 410, 431, 452, 454, 449, 441, 441, 441, 453, 448]);
+    assert_eq!(
+        tag[0].distances,
+        [387, 410, 431, 452, 454, 449, 441, 441, 441, 453, 448]
+    );
 }
 
 /// Lines of a file whose sum char does not match, by an oracle independent of the
@@ -191,7 +204,11 @@ fn the_corrupted_recording_reports_every_bad_line() {
     };
     let bytes = std::fs::read(dir.join("eeros_md_0046_0600.scip")).expect("read");
     let expected_lines = bad_lines(&bytes);
-    assert_eq!(expected_lines.len(), 5, "the README says 5 of 30 lines fail");
+    assert_eq!(
+        expected_lines.len(),
+        5,
+        "the README says 5 of 30 lines fail"
+    );
 
     let out = scip2can_host::parse::parse_bytes(&bytes);
     assert_eq!(out.len(), 2);
@@ -207,9 +224,17 @@ fn the_corrupted_recording_reports_every_bad_line() {
         .iter()
         .filter_map(|e| Some((e.get("kind")?.as_str()?, e.get("line")?.as_u64()?)))
         .collect();
-    let mut want: Vec<(&str, u64)> = expected_lines.iter().map(|&l| ("bad_sum", l as u64)).collect();
+    let mut want: Vec<(&str, u64)> = expected_lines
+        .iter()
+        .map(|&l| ("bad_sum", l as u64))
+        .collect();
     // The capture ends inside the frame's last line (no LF): that line is cut short.
-    let last_line = bytes.split(|&b| b == b'\n').rev().take_while(|l| !l.is_empty()).count() - 1;
+    let last_line = bytes
+        .split(|&b| b == b'\n')
+        .rev()
+        .take_while(|l| !l.is_empty())
+        .count()
+        - 1;
     want.push(("truncated", last_line as u64));
     assert_eq!(kinds, want);
     // Nothing after the first bad line is published: the values decoded before it are
