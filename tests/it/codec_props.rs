@@ -151,12 +151,15 @@ fn write(scans: &[Scan]) -> Vec<u8> {
     out
 }
 
+/// A decoded response: its request, timestamp and per-step echoes.
+type Decoded = (Request, u32, Vec<Vec<(u32, u32)>>);
+
 /// Decodes a stream fed in `chunk`-byte pieces into (request, timestamp, steps) per
 /// intact response; any error fails.
-fn read(bytes: &[u8], chunk: usize) -> Result<Vec<(Request, u32, Vec<Vec<(u32, u32)>>)>, String> {
+fn read(bytes: &[u8], chunk: usize) -> Result<Vec<Decoded>, String> {
     let mut dec = Decoder::new();
     let mut out = Vec::new();
-    let mut cur: Option<(Request, u32, Vec<Vec<(u32, u32)>>)> = None;
+    let mut cur: Option<Decoded> = None;
     for piece in bytes.chunks(chunk.max(1)) {
         let mut rest = piece;
         while !rest.is_empty() {
