@@ -269,7 +269,8 @@ impl Board {
 /// receive interrupt and SysTick. `ready` is checked with interrupts masked
 /// so that a wake-up between the check and the WFI cannot be missed.
 pub fn sleep_until(mut ready: impl FnMut() -> bool) {
-    if cortex_m::register::primask::read().is_active() {
+    // `is_inactive`: PRIMASK is set, configurable-priority interrupts are off.
+    if cortex_m::register::primask::read().is_inactive() {
         // Called with interrupts already masked (from a critical section):
         // never unmask them here, just poll.
         while !ready() {

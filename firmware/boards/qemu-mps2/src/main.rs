@@ -1,8 +1,8 @@
 //! scip2can firmware for QEMU's `mps2-an386` machine.
 //!
 //! UART0 is the sensor port, UART1 the output port. This first version
-//! decodes the SCIP stream arriving on UART0 and prints one summary line per
-//! response on UART1. A byte 0x04 (EOT, never part of SCIP) on UART0 ends
+//! feeds the SCIP stream arriving on UART0 to the `scip` streaming decoder
+//! and prints one summary line per response (and one per error) on UART1. A byte 0x04 (EOT, never part of SCIP) on UART0 ends
 //! the program (see README.md).
 
 #![no_std]
@@ -10,6 +10,7 @@
 #![deny(unsafe_code)]
 
 mod hw;
+mod summary;
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
@@ -61,13 +62,16 @@ fn main() -> ! {
         let _ = write!(port, "{BANNER}\r\n");
     }
 
-    let mut stats = Stats::default();
+    let mut decoder = scip::Decoder::new();
+    let mut summary = summary::Summariser::new();
+    let mut overruns: u32 = 0;
     let mut buf = [0u8; 64];
     loop {
         let n = match sensor.read(&mut buf) {
             Ok(n) => n,
-            Err(_) => {
-                stats.overruns += 1;
+            Err(hw::UartError::Overrun) => {
+                // A lost byte shows up as a bad line in the decoder too.
+                overruns = overruns.wrapping_add(1);
                 continue;
             }
         };
@@ -76,28 +80,32 @@ fn main() -> ! {
             Some(i) => (chunk.get(..i).unwrap_or_default(), true),
             None => (chunk, false),
         };
-        stats.bytes += data.len() as u32;
-        for &b in data {
-            if b == b'\n' {
-                if stats.line_len == 0 {
-                    stats.responses += 1;
-                    let _ = write!(output, "resp lines={}\r\n", stats.lines);
-                    stats.lines = 0;
-                } else {
-                    stats.lines += 1;
-                }
-                stats.line_len = 0;
-            } else {
-                stats.line_len += 1;
+        let mut rest = data;
+        while !rest.is_empty() {
+            let (used, ev) = decoder.feed(rest);
+            if let Some(ev) = ev {
+                summary.event(&ev, &mut output);
+            }
+            // `feed` consumes at least one byte of non-empty input; the
+            // guard keeps the loop bounded whatever it returns.
+            match rest.get(used..) {
+                Some(r) if used > 0 => rest = r,
+                _ => break,
             }
         }
         if eot {
+            if let Some(ev) = decoder.finish() {
+                summary.event(&ev, &mut output);
+            }
+            let st = decoder.stats();
             let _ = write!(
                 output,
-                "end bytes={} responses={} overruns={} uptime_ms={}\r\n",
-                stats.bytes,
-                stats.responses,
-                stats.overruns,
+                "end bytes={} responses={} errors={} resyncs={} overruns={} uptime_ms={}\r\n",
+                st.bytes,
+                st.responses,
+                st.errors,
+                st.resyncs,
+                overruns,
                 now_ms()
             );
             let _ = output.flush();
@@ -111,12 +119,3 @@ const BANNER: &str = concat!(
     env!("CARGO_PKG_VERSION"),
     " mps2-an386: UART0=sensor UART1=output, EOT on UART0 exits"
 );
-
-#[derive(Default)]
-struct Stats {
-    bytes: u32,
-    responses: u32,
-    overruns: u32,
-    lines: u32,
-    line_len: u32,
-}
