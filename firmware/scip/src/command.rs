@@ -504,6 +504,58 @@ impl Request {
     }
 }
 
+/// A command line split into its parts without judging them: what a sensor looks at
+/// to choose the status of a malformed command (scip-reference §4: `01`..`07` for bad
+/// numeric fields, `0C` for missing parameters, `0E` unknown command, `0G` tag too long,
+/// `0H` bad tag chars).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RawRequest<'a> {
+    /// The command code: `SCIP2.0`, `%ST`/`%SL` and other `%`-commands whole (3 chars),
+    /// otherwise the first two chars (fewer when the line is shorter).
+    pub code: &'a [u8],
+    /// What follows the code up to `;` or the end of the line.
+    pub params: &'a [u8],
+    /// The text after the first `;`, `None` when there is no `;`.
+    pub tag: Option<&'a [u8]>,
+}
+
+impl<'a> RawRequest<'a> {
+    /// Splits a command line (without its line end). Never fails.
+    pub fn split(line: &'a [u8]) -> Self {
+        let (body, tag) = match line.iter().position(|&c| c == b';') {
+            Some(i) => (
+                line.get(..i).unwrap_or(&[]),
+                Some(line.get(i + 1..).unwrap_or(&[])),
+            ),
+            None => (line, None),
+        };
+        let code_len = if body.starts_with(b"SCIP") {
+            body.len()
+        } else if body.first() == Some(&b'%') {
+            3
+        } else {
+            2
+        };
+        let code_len = code_len.min(body.len());
+        Self {
+            code: body.get(..code_len).unwrap_or(&[]),
+            params: body.get(code_len..).unwrap_or(&[]),
+            tag,
+        }
+    }
+
+    /// Checks the tag as a sensor does: `Err(TagTooLong)` above [`TAG_MAX`] chars,
+    /// `Err(BadTagChar)` for a char outside printable ASCII.
+    pub fn check_tag(&self) -> Result<Tag, EncodeError> {
+        Tag::new(self.tag.unwrap_or(&[]))
+    }
+
+    /// The decimal value of `params[range]`, `None` when it is missing or not all digits.
+    pub fn decimal_field(&self, range: core::ops::Range<usize>) -> Option<u32> {
+        self.params.get(range).and_then(decimal)
+    }
+}
+
 /// Parses `n` decimal digits.
 fn decimal(digits: &[u8]) -> Option<u32> {
     if digits.is_empty() {
@@ -753,6 +805,36 @@ mod tests {
             Request::new(Command::Version).encode(&mut [0u8; 2]),
             Err(EncodeError::BufferTooSmall)
         );
+    }
+
+    #[test]
+    fn raw_split() {
+        let r = RawRequest::split(b"GD004407250A;tag");
+        assert_eq!(
+            (r.code, r.params, r.tag),
+            (&b"GD"[..], &b"004407250A"[..], Some(&b"tag"[..]))
+        );
+        assert_eq!(r.decimal_field(0..4), Some(44));
+        assert_eq!(r.decimal_field(8..10), None);
+        assert_eq!(r.decimal_field(8..12), None);
+        assert_eq!(r.check_tag().unwrap().as_bytes(), b"tag");
+        let r = RawRequest::split(b"SCIP2.0");
+        assert_eq!((r.code, r.params, r.tag), (&b"SCIP2.0"[..], &b""[..], None));
+        let r = RawRequest::split(b"%ST;");
+        assert_eq!(
+            (r.code, r.params, r.tag),
+            (&b"%ST"[..], &b""[..], Some(&b""[..]))
+        );
+        let r = RawRequest::split(b"V");
+        assert_eq!((r.code, r.params), (&b"V"[..], &b""[..]));
+        let r = RawRequest::split(b"");
+        assert_eq!((r.code, r.params, r.tag), (&b""[..], &b""[..], None));
+        let r = RawRequest::split(b"VV;12345678901234567");
+        assert_eq!(r.check_tag(), Err(EncodeError::TagTooLong));
+        let r = RawRequest::split(b"VV;a\x01");
+        assert_eq!(r.check_tag(), Err(EncodeError::BadTagChar));
+        let r = RawRequest::split(b"VV;a;b");
+        assert_eq!(r.tag, Some(&b"a;b"[..]));
     }
 
     #[test]

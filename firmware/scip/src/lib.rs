@@ -14,8 +14,8 @@ pub mod timestamp;
 pub mod value;
 
 pub use command::{
-    Command, DataSet, EchoError, EncodeError, Request, ScanMode, ScanRequest, Tag, TimeMode,
-    BIT_RATES, REQUEST_MAX, TAG_MAX,
+    Command, DataSet, EchoError, EncodeError, RawRequest, Request, ScanMode, ScanRequest, Tag,
+    TimeMode, BIT_RATES, REQUEST_MAX, TAG_MAX,
 };
 pub use decoder::{
     DataLine, Decoder, DecoderStats, Event, Field, Reading, Summary, LINE_CAP, MAX_READINGS,
