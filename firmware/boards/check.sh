@@ -1,0 +1,78 @@
+#!/usr/bin/env bash
+# Checks of the board workspace, for people and CI alike:
+#   format, clippy (-D warnings), release build, ELF size, and, with qemu-system-arm,
+#   the QEMU board: it must boot and print its banner, and every sensor recording fed
+#   into its UART0 must give exactly the golden output in qemu-mps2/expected/.
+# BLESS=1 rewrites the golden files. Under CI=true a missing qemu-system-arm or a
+# missing recordings folder fails; otherwise those steps are skipped with a note.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+ci=${CI:-false}
+skip_or_fail() {
+    if [ "$ci" = true ]; then
+        echo "FAIL: $1" >&2
+        exit 1
+    fi
+    echo "skipped: $1"
+}
+
+cargo fmt -p scip2can-qemu -- --check
+cargo clippy --release --all-targets -- -D warnings
+cargo build --release
+
+target_dir=${CARGO_TARGET_DIR:-target}
+elf=$target_dir/thumbv7em-none-eabihf/release/scip2can-qemu
+
+size_tool=$(command -v llvm-size || command -v rust-size || command -v arm-none-eabi-size || true)
+if [ -n "$size_tool" ]; then
+    "$size_tool" "$elf"
+else
+    echo "no llvm-size / rust-size / arm-none-eabi-size: size not shown"
+fi
+
+if ! command -v qemu-system-arm > /dev/null; then
+    skip_or_fail "qemu-system-arm not installed (apt-get install qemu-system-arm)"
+    exit 0
+fi
+
+# Boot: the banner must appear on UART0 (stdio); the EOT behind it ends the run.
+boot=$(printf '\004' | timeout 30 qemu-system-arm -machine mps2-an386 -display none \
+    -no-reboot -serial stdio -serial null -kernel "$elf" | tr -d '\r')
+case "$boot" in
+    scip2can-qemu*) echo "boot ok: $boot" ;;
+    *) echo "FAIL: no banner on UART0 (got: $boot)" >&2; exit 1 ;;
+esac
+
+recordings=../../../shared/recordings
+if [ ! -d "$recordings" ]; then
+    skip_or_fail "recordings folder ../shared/recordings (from the repo root) is missing"
+    exit 0
+fi
+
+mkdir -p qemu-mps2/expected
+passed=0
+failed=0
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+for rec in "$recordings"/*.scip; do
+    name=$(basename "$rec" .scip)
+    case "$name" in *.tx) continue ;; esac # host-to-sensor commands, not a reply stream
+    # UART0 <- the recording + EOT; UART1 -> file. uptime_ms varies from run to run.
+    (cat "$rec"; printf '\004') | timeout 60 qemu-system-arm -machine mps2-an386 \
+        -display none -no-reboot -serial stdio -serial "file:$tmp/uart1" \
+        -kernel "$elf" > /dev/null
+    tr -d '\r' < "$tmp/uart1" | sed 's/ uptime_ms=[0-9]*$//' > "$tmp/$name.out"
+    golden=qemu-mps2/expected/$name.out
+    if [ "${BLESS:-0}" = 1 ]; then
+        cp "$tmp/$name.out" "$golden"
+        echo "blessed $golden"
+    elif diff -u "$golden" "$tmp/$name.out"; then
+        passed=$((passed + 1))
+    else
+        echo "FAIL: $name differs from $golden" >&2
+        failed=$((failed + 1))
+    fi
+done
+echo "qemu-mps2: $passed passed, $failed failed"
+[ "$failed" = 0 ]
