@@ -1,4 +1,31 @@
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
-//! Placeholder.
+#![doc = include_str!("../README.md")]
+
+pub mod abort;
+pub mod bandwidth;
+pub mod control;
+pub mod crc;
+pub mod data;
+pub mod encoder;
+pub mod encoding;
+mod error;
+pub mod frame;
+pub mod header;
+pub mod id;
+pub mod reassembly;
+pub mod status;
+pub mod trailer;
+
+pub use abort::{Abort, AbortReason};
+pub use control::{Answer, Command, Control, DecimationMode, MedianWindow, Outcome};
+pub use encoder::{Emitted, FrameFormat, ScanEncoder};
+pub use encoding::{Distance, DistanceEncoding, Encoding, IntensityEncoding};
+pub use error::Error;
+pub use frame::Frame;
+pub use header::{Grouping, ScanHeader, MAX_POINTS};
+pub use id::{IdWindow, Kind, NodeIds};
+pub use reassembly::{Completeness, Decoder, Event, LossStats, Point, Scan};
+pub use status::{BridgeState, BusState, SensorModel, Status};
+pub use trailer::{Trailer, TrailerFlags};

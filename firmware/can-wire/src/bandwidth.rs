@@ -1,0 +1,213 @@
+//! Worst-case bus time of frames and scans (SPEC section 8).
+
+use crate::data::data_frame_len;
+use crate::encoder::FrameFormat;
+use crate::encoding::Encoding;
+use crate::header::HEADER_LEN;
+use crate::trailer::TRAILER_LEN;
+
+/// Bit rates: nominal (arbitration) and data phase, bit/s. Classic CAN uses `nominal`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BitRates {
+    /// Arbitration (and classic CAN) bit rate.
+    pub nominal: u32,
+    /// CAN FD data phase bit rate.
+    pub data: u32,
+}
+
+impl BitRates {
+    /// Classic CAN at 1 Mbit/s.
+    pub const CLASSIC_1M: BitRates = BitRates {
+        nominal: 1_000_000,
+        data: 1_000_000,
+    };
+    /// CAN FD, 1 Mbit/s arbitration, 2 Mbit/s data.
+    pub const FD_1M_2M: BitRates = BitRates {
+        nominal: 1_000_000,
+        data: 2_000_000,
+    };
+    /// CAN FD, 1 Mbit/s arbitration, 5 Mbit/s data.
+    pub const FD_1M_5M: BitRates = BitRates {
+        nominal: 1_000_000,
+        data: 5_000_000,
+    };
+}
+
+/// Worst-case bits of one frame, split by phase.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FrameBits {
+    /// Bits at the nominal rate (all of a classic frame), incl. interframe space.
+    pub nominal: u32,
+    /// Bits at the data rate (CAN FD with bit rate switch; 0 for classic).
+    pub data: u32,
+}
+
+impl FrameBits {
+    /// Time on the bus in nanoseconds at `rates`.
+    pub fn time_ns(&self, rates: BitRates) -> u64 {
+        let ns = |bits: u32, rate: u32| {
+            (u64::from(bits) * 1_000_000_000).div_ceil(u64::from(rate.max(1)))
+        };
+        ns(self.nominal, rates.nominal)
+            + if self.data > 0 {
+                ns(self.data, rates.data)
+            } else {
+                0
+            }
+    }
+}
+
+/// Worst-case bits of a classic CAN frame with `len` (0..=8) data bytes:
+/// `g + 8n + 13 + floor((g + 8n - 1) / 4)`, `g` = 34 (11-bit ID) or 54 (29-bit ID).
+pub const fn classic_frame_bits(len: usize, extended: bool) -> FrameBits {
+    let g = if extended { 54 } else { 34 };
+    let body = g + 8 * len as u32;
+    FrameBits {
+        nominal: body + 13 + (body - 1) / 4,
+        data: 0,
+    }
+}
+
+/// Worst-case bits of a CAN FD frame with bit rate switching and `len` data bytes (a
+/// valid FD length), see SPEC section 8.
+pub const fn fd_frame_bits(len: usize, extended: bool) -> FrameBits {
+    let a: u32 = if extended { 36 } else { 17 };
+    let n = len as u32;
+    let crc = if len <= 16 { 17 } else { 21 };
+    let arb_stuff = (a - 1) / 4;
+    let total_stuff = (a + 4 + 8 * n) / 4;
+    FrameBits {
+        nominal: a + 13 + arb_stuff,
+        data: 5 + 8 * n + (total_stuff - arb_stuff) + 4 + crc + (4 + crc).div_ceil(4),
+    }
+}
+
+/// Worst-case bits of a frame of `len` bytes in `format`.
+pub const fn frame_bits(len: usize, fd: bool, extended: bool) -> FrameBits {
+    if fd {
+        fd_frame_bits(len, extended)
+    } else {
+        classic_frame_bits(len, extended)
+    }
+}
+
+/// What one scan costs on the bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ScanCost {
+    /// Bits per point (distance + intensity).
+    pub bits_per_point: u32,
+    /// Points in a full data frame.
+    pub points_per_frame: u32,
+    /// Data frames per scan.
+    pub data_frames: u32,
+    /// All frames per scan (2 headers + data + trailer).
+    pub frames: u32,
+    /// Worst-case bits per scan at the nominal rate.
+    pub nominal_bits: u32,
+    /// Worst-case bits per scan at the data rate.
+    pub data_bits: u32,
+    /// Worst-case time per scan, ns.
+    pub time_ns: u64,
+}
+
+impl ScanCost {
+    /// Bus load in parts per million at `scans_per_s_milli` / 1000 scans per second.
+    pub fn load_ppm(&self, scans_per_s_milli: u32) -> u64 {
+        // time_ns * rate / 1e9 * 1e6 = time_ns * rate_milli / 1e6
+        (self.time_ns * u64::from(scans_per_s_milli)).div_ceil(1_000_000)
+    }
+}
+
+/// Worst-case cost of a scan of `points` points in `encoding`, sent in `format`.
+pub fn scan_cost(
+    points: u16,
+    encoding: &Encoding,
+    format: FrameFormat,
+    extended: bool,
+    rates: BitRates,
+) -> ScanCost {
+    let fd = format.is_fd();
+    let max_len = format.max_len();
+    let per_frame = encoding.capacity(max_len).max(1);
+    let points = usize::from(points);
+    let full = points / per_frame;
+    let rest = points % per_frame;
+    let mut nominal = 0u32;
+    let mut data = 0u32;
+    let mut add = |len: usize, count: u32| {
+        let b = frame_bits(len, fd, extended);
+        nominal += b.nominal * count;
+        data += b.data * count;
+    };
+    add(HEADER_LEN, 2);
+    add(TRAILER_LEN, 1);
+    let full_len = data_frame_len(encoding, per_frame).unwrap_or(max_len);
+    add(full_len, full as u32);
+    if rest > 0 {
+        add(data_frame_len(encoding, rest).unwrap_or(max_len), 1);
+    }
+    let data_frames = (full + usize::from(rest > 0)) as u32;
+    let bits = FrameBits { nominal, data };
+    ScanCost {
+        bits_per_point: encoding.bits_per_point(),
+        points_per_frame: per_frame as u32,
+        data_frames,
+        frames: data_frames + 3,
+        nominal_bits: nominal,
+        data_bits: data,
+        time_ns: bits.time_ns(rates),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::encoding::{DistanceEncoding, IntensityEncoding};
+
+    #[test]
+    fn classic_frame() {
+        assert_eq!(classic_frame_bits(8, false).nominal, 135);
+        assert_eq!(classic_frame_bits(0, false).nominal, 34 + 13 + 8);
+        assert_eq!(classic_frame_bits(8, true).nominal, 160);
+        assert_eq!(
+            classic_frame_bits(8, false).time_ns(BitRates::CLASSIC_1M),
+            135_000
+        );
+    }
+
+    #[test]
+    fn fd_frame() {
+        let b = fd_frame_bits(64, false);
+        assert_eq!(
+            b,
+            FrameBits {
+                nominal: 34,
+                data: 678
+            }
+        );
+        assert_eq!(b.time_ns(BitRates::FD_1M_5M), 34_000 + 135_600);
+        assert_eq!(b.time_ns(BitRates::FD_1M_2M), 34_000 + 339_000);
+        // 8 bytes, CRC-17: 5 + 64 + (floor(85/4) - 4) + 4 + 17 + 6
+        assert_eq!(fd_frame_bits(8, false).data, 5 + 64 + 17 + 4 + 17 + 6);
+    }
+
+    #[test]
+    fn scan_costs() {
+        let d12 = Encoding {
+            distance: DistanceEncoding::D12,
+            intensity: IntensityEncoding::None,
+            unit_exp: 1,
+        };
+        let c = scan_cost(682, &d12, FrameFormat::Classic, false, BitRates::CLASSIC_1M);
+        // 170 full frames of 4 points + 1 frame of 2 points (5 bytes).
+        assert_eq!((c.points_per_frame, c.data_frames, c.frames), (4, 171, 174));
+        let last = classic_frame_bits(5, false).nominal;
+        assert_eq!(c.nominal_bits, 173 * 135 + last);
+        assert_eq!(c.data_bits, 0);
+        assert_eq!(c.time_ns, u64::from(c.nominal_bits) * 1000);
+        assert_eq!(c.load_ppm(10_000), u64::from(c.nominal_bits) * 10);
+    }
+}

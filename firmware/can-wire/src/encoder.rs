@@ -1,0 +1,367 @@
+//! The streaming scan encoder: header frames, then one data frame whenever one is full,
+//! then the trailer (SPEC section 2). It holds one data frame, never a scan.
+
+use crate::abort::{Abort, AbortReason};
+use crate::crc::ScanCrc;
+use crate::data::{data_frame_len, DataHeader, DATA_HEADER_LEN};
+use crate::encoding::{BitWriter, Distance};
+use crate::frame::{is_valid_len, Frame, CLASSIC_LEN, MAX_LEN};
+use crate::header::{put, ScanHeader};
+use crate::id::{Kind, NodeIds};
+use crate::trailer::{Trailer, TrailerFlags};
+use crate::Error;
+
+/// Classic CAN or CAN FD, and the data frame size.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FrameFormat {
+    /// Classic CAN: 8-byte data frames.
+    Classic,
+    /// CAN FD: data frames up to `max_len` bytes (12, 16, 20, 24, 32, 48 or 64).
+    Fd {
+        /// Full data frame length.
+        max_len: u8,
+    },
+}
+
+impl FrameFormat {
+    /// CAN FD with 64-byte frames.
+    pub const FD64: FrameFormat = FrameFormat::Fd { max_len: 64 };
+
+    /// Check that an FD length is a valid FD length above 8.
+    pub fn validate(&self) -> Result<(), Error> {
+        match *self {
+            FrameFormat::Classic => Ok(()),
+            FrameFormat::Fd { max_len } if max_len > 8 && is_valid_len(usize::from(max_len)) => {
+                Ok(())
+            }
+            FrameFormat::Fd { .. } => Err(Error::FrameTooLong),
+        }
+    }
+
+    /// Length of a full data frame.
+    pub fn max_len(&self) -> usize {
+        match *self {
+            FrameFormat::Classic => CLASSIC_LEN,
+            FrameFormat::Fd { max_len } => usize::from(max_len).min(MAX_LEN),
+        }
+    }
+
+    /// Whether frames are sent as CAN FD frames.
+    pub fn is_fd(&self) -> bool {
+        matches!(self, FrameFormat::Fd { .. })
+    }
+}
+
+/// Frames returned by [`ScanEncoder::finish`]: at most a last data frame and the trailer,
+/// in transmit order.
+pub type Emitted = heapless::Vec<Frame, 2>;
+
+#[derive(Debug, Clone)]
+struct InProgress {
+    header: ScanHeader,
+    crc: ScanCrc,
+    /// Points pushed so far.
+    pushed: u16,
+    /// Points in data frames already returned.
+    sent: u16,
+    /// Valid distance codes pushed so far.
+    valid: u16,
+    /// Points in `buf`.
+    buffered: u16,
+    buf: [u8; MAX_LEN],
+    bit: usize,
+}
+
+/// Turns a scan, point by point, into frames (see the crate docs for an example).
+#[derive(Debug, Clone)]
+pub struct ScanEncoder {
+    ids: NodeIds,
+    format: FrameFormat,
+    scan: Option<InProgress>,
+}
+
+impl ScanEncoder {
+    /// An encoder for bridge `ids` sending `format` frames.
+    pub fn new(ids: NodeIds, format: FrameFormat) -> Result<ScanEncoder, Error> {
+        format.validate()?;
+        Ok(ScanEncoder {
+            ids,
+            format,
+            scan: None,
+        })
+    }
+
+    /// Change the frame format (between scans only).
+    pub fn set_format(&mut self, format: FrameFormat) -> Result<(), Error> {
+        if self.scan.is_some() {
+            return Err(Error::ScanInProgress);
+        }
+        format.validate()?;
+        self.format = format;
+        Ok(())
+    }
+
+    /// The frame format.
+    pub fn format(&self) -> FrameFormat {
+        self.format
+    }
+
+    /// Whether a scan is in progress.
+    pub fn in_progress(&self) -> bool {
+        self.scan.is_some()
+    }
+
+    fn frame(&self, kind: Kind, data: &[u8]) -> Result<Frame, Error> {
+        Frame::new(self.ids.id(kind), data, self.format.is_fd())
+    }
+
+    /// Start a scan: returns header A and header B, to be sent in that order.
+    pub fn begin(&mut self, header: &ScanHeader) -> Result<[Frame; 2], Error> {
+        if self.scan.is_some() {
+            return Err(Error::ScanInProgress);
+        }
+        let a = header.emit_a()?;
+        let b = header.emit_b()?;
+        let frames = [
+            self.frame(Kind::HeaderA, &a)?,
+            self.frame(Kind::HeaderB, &b)?,
+        ];
+        self.scan = Some(InProgress {
+            header: *header,
+            crc: ScanCrc::new(&a, &b),
+            pushed: 0,
+            sent: 0,
+            valid: 0,
+            buffered: 0,
+            buf: [0; MAX_LEN],
+            bit: DATA_HEADER_LEN * 8,
+        });
+        Ok(frames)
+    }
+
+    /// Add the next point. Returns a data frame when one is full or the point was the
+    /// scan's last.
+    pub fn push_point(
+        &mut self,
+        distance: Distance,
+        intensity: u16,
+    ) -> Result<Option<Frame>, Error> {
+        let capacity = {
+            let s = self.scan.as_ref().ok_or(Error::NoScan)?;
+            s.header.encoding.capacity(self.format.max_len())
+        };
+        let s = self.scan.as_mut().ok_or(Error::NoScan)?;
+        if s.pushed >= s.header.point_count {
+            return Err(Error::TooManyPoints);
+        }
+        let enc = s.header.encoding;
+        let dc = enc.encode_distance(distance);
+        let ic = enc.intensity.encode(intensity);
+        let mut w = BitWriter::new(&mut s.buf, s.bit);
+        w.write(dc, enc.distance.bits());
+        w.write(ic, enc.intensity.bits());
+        s.bit = w.position();
+        s.crc.point(dc, enc.intensity.is_present().then_some(ic));
+        if enc.is_valid_code(dc) {
+            s.valid += 1;
+        }
+        s.pushed += 1;
+        s.buffered += 1;
+        if usize::from(s.buffered) >= capacity || s.pushed == s.header.point_count {
+            self.flush().map(Some)
+        } else {
+            Ok(None)
+        }
+    }
+
+    /// Turn the buffered points into a data frame.
+    fn flush(&mut self) -> Result<Frame, Error> {
+        let s = self.scan.as_mut().ok_or(Error::NoScan)?;
+        let len = data_frame_len(&s.header.encoding, usize::from(s.buffered))
+            .ok_or(Error::FrameTooLong)?;
+        let dh = DataHeader {
+            first_index: s.sent,
+            seq_low: (s.header.seq & 0xF) as u8,
+        };
+        put(&mut s.buf, 0..DATA_HEADER_LEN, &dh.emit());
+        let data = s.buf;
+        s.sent += s.buffered;
+        s.buffered = 0;
+        s.buf = [0; MAX_LEN];
+        s.bit = DATA_HEADER_LEN * 8;
+        self.frame(Kind::Data, data.get(..len).ok_or(Error::FrameTooLong)?)
+    }
+
+    /// End the scan: returns the last data frame if points are still buffered (only when
+    /// the scan is truncated) and the trailer. `flags.truncated` is set from the counts.
+    pub fn finish(&mut self, flags: TrailerFlags) -> Result<Emitted, Error> {
+        let mut out = Emitted::new();
+        let buffered = self.scan.as_ref().ok_or(Error::NoScan)?.buffered;
+        if buffered > 0 {
+            let f = self.flush()?;
+            out.push(f).map_err(|_| Error::FrameTooLong)?;
+        }
+        let s = self.scan.take().ok_or(Error::NoScan)?;
+        let mut t = Trailer {
+            seq: s.header.seq,
+            points_sent: s.sent,
+            points_valid: s.valid,
+            flags: TrailerFlags {
+                truncated: s.sent < s.header.point_count,
+                ..flags
+            },
+            crc: 0,
+        };
+        t.crc = s.crc.finish(&t.emit_head()?);
+        let f = self.frame(Kind::Trailer, &t.emit()?)?;
+        out.push(f).map_err(|_| Error::FrameTooLong)?;
+        Ok(out)
+    }
+
+    /// Abandon the scan: buffered points are dropped; returns the abort frame.
+    pub fn abort(&mut self, reason: AbortReason, detail: u8) -> Result<Frame, Error> {
+        let s = self.scan.take().ok_or(Error::NoScan)?;
+        let a = Abort {
+            seq: s.header.seq,
+            reason,
+            detail,
+            points_sent: s.sent,
+        };
+        self.frame(Kind::Abort, &a.emit()?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::encoding::{DistanceEncoding, Encoding, IntensityEncoding};
+    use crate::header::Grouping;
+    use crate::id::IdWindow;
+    use embedded_can::{Id, StandardId};
+
+    fn header(count: u16, encoding: Encoding) -> ScanHeader {
+        ScanHeader {
+            seq: 0x0107,
+            timestamp_ms: 1000,
+            point_count: count,
+            encoding,
+            time_synced: false,
+            grouping: Grouping::Single,
+            step_increment: 1,
+            first_step: -2,
+            ares: 1024,
+        }
+    }
+
+    fn sid(raw: u16) -> Id {
+        Id::Standard(StandardId::new(raw).unwrap())
+    }
+
+    const D12: Encoding = Encoding {
+        distance: DistanceEncoding::D12,
+        intensity: IntensityEncoding::None,
+        unit_exp: 0,
+    };
+
+    #[test]
+    fn golden_scan_classic() {
+        let ids = IdWindow::DEFAULT.node(2).unwrap();
+        let mut e = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+        let h = e.begin(&header(5, D12)).unwrap();
+        assert_eq!(h[0].id(), sid(0x132));
+        assert_eq!(h[0].data(), &[0x07, 0x01, 0xE8, 0x03, 0, 0, 0x05, 0x00]);
+        assert_eq!(h[1].id(), sid(0x142));
+        assert_eq!(
+            h[1].data(),
+            &[0x07, 0x03, 0x00, 0x01, 0xFE, 0xFF, 0x00, 0x04]
+        );
+        let pts = [
+            Distance::Mm(0xABC),
+            Distance::Invalid,
+            Distance::OutOfRange,
+            Distance::Mm(0x123),
+            Distance::Mm(5000), // > 4094 mm in D12/1 mm: out of range
+        ];
+        let mut frames = Vec::new();
+        for p in pts {
+            if let Some(f) = e.push_point(p, 0).unwrap() {
+                frames.push(f);
+            }
+        }
+        assert_eq!(frames.len(), 2);
+        assert_eq!(frames[0].id(), sid(0x152));
+        // seq low 7, index 0; codes ABC 000 FFF 123
+        assert_eq!(
+            frames[0].data(),
+            &[0x00, 0x70, 0xBC, 0x0A, 0x00, 0xFF, 0x3F, 0x12]
+        );
+        // index 4; code FFF in 2 bytes
+        assert_eq!(frames[1].data(), &[0x04, 0x70, 0xFF, 0x0F]);
+        let t = e.finish(TrailerFlags::default()).unwrap();
+        assert_eq!(t.len(), 1);
+        assert_eq!(t[0].id(), sid(0x162));
+        let d = t[0].data();
+        // seq, sent 5, valid 2 (ABC and 123), CRC
+        assert_eq!(&d[..6], &[0x07, 0x01, 0x05, 0x00, 0x02, 0x00]);
+        let mut crc = ScanCrc::new(h[0].data(), h[1].data());
+        for c in [0xABC, 0, 0xFFF, 0x123, 0xFFF] {
+            crc.point(c, None);
+        }
+        assert_eq!(u16::from_le_bytes([d[6], d[7]]), crc.finish(&d[..6]));
+        assert!(!e.in_progress());
+    }
+
+    #[test]
+    fn truncated_and_abort() {
+        let ids = IdWindow::DEFAULT.node(0).unwrap();
+        let mut e = ScanEncoder::new(ids, FrameFormat::FD64).unwrap();
+        e.begin(&header(100, D12)).unwrap();
+        for _ in 0..45 {
+            e.push_point(Distance::Mm(1000), 0).unwrap();
+        }
+        let out = e.finish(TrailerFlags::default()).unwrap();
+        assert_eq!(out.len(), 2);
+        assert!(out[0].is_fd());
+        // 45 - 41 = 4 points → 6 + 2 = 8 bytes
+        assert_eq!(out[0].data().len(), 8);
+        let t = Trailer::parse(out[1].data()).unwrap();
+        assert_eq!(t.points_sent, 45);
+        assert!(t.flags.truncated);
+
+        e.begin(&header(100, D12)).unwrap();
+        for _ in 0..45 {
+            e.push_point(Distance::Mm(1000), 0).unwrap();
+        }
+        let f = e.abort(AbortReason::Timeout, 0).unwrap();
+        let a = Abort::parse(f.data()).unwrap();
+        assert_eq!(a.points_sent, 41); // only the full frame went out
+        assert_eq!(a.reason, AbortReason::Timeout);
+    }
+
+    #[test]
+    fn misuse() {
+        let ids = IdWindow::DEFAULT.node(0).unwrap();
+        assert_eq!(
+            ScanEncoder::new(ids, FrameFormat::Fd { max_len: 13 }).map(|_| ()),
+            Err(Error::FrameTooLong)
+        );
+        let mut e = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+        assert_eq!(e.push_point(Distance::Invalid, 0), Err(Error::NoScan));
+        assert_eq!(e.finish(TrailerFlags::default()), Err(Error::NoScan));
+        assert_eq!(e.abort(AbortReason::Stopped, 0), Err(Error::NoScan));
+        e.begin(&header(1, D12)).unwrap();
+        assert_eq!(e.begin(&header(1, D12)), Err(Error::ScanInProgress));
+        assert_eq!(e.set_format(FrameFormat::FD64), Err(Error::ScanInProgress));
+        assert!(e.push_point(Distance::Invalid, 0).unwrap().is_some());
+        assert_eq!(
+            e.push_point(Distance::Invalid, 0),
+            Err(Error::TooManyPoints)
+        );
+        let mut bad = header(1, D12);
+        bad.ares = 0;
+        e.finish(TrailerFlags::default()).unwrap();
+        assert_eq!(e.begin(&bad), Err(Error::OutOfRange { offset: 6 }));
+        assert!(!e.in_progress());
+    }
+}

@@ -1,0 +1,391 @@
+//! Point encodings (SPEC section 4) and the LSB-first bit packing of data frames.
+
+use crate::Error;
+
+/// How distances are coded. Code 0 is "invalid / no return", the largest code is
+/// "out of range"; codes in between are ranges in units of the scan's range unit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DistanceEncoding {
+    /// 16 bits per distance.
+    D16 = 1,
+    /// 14 bits per distance.
+    D14 = 2,
+    /// 12 bits per distance.
+    D12 = 3,
+}
+
+impl DistanceEncoding {
+    /// All distance encodings.
+    pub const ALL: [DistanceEncoding; 3] = [
+        DistanceEncoding::D16,
+        DistanceEncoding::D14,
+        DistanceEncoding::D12,
+    ];
+
+    /// Parse a wire code.
+    pub const fn from_code(code: u8) -> Result<Self, Error> {
+        match code {
+            1 => Ok(DistanceEncoding::D16),
+            2 => Ok(DistanceEncoding::D14),
+            3 => Ok(DistanceEncoding::D12),
+            other => Err(Error::UnknownEncoding(other)),
+        }
+    }
+
+    /// The wire code.
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// Bits per distance.
+    pub const fn bits(self) -> u32 {
+        match self {
+            DistanceEncoding::D16 => 16,
+            DistanceEncoding::D14 => 14,
+            DistanceEncoding::D12 => 12,
+        }
+    }
+
+    /// The "out of range" code (all ones).
+    pub const fn max_code(self) -> u16 {
+        ((1u32 << self.bits()) - 1) as u16
+    }
+}
+
+/// How intensities are coded: the top bits of a 16-bit intensity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum IntensityEncoding {
+    /// No intensity channel.
+    None = 0,
+    /// All 16 bits.
+    I16 = 1,
+    /// Top 12 bits.
+    I12 = 2,
+    /// Top 8 bits.
+    I8 = 3,
+}
+
+impl IntensityEncoding {
+    /// All intensity encodings, `None` first.
+    pub const ALL: [IntensityEncoding; 4] = [
+        IntensityEncoding::None,
+        IntensityEncoding::I16,
+        IntensityEncoding::I12,
+        IntensityEncoding::I8,
+    ];
+
+    /// Parse a wire code.
+    pub const fn from_code(code: u8) -> Result<Self, Error> {
+        match code {
+            0 => Ok(IntensityEncoding::None),
+            1 => Ok(IntensityEncoding::I16),
+            2 => Ok(IntensityEncoding::I12),
+            3 => Ok(IntensityEncoding::I8),
+            other => Err(Error::UnknownEncoding(other)),
+        }
+    }
+
+    /// The wire code.
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// Bits per intensity (0 without the channel).
+    pub const fn bits(self) -> u32 {
+        match self {
+            IntensityEncoding::None => 0,
+            IntensityEncoding::I16 => 16,
+            IntensityEncoding::I12 => 12,
+            IntensityEncoding::I8 => 8,
+        }
+    }
+
+    /// Whether the intensity channel is present.
+    pub const fn is_present(self) -> bool {
+        !matches!(self, IntensityEncoding::None)
+    }
+
+    /// The code of a 16-bit intensity.
+    pub const fn encode(self, intensity: u16) -> u16 {
+        match self {
+            IntensityEncoding::None => 0,
+            _ => intensity >> (16 - self.bits()),
+        }
+    }
+
+    /// The 16-bit intensity a code stands for.
+    pub const fn decode(self, code: u16) -> u16 {
+        match self {
+            IntensityEncoding::None => 0,
+            _ => code << (16 - self.bits()),
+        }
+    }
+}
+
+/// A distance reading.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Distance {
+    /// No valid measurement (sensor error code, no return, filtered out).
+    Invalid,
+    /// A range in millimetres.
+    Mm(u32),
+    /// Beyond what the encoding and unit can express.
+    OutOfRange,
+}
+
+/// The per-scan encoding: distance and intensity codes and the range unit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Encoding {
+    /// Distance code width.
+    pub distance: DistanceEncoding,
+    /// Intensity code width (or none).
+    pub intensity: IntensityEncoding,
+    /// One distance count is `2^unit_exp` mm (0..=15).
+    pub unit_exp: u8,
+}
+
+impl Encoding {
+    /// Plain 16-bit millimetres, no intensity.
+    pub const PLAIN_MM: Encoding = Encoding {
+        distance: DistanceEncoding::D16,
+        intensity: IntensityEncoding::None,
+        unit_exp: 0,
+    };
+
+    /// Check `unit_exp <= 15`.
+    pub const fn validate(&self) -> Result<(), Error> {
+        if self.unit_exp > 15 {
+            Err(Error::OutOfRange { offset: 0 })
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Bits per point (distance + intensity).
+    pub const fn bits_per_point(&self) -> u32 {
+        self.distance.bits() + self.intensity.bits()
+    }
+
+    /// Points a data frame of length `len` (≥ 2) holds when full.
+    pub const fn capacity(&self, len: usize) -> usize {
+        if len < 2 {
+            return 0;
+        }
+        (len - 2) * 8 / self.bits_per_point() as usize
+    }
+
+    /// The unit in millimetres.
+    pub const fn unit_mm(&self) -> u32 {
+        1u32 << (self.unit_exp & 0xF)
+    }
+
+    /// The code of a distance (SPEC section 4: round half up, ranges never become 0,
+    /// too long ranges become the out-of-range code).
+    pub const fn encode_distance(&self, d: Distance) -> u16 {
+        let max = self.distance.max_code();
+        match d {
+            Distance::Invalid => 0,
+            Distance::OutOfRange => max,
+            Distance::Mm(mm) => {
+                let e = (self.unit_exp & 0xF) as u32;
+                let half = (1u64 << e) >> 1;
+                let q = (mm as u64 + half) >> e;
+                if q >= max as u64 {
+                    max
+                } else if q == 0 {
+                    1
+                } else {
+                    q as u16
+                }
+            }
+        }
+    }
+
+    /// The distance a code stands for.
+    pub const fn decode_distance(&self, code: u16) -> Distance {
+        if code == 0 {
+            Distance::Invalid
+        } else if code >= self.distance.max_code() {
+            Distance::OutOfRange
+        } else {
+            Distance::Mm((code as u32) << (self.unit_exp & 0xF))
+        }
+    }
+
+    /// Whether a distance code is a range (neither invalid nor out of range).
+    pub const fn is_valid_code(&self, code: u16) -> bool {
+        code != 0 && code < self.distance.max_code()
+    }
+}
+
+/// Writes fields LSB-first into a byte slice (which must start zeroed).
+pub(crate) struct BitWriter<'a> {
+    buf: &'a mut [u8],
+    bit: usize,
+}
+
+impl<'a> BitWriter<'a> {
+    pub(crate) fn new(buf: &'a mut [u8], bit: usize) -> Self {
+        BitWriter { buf, bit }
+    }
+
+    pub(crate) fn position(&self) -> usize {
+        self.bit
+    }
+
+    /// Write the low `bits` bits of `value`; bits beyond the buffer are dropped (the
+    /// callers size buffers so that this does not happen).
+    pub(crate) fn write(&mut self, value: u16, bits: u32) {
+        for i in 0..bits {
+            if (value >> i) & 1 == 1 {
+                if let Some(b) = self.buf.get_mut(self.bit / 8) {
+                    *b |= 1 << (self.bit % 8);
+                }
+            }
+            self.bit += 1;
+        }
+    }
+}
+
+/// Reads fields LSB-first from a byte slice; reads beyond the end yield zero bits.
+pub(crate) struct BitReader<'a> {
+    buf: &'a [u8],
+    bit: usize,
+}
+
+impl<'a> BitReader<'a> {
+    pub(crate) fn new(buf: &'a [u8]) -> Self {
+        BitReader { buf, bit: 0 }
+    }
+
+    pub(crate) fn read(&mut self, bits: u32) -> u16 {
+        let mut v = 0u16;
+        for i in 0..bits {
+            let b = self.buf.get(self.bit / 8).copied().unwrap_or(0);
+            if (b >> (self.bit % 8)) & 1 == 1 {
+                v |= 1u16.checked_shl(i).unwrap_or(0);
+            }
+            self.bit += 1;
+        }
+        v
+    }
+
+    /// Skip `bits` bits.
+    pub(crate) fn skip(&mut self, bits: usize) {
+        self.bit = self.bit.saturating_add(bits);
+    }
+
+    /// Whether every bit from the current position to the end is zero.
+    pub(crate) fn rest_is_zero(&self) -> bool {
+        let byte = self.bit / 8;
+        let first_ok = match self.buf.get(byte) {
+            Some(b) => (b >> (self.bit % 8)) == 0,
+            None => true,
+        };
+        first_ok
+            && self
+                .buf
+                .get(byte + 1..)
+                .is_none_or(|rest| rest.iter().all(|b| *b == 0))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn codes_round_trip() {
+        for d in DistanceEncoding::ALL {
+            assert_eq!(DistanceEncoding::from_code(d.code()), Ok(d));
+        }
+        for i in IntensityEncoding::ALL {
+            assert_eq!(IntensityEncoding::from_code(i.code()), Ok(i));
+        }
+        assert_eq!(
+            DistanceEncoding::from_code(0),
+            Err(Error::UnknownEncoding(0))
+        );
+        assert_eq!(
+            IntensityEncoding::from_code(4),
+            Err(Error::UnknownEncoding(4))
+        );
+    }
+
+    #[test]
+    fn distance_codes() {
+        let e = Encoding {
+            distance: DistanceEncoding::D12,
+            intensity: IntensityEncoding::None,
+            unit_exp: 1,
+        };
+        assert_eq!(e.encode_distance(Distance::Invalid), 0);
+        assert_eq!(e.encode_distance(Distance::OutOfRange), 4095);
+        assert_eq!(e.encode_distance(Distance::Mm(0)), 1); // a range never becomes invalid
+        assert_eq!(e.encode_distance(Distance::Mm(1)), 1); // (1 + 1) >> 1
+        assert_eq!(e.encode_distance(Distance::Mm(2)), 1);
+        assert_eq!(e.encode_distance(Distance::Mm(3)), 2); // round half up
+        assert_eq!(e.encode_distance(Distance::Mm(5600)), 2800);
+        assert_eq!(e.encode_distance(Distance::Mm(8187)), 4094);
+        assert_eq!(e.encode_distance(Distance::Mm(8189)), 4095); // saturates
+        assert_eq!(e.encode_distance(Distance::Mm(u32::MAX)), 4095);
+        assert_eq!(e.decode_distance(0), Distance::Invalid);
+        assert_eq!(e.decode_distance(2800), Distance::Mm(5600));
+        assert_eq!(e.decode_distance(4095), Distance::OutOfRange);
+        assert!(e.is_valid_code(4094));
+        assert!(!e.is_valid_code(4095));
+        let big = Encoding {
+            unit_exp: 15,
+            ..Encoding::PLAIN_MM
+        };
+        assert_eq!(big.decode_distance(65534), Distance::Mm(65534 << 15));
+    }
+
+    #[test]
+    fn intensity_codes() {
+        assert_eq!(IntensityEncoding::I8.encode(0xABCD), 0xAB);
+        assert_eq!(IntensityEncoding::I8.decode(0xAB), 0xAB00);
+        assert_eq!(IntensityEncoding::I12.encode(0xABCD), 0xABC);
+        assert_eq!(IntensityEncoding::I16.encode(0xABCD), 0xABCD);
+        assert_eq!(IntensityEncoding::None.encode(0xABCD), 0);
+    }
+
+    #[test]
+    fn capacity() {
+        let d12 = Encoding {
+            distance: DistanceEncoding::D12,
+            ..Encoding::PLAIN_MM
+        };
+        assert_eq!(d12.capacity(8), 4);
+        assert_eq!(d12.capacity(64), 41);
+        assert_eq!(Encoding::PLAIN_MM.capacity(8), 3);
+        assert_eq!(Encoding::PLAIN_MM.capacity(1), 0);
+    }
+
+    #[test]
+    fn bit_packing() {
+        let mut buf = [0u8; 3];
+        let mut w = BitWriter::new(&mut buf, 0);
+        w.write(0xABC, 12);
+        w.write(0x123, 12);
+        assert_eq!(w.position(), 24);
+        assert_eq!(buf, [0xBC, 0x3A, 0x12]);
+        let mut r = BitReader::new(&buf);
+        assert_eq!(r.read(12), 0xABC);
+        assert!(!r.rest_is_zero());
+        assert_eq!(r.read(12), 0x123);
+        assert!(r.rest_is_zero());
+        let pad = [0x0F, 0x10];
+        let mut r = BitReader::new(&pad);
+        r.read(4);
+        assert!(!r.rest_is_zero());
+        let pad = [0x0F, 0x00];
+        let mut r = BitReader::new(&pad);
+        r.read(4);
+        assert!(r.rest_is_zero());
+    }
+}

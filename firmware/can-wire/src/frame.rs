@@ -1,0 +1,158 @@
+//! A CAN or CAN FD data frame with up to 64 bytes, and the CAN FD length rules.
+
+use embedded_can::Id;
+
+use crate::Error;
+
+/// Largest CAN FD payload.
+pub const MAX_LEN: usize = 64;
+/// Largest classic CAN payload.
+pub const CLASSIC_LEN: usize = 8;
+/// The payload lengths a CAN FD frame can have above 8 bytes.
+pub const FD_LENGTHS: [u8; 7] = [12, 16, 20, 24, 32, 48, 64];
+
+/// The smallest valid frame length that holds `len` bytes (`len` itself up to 8, else the
+/// next CAN FD length), or `None` above 64.
+pub const fn padded_len(len: usize) -> Option<usize> {
+    if len <= CLASSIC_LEN {
+        return Some(len);
+    }
+    let mut i = 0;
+    while i < FD_LENGTHS.len() {
+        if FD_LENGTHS[i] as usize >= len {
+            return Some(FD_LENGTHS[i] as usize);
+        }
+        i += 1;
+    }
+    None
+}
+
+/// Whether `len` is a length a (classic or FD) frame can have.
+pub const fn is_valid_len(len: usize) -> bool {
+    matches!(padded_len(len), Some(p) if p == len)
+}
+
+/// A data frame (no remote frames: the protocol does not use them).
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct Frame {
+    id: Id,
+    data: [u8; MAX_LEN],
+    len: u8,
+    fd: bool,
+}
+
+impl Frame {
+    /// A frame with `data`; `fd` selects CAN FD. Fails if `data` is too long for the format
+    /// or (CAN FD) not a valid FD length.
+    pub fn new(id: Id, data: &[u8], fd: bool) -> Result<Frame, Error> {
+        let len = data.len();
+        let ok = if fd {
+            is_valid_len(len)
+        } else {
+            len <= CLASSIC_LEN
+        };
+        if !ok {
+            return Err(Error::FrameTooLong);
+        }
+        let mut buf = [0u8; MAX_LEN];
+        buf.get_mut(..len)
+            .ok_or(Error::FrameTooLong)?
+            .copy_from_slice(data);
+        Ok(Frame {
+            id,
+            data: buf,
+            len: len as u8,
+            fd,
+        })
+    }
+
+    /// The identifier.
+    pub fn id(&self) -> Id {
+        self.id
+    }
+
+    /// The payload.
+    pub fn data(&self) -> &[u8] {
+        self.data.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+
+    /// Whether this is a CAN FD frame.
+    pub fn is_fd(&self) -> bool {
+        self.fd
+    }
+}
+
+impl core::fmt::Debug for Frame {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Frame")
+            .field("id", &self.id)
+            .field("data", &self.data())
+            .field("fd", &self.fd)
+            .finish()
+    }
+}
+
+impl embedded_can::Frame for Frame {
+    fn new(id: impl Into<Id>, data: &[u8]) -> Option<Self> {
+        Frame::new(id.into(), data, data.len() > CLASSIC_LEN).ok()
+    }
+
+    fn new_remote(_id: impl Into<Id>, _dlc: usize) -> Option<Self> {
+        None
+    }
+
+    fn is_extended(&self) -> bool {
+        matches!(self.id, Id::Extended(_))
+    }
+
+    fn is_remote_frame(&self) -> bool {
+        false
+    }
+
+    fn id(&self) -> Id {
+        self.id
+    }
+
+    fn dlc(&self) -> usize {
+        usize::from(self.len)
+    }
+
+    fn data(&self) -> &[u8] {
+        Frame::data(self)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use embedded_can::StandardId;
+
+    fn id() -> Id {
+        Id::Standard(StandardId::new(0x150).unwrap())
+    }
+
+    #[test]
+    fn lengths() {
+        assert_eq!(padded_len(0), Some(0));
+        assert_eq!(padded_len(8), Some(8));
+        assert_eq!(padded_len(9), Some(12));
+        assert_eq!(padded_len(33), Some(48));
+        assert_eq!(padded_len(64), Some(64));
+        assert_eq!(padded_len(65), None);
+        assert!(is_valid_len(20));
+        assert!(!is_valid_len(21));
+    }
+
+    #[test]
+    fn new_checks_format() {
+        assert_eq!(Frame::new(id(), &[0; 9], false), Err(Error::FrameTooLong));
+        assert_eq!(Frame::new(id(), &[0; 13], true), Err(Error::FrameTooLong));
+        assert_eq!(Frame::new(id(), &[0; 65], true), Err(Error::FrameTooLong));
+        let f = Frame::new(id(), &[1, 2, 3], false).unwrap();
+        assert_eq!(f.data(), &[1, 2, 3]);
+        assert!(!f.is_fd());
+        let g: Frame = embedded_can::Frame::new(id(), &[0; 12]).unwrap();
+        assert!(g.is_fd());
+        assert_eq!(embedded_can::Frame::dlc(&g), 12);
+    }
+}

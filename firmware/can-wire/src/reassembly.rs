@@ -1,0 +1,650 @@
+//! The reassembling decoder: frames of up to 16 bridges in any interleaving in, whole
+//! scans with per-point presence and a completeness verdict out (SPEC section 7).
+
+use embedded_can::Id;
+
+use crate::abort::{Abort, AbortReason};
+use crate::control::{Answer, Control};
+use crate::crc::ScanCrc;
+use crate::data::DataFrame;
+use crate::encoding::Distance;
+use crate::frame::Frame;
+use crate::header::{HeaderA, HeaderB, ScanHeader, HEADER_LEN};
+use crate::id::{IdWindow, Kind, NODES};
+use crate::status::Status;
+use crate::trailer::{Trailer, TRAILER_CRC_PREFIX};
+use crate::Error;
+
+/// Per-bridge loss statistics (all counters wrap).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LossStats {
+    /// Scans reported intact.
+    pub scans_intact: u32,
+    /// Scans reported but not intact (incomplete, CRC mismatch, corrupt).
+    pub scans_damaged: u32,
+    /// Scans reported aborted by the bridge.
+    pub scans_aborted: u32,
+    /// Scans of which nothing usable arrived: sequence gaps between headers A, and
+    /// scans whose header B never arrived.
+    pub scans_lost: u32,
+    /// Frames known or estimated to be lost: missing header B and trailer frames, and
+    /// missing data frames estimated from the runs of missing points.
+    pub frames_lost: u32,
+    /// Scan frames that belong to no scan in progress (e.g. their header was lost).
+    pub frames_orphaned: u32,
+    /// Frames received twice with equal content.
+    pub duplicates: u32,
+    /// Frames with a bad layout, conflicting duplicates, CRC mismatches.
+    pub corrupt: u32,
+    /// Times the sequence number went backwards (bridge restarted).
+    pub sequence_resets: u32,
+}
+
+/// How complete and trustworthy a reassembled scan is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Completeness {
+    /// Every sent point, both headers and the trailer arrived, and the CRC matches.
+    /// (Check [`Scan::trailer`] flags for what the bridge says about the content.)
+    Intact,
+    /// Frames are missing.
+    Incomplete {
+        /// Points that did not arrive (or did not fit the decoder).
+        missing_points: u16,
+        /// The trailer did not arrive.
+        trailer_missing: bool,
+    },
+    /// All frames arrived but the CRC does not match.
+    CrcMismatch,
+    /// Conflicting frames or counts that contradict the header or the points.
+    Corrupt,
+    /// The bridge abandoned the scan.
+    Aborted {
+        /// Why.
+        reason: AbortReason,
+        /// Reason-specific detail.
+        detail: u8,
+    },
+}
+
+/// One decoded point.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Point {
+    /// The distance.
+    pub distance: Distance,
+    /// The 16-bit intensity, if the scan has the channel.
+    pub intensity: Option<u16>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum State {
+    /// No scan (or the last one was reported).
+    Idle,
+    /// Header A arrived, waiting for header B.
+    HaveA,
+    /// Both headers arrived; collecting points.
+    Active,
+    /// Reported; kept for duplicate detection.
+    Done,
+}
+
+/// A scan being reassembled or just reported, with room for `P` points.
+#[derive(Debug, Clone)]
+pub struct Scan<const P: usize> {
+    state: State,
+    a: HeaderA,
+    a_bytes: [u8; HEADER_LEN],
+    b_bytes: [u8; HEADER_LEN],
+    header: ScanHeader,
+    trailer: Option<Trailer>,
+    trailer_bytes: [u8; 8],
+    completeness: Completeness,
+    distance: [u16; P],
+    intensity: [u16; P],
+    present: [bool; P],
+    received: u16,
+    frame_capacity: u16,
+    conflict: bool,
+}
+
+impl<const P: usize> Scan<P> {
+    fn new() -> Self {
+        Scan {
+            state: State::Idle,
+            a: HeaderA {
+                seq: 0,
+                timestamp_ms: 0,
+                point_count: 0,
+                unit_exp: 0,
+            },
+            a_bytes: [0; HEADER_LEN],
+            b_bytes: [0; HEADER_LEN],
+            header: ScanHeader {
+                seq: 0,
+                timestamp_ms: 0,
+                point_count: 0,
+                encoding: crate::Encoding::PLAIN_MM,
+                time_synced: false,
+                grouping: crate::Grouping::Single,
+                step_increment: 1,
+                first_step: 0,
+                ares: 1,
+            },
+            trailer: None,
+            trailer_bytes: [0; 8],
+            completeness: Completeness::Incomplete {
+                missing_points: 0,
+                trailer_missing: true,
+            },
+            distance: [0; P],
+            intensity: [0; P],
+            present: [false; P],
+            received: 0,
+            frame_capacity: 0,
+            conflict: false,
+        }
+    }
+
+    fn start(&mut self, a: HeaderA, bytes: &[u8]) {
+        self.state = State::HaveA;
+        self.a = a;
+        self.a_bytes
+            .copy_from_slice(bytes.get(..HEADER_LEN).unwrap_or(&[0; HEADER_LEN]));
+        self.trailer = None;
+        self.present = [false; P];
+        self.received = 0;
+        self.frame_capacity = 0;
+        self.conflict = false;
+    }
+
+    fn in_progress(&self) -> bool {
+        matches!(self.state, State::HaveA | State::Active)
+    }
+
+    /// The scan's header.
+    pub fn header(&self) -> &ScanHeader {
+        &self.header
+    }
+
+    /// The verdict.
+    pub fn completeness(&self) -> Completeness {
+        self.completeness
+    }
+
+    /// Whether the scan arrived intact.
+    pub fn is_intact(&self) -> bool {
+        self.completeness == Completeness::Intact
+    }
+
+    /// The trailer, if it arrived.
+    pub fn trailer(&self) -> Option<&Trailer> {
+        self.trailer.as_ref()
+    }
+
+    /// Number of points that arrived.
+    pub fn received(&self) -> u16 {
+        self.received
+    }
+
+    /// Point `index`, or `None` if it did not arrive (or is outside the scan).
+    pub fn point(&self, index: u16) -> Option<Point> {
+        let i = usize::from(index);
+        if index >= self.header.point_count || !self.present.get(i).copied().unwrap_or(false) {
+            return None;
+        }
+        let enc = self.header.encoding;
+        let dc = self.distance.get(i).copied().unwrap_or(0);
+        let ic = self.intensity.get(i).copied().unwrap_or(0);
+        Some(Point {
+            distance: enc.decode_distance(dc),
+            intensity: enc.intensity.is_present().then(|| enc.intensity.decode(ic)),
+        })
+    }
+
+    /// All points of the scan in order, `None` for the missing ones.
+    pub fn points(&self) -> impl Iterator<Item = Option<Point>> + '_ {
+        (0..self.header.point_count).map(|i| self.point(i))
+    }
+
+    fn missing_in(&self, count: u16) -> u16 {
+        let stored = usize::from(count).min(P);
+        let missing_stored = self
+            .present
+            .get(..stored)
+            .map_or(0, |s| s.iter().filter(|p| !**p).count());
+        (missing_stored + (usize::from(count) - stored)) as u16
+    }
+
+    /// Estimated data frames needed for the missing points among the first `count`.
+    fn missing_frames(&self, count: u16) -> u32 {
+        let cap = if self.frame_capacity > 0 {
+            usize::from(self.frame_capacity)
+        } else {
+            self.header.encoding.capacity(8).max(1)
+        };
+        let mut frames = 0u32;
+        let mut run = 0usize;
+        for i in 0..usize::from(count) {
+            if self.present.get(i).copied().unwrap_or(false) {
+                frames += run.div_ceil(cap) as u32;
+                run = 0;
+            } else {
+                run += 1;
+            }
+        }
+        frames + run.div_ceil(cap) as u32
+    }
+
+    fn crc_matches(&self, t: &Trailer) -> bool {
+        let mut crc = ScanCrc::new(&self.a_bytes, &self.b_bytes);
+        let with_intensity = self.header.encoding.intensity.is_present();
+        let sent = usize::from(t.points_sent);
+        for (d, i) in self.distance.iter().zip(self.intensity.iter()).take(sent) {
+            crc.point(*d, with_intensity.then_some(*i));
+        }
+        let head = self.trailer_bytes.get(..TRAILER_CRC_PREFIX).unwrap_or(&[]);
+        crc.finish(head) == t.crc
+    }
+
+    fn valid_count(&self, sent: u16) -> u16 {
+        let enc = self.header.encoding;
+        self.distance
+            .iter()
+            .take(usize::from(sent))
+            .filter(|d| enc.is_valid_code(**d))
+            .count() as u16
+    }
+}
+
+/// What one frame produced.
+#[derive(Debug)]
+pub enum Event<'a, const P: usize> {
+    /// A scan finished (by its trailer or abort, or because the next scan began).
+    Scan {
+        /// The bridge's node number.
+        node: u8,
+        /// The scan; valid until the next call into the decoder.
+        scan: &'a Scan<P>,
+    },
+    /// A status frame.
+    Status {
+        /// The bridge's node number.
+        node: u8,
+        /// Its content.
+        status: Status,
+    },
+    /// A control answer.
+    Answer {
+        /// The bridge's node number.
+        node: u8,
+        /// Its content.
+        answer: Answer,
+    },
+    /// A control request (sent by some host to the bridge).
+    Control {
+        /// The addressed bridge's node number.
+        node: u8,
+        /// Its content.
+        control: Control,
+    },
+}
+
+#[derive(Debug, Clone)]
+struct Bridge<const P: usize> {
+    node: u8,
+    last_seq: Option<u16>,
+    slots: [Scan<P>; 2],
+    cur: usize,
+}
+
+/// Reassembles scans of up to `B` bridges with up to `P` points each.
+///
+/// Memory: about `B * 2 * 5 * P` bytes; keep it in a `static` or a `Box` for large `P`.
+#[derive(Debug)]
+pub struct Decoder<const P: usize, const B: usize> {
+    window: IdWindow,
+    stats: [LossStats; NODES as usize],
+    bridges: [Option<Bridge<P>>; B],
+}
+
+impl<const P: usize, const B: usize> Decoder<P, B> {
+    /// A decoder for the bridges of `window`.
+    pub fn new(window: IdWindow) -> Self {
+        Decoder {
+            window,
+            stats: [LossStats::default(); NODES as usize],
+            bridges: core::array::from_fn(|_| None),
+        }
+    }
+
+    /// Loss statistics of bridge `node`.
+    pub fn stats(&self, node: u8) -> Option<&LossStats> {
+        self.stats.get(usize::from(node))
+    }
+
+    /// Decode one frame. Frames outside the window give `Ok(None)`; frames that fail
+    /// validation give an error (and are counted as corrupt).
+    pub fn push(&mut self, id: Id, data: &[u8]) -> Result<Option<Event<'_, P>>, Error> {
+        let Some((node, kind)) = self.window.classify(id) else {
+            return Ok(None);
+        };
+        match self.dispatch(node, kind, data) {
+            Err(e) => {
+                if let Some(s) = self.stats.get_mut(usize::from(node)) {
+                    bump(&mut s.corrupt);
+                }
+                Err(e)
+            }
+            Ok(None) => Ok(None),
+            Ok(Some(out)) => Ok(self.event(node, out)),
+        }
+    }
+
+    fn event(&self, node: u8, out: Out) -> Option<Event<'_, P>> {
+        Some(match out {
+            Out::Scan { bridge, slot } => Event::Scan {
+                node,
+                scan: self.bridges.get(bridge)?.as_ref()?.slots.get(slot)?,
+            },
+            Out::Status(status) => Event::Status { node, status },
+            Out::Answer(answer) => Event::Answer { node, answer },
+            Out::Control(control) => Event::Control { node, control },
+        })
+    }
+
+    /// [`Decoder::push`] for a [`Frame`].
+    pub fn push_frame(&mut self, frame: &Frame) -> Result<Option<Event<'_, P>>, Error> {
+        self.push(frame.id(), frame.data())
+    }
+
+    /// Finish bridge `node`'s scan in progress as incomplete (e.g. after a timeout) and
+    /// return it; `None` if there is none or it never got its header B.
+    pub fn flush(&mut self, node: u8) -> Option<&Scan<P>> {
+        let idx = self.find(node)?;
+        let stats = self.stats.get_mut(usize::from(node))?;
+        let bridge = self.bridges.get_mut(idx)?.as_mut()?;
+        let cur = bridge.cur;
+        let scan = bridge.slots.get_mut(cur)?;
+        if !scan.in_progress() {
+            return None;
+        }
+        finish_incomplete(scan, stats).then_some(&*scan)
+    }
+
+    fn find(&self, node: u8) -> Option<usize> {
+        self.bridges
+            .iter()
+            .position(|b| b.as_ref().is_some_and(|b| b.node == node))
+    }
+
+    fn bridge_index(&mut self, node: u8) -> Result<usize, Error> {
+        if let Some(i) = self.find(node) {
+            return Ok(i);
+        }
+        let free = self
+            .bridges
+            .iter()
+            .position(|b| b.is_none())
+            .ok_or(Error::TooManyBridges)?;
+        if let Some(slot) = self.bridges.get_mut(free) {
+            *slot = Some(Bridge {
+                node,
+                last_seq: None,
+                slots: [Scan::new(), Scan::new()],
+                cur: 0,
+            });
+        }
+        Ok(free)
+    }
+
+    fn dispatch(&mut self, node: u8, kind: Kind, data: &[u8]) -> Result<Option<Out>, Error> {
+        match kind {
+            Kind::Control => Ok(Some(Out::Control(Control::parse(data)?))),
+            Kind::ControlAnswer => Ok(Some(Out::Answer(Answer::parse(data)?))),
+            Kind::Status => Ok(Some(Out::Status(Status::parse(data)?))),
+            _ => {
+                let idx = self.bridge_index(node)?;
+                let stats = self
+                    .stats
+                    .get_mut(usize::from(node))
+                    .ok_or(Error::ForeignId)?;
+                let bridge = self
+                    .bridges
+                    .get_mut(idx)
+                    .and_then(|b| b.as_mut())
+                    .ok_or(Error::TooManyBridges)?;
+                let done = scan_frame(bridge, stats, kind, data)?;
+                Ok(done.map(|slot| Out::Scan { bridge: idx, slot }))
+            }
+        }
+    }
+}
+
+/// An event without borrows, turned into an [`Event`] at the end of `push`.
+enum Out {
+    Scan { bridge: usize, slot: usize },
+    Status(Status),
+    Answer(Answer),
+    Control(Control),
+}
+
+fn bump(c: &mut u32) {
+    *c = c.wrapping_add(1);
+}
+
+/// Report a scan in progress without its trailer. Returns whether it is reportable
+/// (had both headers).
+fn finish_incomplete<const P: usize>(scan: &mut Scan<P>, stats: &mut LossStats) -> bool {
+    let reportable = scan.state == State::Active;
+    scan.state = State::Done;
+    bump(&mut stats.frames_lost); // the trailer
+    if !reportable {
+        bump(&mut stats.frames_lost); // header B
+        bump(&mut stats.scans_lost);
+        return false;
+    }
+    let count = scan.header.point_count;
+    stats.frames_lost = stats.frames_lost.wrapping_add(scan.missing_frames(count));
+    scan.completeness = if scan.conflict {
+        Completeness::Corrupt
+    } else {
+        Completeness::Incomplete {
+            missing_points: scan.missing_in(count),
+            trailer_missing: true,
+        }
+    };
+    bump(&mut stats.scans_damaged);
+    true
+}
+
+/// Handle a scan frame; returns the slot index of a scan to report.
+fn scan_frame<const P: usize>(
+    bridge: &mut Bridge<P>,
+    stats: &mut LossStats,
+    kind: Kind,
+    data: &[u8],
+) -> Result<Option<usize>, Error> {
+    let cur = bridge.cur;
+    match kind {
+        Kind::HeaderA => {
+            let a = HeaderA::parse(data)?;
+            let scan = bridge.slots.get_mut(cur).ok_or(Error::NoScan)?;
+            if scan.state != State::Idle && scan.a.seq == a.seq {
+                if scan.a_bytes.as_slice() == data {
+                    bump(&mut stats.duplicates);
+                } else {
+                    scan.conflict = true;
+                    bump(&mut stats.corrupt);
+                }
+                return Ok(None);
+            }
+            if let Some(last) = bridge.last_seq {
+                let gap = a.seq.wrapping_sub(last).wrapping_sub(1);
+                if gap < 0x8000 {
+                    stats.scans_lost = stats.scans_lost.wrapping_add(u32::from(gap));
+                } else {
+                    bump(&mut stats.sequence_resets);
+                }
+            }
+            bridge.last_seq = Some(a.seq);
+            let mut report = None;
+            if scan.in_progress() && finish_incomplete(scan, stats) {
+                report = Some(cur);
+                bridge.cur = cur ^ 1;
+            }
+            let next = bridge.slots.get_mut(bridge.cur).ok_or(Error::NoScan)?;
+            next.start(a, data);
+            Ok(report)
+        }
+        Kind::HeaderB => {
+            let b = HeaderB::parse(data)?;
+            let scan = bridge.slots.get_mut(cur).ok_or(Error::NoScan)?;
+            match scan.state {
+                State::HaveA if scan.a.seq as u8 == b.seq_low => {
+                    scan.header = ScanHeader::join(&scan.a, &b)?;
+                    scan.b_bytes.copy_from_slice(data);
+                    scan.state = State::Active;
+                }
+                State::Active | State::Done if scan.a.seq as u8 == b.seq_low => {
+                    if scan.b_bytes.as_slice() == data {
+                        bump(&mut stats.duplicates);
+                    } else {
+                        scan.conflict = true;
+                        bump(&mut stats.corrupt);
+                    }
+                }
+                _ => bump(&mut stats.frames_orphaned),
+            }
+            Ok(None)
+        }
+        Kind::Data => {
+            let scan = bridge.slots.get_mut(cur).ok_or(Error::NoScan)?;
+            if scan.state != State::Active {
+                bump(&mut stats.frames_orphaned);
+                return Ok(None);
+            }
+            let header = scan.header;
+            let frame = DataFrame::parse(data, &header)?;
+            if frame.header().seq_low != (header.seq & 0xF) as u8 {
+                bump(&mut stats.frames_orphaned);
+                return Ok(None);
+            }
+            let (mut equal, mut differ) = (0u16, 0u16);
+            for (i, d, n) in frame.codes() {
+                let i = usize::from(i);
+                if scan.present.get(i).copied().unwrap_or(false) {
+                    let same =
+                        scan.distance.get(i) == Some(&d) && scan.intensity.get(i) == Some(&n);
+                    if same {
+                        equal += 1;
+                    } else {
+                        differ += 1;
+                    }
+                }
+            }
+            if differ == 0 && equal == frame.len() {
+                bump(&mut stats.duplicates);
+                return Ok(None);
+            }
+            if differ > 0 || equal > 0 {
+                // Frames never overlap: this one is corrupt, and so may be the scan.
+                scan.conflict = true;
+                bump(&mut stats.corrupt);
+                return Ok(None);
+            }
+            for (i, d, n) in frame.codes() {
+                let i = usize::from(i);
+                if let (Some(pd), Some(pi), Some(pp)) = (
+                    scan.distance.get_mut(i),
+                    scan.intensity.get_mut(i),
+                    scan.present.get_mut(i),
+                ) {
+                    *pd = d;
+                    *pi = n;
+                    *pp = true;
+                    scan.received += 1;
+                }
+            }
+            scan.frame_capacity = scan.frame_capacity.max(frame.len());
+            Ok(None)
+        }
+        Kind::Trailer => {
+            let t = Trailer::parse(data)?;
+            let scan = bridge.slots.get_mut(cur).ok_or(Error::NoScan)?;
+            if scan.state == State::Done && scan.a.seq == t.seq {
+                if scan.trailer_bytes.as_slice() == data {
+                    bump(&mut stats.duplicates);
+                } else {
+                    bump(&mut stats.corrupt);
+                }
+                return Ok(None);
+            }
+            if !scan.in_progress() || scan.a.seq != t.seq {
+                bump(&mut stats.frames_orphaned);
+                return Ok(None);
+            }
+            if scan.state == State::HaveA {
+                scan.state = State::Done;
+                bump(&mut stats.frames_lost);
+                bump(&mut stats.scans_lost);
+                return Ok(None);
+            }
+            scan.trailer_bytes.copy_from_slice(data);
+            scan.trailer = Some(t);
+            scan.state = State::Done;
+            let count = scan.header.point_count;
+            scan.completeness = if t.check_count(count).is_err() || scan.conflict {
+                Completeness::Corrupt
+            } else {
+                let missing = scan.missing_in(t.points_sent);
+                if missing > 0 {
+                    stats.frames_lost = stats
+                        .frames_lost
+                        .wrapping_add(scan.missing_frames(t.points_sent));
+                    Completeness::Incomplete {
+                        missing_points: missing,
+                        trailer_missing: false,
+                    }
+                } else if !scan.crc_matches(&t) {
+                    Completeness::CrcMismatch
+                } else if scan.valid_count(t.points_sent) != t.points_valid {
+                    Completeness::Corrupt
+                } else {
+                    Completeness::Intact
+                }
+            };
+            match scan.completeness {
+                Completeness::Intact => bump(&mut stats.scans_intact),
+                Completeness::CrcMismatch | Completeness::Corrupt => {
+                    bump(&mut stats.corrupt);
+                    bump(&mut stats.scans_damaged);
+                }
+                _ => bump(&mut stats.scans_damaged),
+            }
+            Ok(Some(cur))
+        }
+        Kind::Abort => {
+            let a = Abort::parse(data)?;
+            let scan = bridge.slots.get_mut(cur).ok_or(Error::NoScan)?;
+            if !scan.in_progress() || scan.a.seq != a.seq {
+                if scan.state == State::Done && scan.a.seq == a.seq {
+                    bump(&mut stats.duplicates);
+                } else {
+                    bump(&mut stats.frames_orphaned);
+                }
+                return Ok(None);
+            }
+            let reportable = scan.state == State::Active;
+            scan.state = State::Done;
+            scan.completeness = Completeness::Aborted {
+                reason: a.reason,
+                detail: a.detail,
+            };
+            bump(&mut stats.scans_aborted);
+            Ok(reportable.then_some(cur))
+        }
+        Kind::Control | Kind::ControlAnswer | Kind::Status => Ok(None),
+    }
+}
