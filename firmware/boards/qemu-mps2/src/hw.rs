@@ -1,5 +1,6 @@
 //! The board's hardware access: the CMSDK APB UARTs of the MPS2 AN386 image,
-//! the UART0 receive interrupt, the idle loop, reset and the panic handler.
+//! the UART0 receive interrupt, the idle loop, reset, and the panic and
+//! hard-fault handlers.
 //!
 //! This is the only module with `unsafe` code. Every `unsafe` block is a
 //! volatile access to a fixed, always-mapped device register of this machine
@@ -313,16 +314,32 @@ unsafe fn DefaultHandler(irqn: i16) {
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo<'_>) -> ! {
     cortex_m::interrupt::disable();
+    report(format_args!("panic: {info}"));
+    exit()
+}
+
+/// Prints the faulting PC on both UARTs, then exits, so a test sees the fault
+/// at once instead of a hung QEMU.
+#[exception]
+unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    report(format_args!(
+        "hardfault: pc={:#010x} lr={:#010x}",
+        frame.pc(),
+        frame.lr()
+    ));
+    exit()
+}
+
+/// Writes one line on UART1 and UART0 with fresh handles: the owner may be
+/// mid-write, but this runs only on the way out.
+fn report(msg: core::fmt::Arguments<'_>) {
     for base in [UART1_BASE, UART0_BASE] {
-        // A fresh handle: the owner may be mid-write, but a panic ends the
-        // program, and the UART's registers stay consistent.
         let regs = Regs { base };
-        // Make sure the transmitter is on even if the panic came before init.
+        // Make sure the transmitter is on even if this came before init.
         regs.write(reg::CTRL, regs.read(reg::CTRL) | reg::CTRL_TX_EN);
         let mut out = PanicWriter(Uart { regs });
-        let _ = write!(out, "\r\npanic: {info}\r\n");
+        let _ = write!(out, "\r\n{msg}\r\n");
     }
-    exit()
 }
 
 struct PanicWriter(Uart);
