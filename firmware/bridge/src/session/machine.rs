@@ -1,0 +1,572 @@
+//! The session state machine itself.
+
+use scip::{
+    Command, Event, Request, ScanRequest, SensorParams, Status, StatusKind, Summary, TimeMode,
+};
+
+use super::config::{SessionConfig, SessionError};
+
+/// Where the session is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum State {
+    /// Not started, or stopped.
+    Off,
+    /// `QT` sent: stops any stream and tells SCIP 1.1 from 2.x.
+    Probe,
+    /// `SCIP2.0` sent to a SCIP 1.1 sensor.
+    Switch,
+    /// `VV` sent.
+    Version,
+    /// `PP` sent.
+    Parameters,
+    /// `II` sent.
+    Info,
+    /// `SS` sent.
+    BitRate,
+    /// The stream request sent, its ack awaited.
+    Start,
+    /// Scans arriving.
+    Streaming,
+    /// `QT` sent on the way to time sync.
+    SyncStop,
+    /// `TM0` sent.
+    SyncEnter,
+    /// `TM1` sent.
+    SyncRead,
+    /// `TM2` sent.
+    SyncLeave,
+    /// `QT` sent on the way to `Off`.
+    Stopping,
+    /// `QT`, then `RS`, sent after a failure.
+    Resetting,
+    /// Waiting out the back-off before probing again.
+    Backoff,
+}
+
+/// What the caller must do for the session.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Action {
+    /// Write this command to the sensor (encode it with [`Request::encode`]).
+    Send(Request),
+    /// Switch the UART to this bit rate (after the sensor's `SS` answer, or back to the
+    /// power-up rate after a reset).
+    SetBitRate(u32),
+}
+
+/// Why the session is recovering the sensor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RecoverReason {
+    /// No answer to a command, even after retries.
+    Timeout,
+    /// The stream went silent.
+    Silence,
+    /// A hardware-fault status (50–97) or a measurement stop (21–49).
+    SensorFault(Status),
+    /// A SCIP 1.1 status while in SCIP 2 mode: the sensor rebooted.
+    Reboot,
+    /// The sensor refused to start the stream for a reason other than its parameters.
+    StartFailed(Status),
+}
+
+/// Something worth telling the rest of the bridge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Notice {
+    /// The sensor answered in SCIP 1.1 and is being switched.
+    Scip11Detected,
+    /// PP decoded: the sensor's geometry is known ([`Session::params`]).
+    Identified,
+    /// The stream's ack arrived: scans follow.
+    Streaming,
+    /// The sensor refused the stream request's parameters; the session is off.
+    StreamRefused(Status),
+    /// The session is recovering the sensor.
+    Recovering(RecoverReason),
+    /// TM1 answered: the sensor's clock read `sensor_ms` at about `now_ms` (the midpoint
+    /// of request and answer).
+    TimeSync {
+        /// Sensor time, 24-bit ms.
+        sensor_ms: u32,
+        /// Caller's time, ms.
+        now_ms: u64,
+    },
+    /// `stop()` completed.
+    Stopped,
+}
+
+/// Counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SessionStats {
+    /// Commands sent (retries included).
+    pub commands: u32,
+    /// Commands sent again after a timeout or a damaged answer.
+    pub retries: u32,
+    /// Recoveries started.
+    pub recoveries: u32,
+    /// Reboots detected (SCIP 1.1 status after SCIP 2 was reached).
+    pub reboots: u32,
+    /// Stream frames whose status was not 99/00/0M (21–97 and others).
+    pub error_statuses: u32,
+    /// Stream frames received intact.
+    pub frames: u32,
+    /// Stream frames received damaged.
+    pub damaged_frames: u32,
+    /// Answers nobody was waiting for.
+    pub unexpected: u32,
+}
+
+/// The sensor session. See the [module docs](super).
+#[derive(Debug, Clone)]
+pub struct Session {
+    config: SessionConfig,
+    state: State,
+    /// The command whose answer is awaited.
+    pending: Option<Request>,
+    sent_at: u64,
+    retries: u8,
+    /// Actions to hand out, oldest first (at most two are ever queued).
+    outbox: [Option<Action>; 2],
+    /// A notice raised by `poll` (timeouts), for [`Session::take_notice`].
+    notice: Option<Notice>,
+    /// The response being decoded answers `pending`.
+    current_is_pending: bool,
+    /// The response being decoded is a frame of our stream.
+    current_is_frame: bool,
+    current_status: Option<Status>,
+    last_rx: u64,
+    backoff_ms: u32,
+    backoff_until: u64,
+    reached_scip2: bool,
+    sync_wanted: bool,
+    params: SensorParams,
+    stats: SessionStats,
+}
+
+impl Session {
+    /// A session that is off until [`Session::start`].
+    pub fn new(config: SessionConfig) -> Result<Self, SessionError> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            state: State::Off,
+            pending: None,
+            sent_at: 0,
+            retries: 0,
+            outbox: [None, None],
+            notice: None,
+            current_is_pending: false,
+            current_is_frame: false,
+            current_status: None,
+            last_rx: 0,
+            backoff_ms: config.backoff_min_ms,
+            backoff_until: 0,
+            reached_scip2: false,
+            sync_wanted: false,
+            params: SensorParams::default(),
+            stats: SessionStats::default(),
+        })
+    }
+
+    /// The state.
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SessionConfig {
+        &self.config
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> &SessionStats {
+        &self.stats
+    }
+
+    /// The PP parameters of the sensor, once identified.
+    pub fn params(&self) -> &SensorParams {
+        &self.params
+    }
+
+    /// The stream request in force.
+    pub fn scan_request(&self) -> ScanRequest {
+        self.config.scan
+    }
+
+    /// Starts (or restarts) bringing the sensor up.
+    pub fn start(&mut self, now: u64) {
+        self.probe(now);
+    }
+
+    /// Stops the stream (`QT`) and turns the session off.
+    pub fn stop(&mut self, now: u64) {
+        self.send(State::Stopping, Request::new(Command::LaserOff), now);
+    }
+
+    /// Asks for a time sync (TM0/TM1/TM2); while streaming, the stream stops for it and
+    /// starts again after.
+    pub fn request_time_sync(&mut self, now: u64) {
+        self.sync_wanted = true;
+        if self.state == State::Streaming {
+            self.send(State::SyncStop, Request::new(Command::LaserOff), now);
+        }
+    }
+
+    /// Changes the stream request; a running stream restarts with it.
+    pub fn set_scan(&mut self, scan: ScanRequest, now: u64) -> Result<(), SessionError> {
+        let config = SessionConfig {
+            scan,
+            ..self.config
+        };
+        config.validate()?;
+        self.config = config;
+        if matches!(self.state, State::Streaming | State::Start) {
+            // QT then the new request: Probe does exactly that on a SCIP 2 sensor.
+            self.probe(now);
+        }
+        Ok(())
+    }
+
+    /// A notice raised by a timeout in [`Session::poll`], once.
+    pub fn take_notice(&mut self) -> Option<Notice> {
+        self.notice.take()
+    }
+
+    /// The next thing to do, if any; also runs timeouts (whose notice
+    /// [`Session::take_notice`] then gives). Call it after every event and periodically
+    /// (every few ms).
+    pub fn poll(&mut self, now: u64) -> Option<Action> {
+        if let Some(a) = self.take_action() {
+            return Some(a);
+        }
+        match self.state {
+            State::Off => {}
+            State::Backoff => {
+                if now >= self.backoff_until {
+                    self.probe(now);
+                }
+            }
+            State::Streaming => {
+                if now.saturating_sub(self.last_rx) > u64::from(self.silence_timeout()) {
+                    self.notice = self.recover(RecoverReason::Silence, now);
+                }
+            }
+            _ => {
+                if self.pending.is_some()
+                    && now.saturating_sub(self.sent_at) > u64::from(self.config.response_timeout_ms)
+                {
+                    self.notice = self.retry_or_recover(RecoverReason::Timeout, now);
+                }
+            }
+        }
+        self.take_action()
+    }
+
+    /// Takes one decoder event; returns what the rest of the bridge should know.
+    pub fn on_event(&mut self, event: &Event<'_>, now: u64) -> Option<Notice> {
+        match event {
+            Event::Start { request, .. } => {
+                self.last_rx = now;
+                self.current_status = None;
+                self.current_is_pending = match (request, self.pending) {
+                    (Some(r), Some(p)) => same_command(&r.command, &p.command),
+                    _ => false,
+                };
+                self.current_is_frame = matches!(
+                    request.map(|r| r.command),
+                    Some(Command::Scan(s)) if same_scan(&s, &self.config.scan)
+                );
+                None
+            }
+            Event::Status(status) => {
+                self.current_status = Some(*status);
+                None
+            }
+            Event::Field(field) => {
+                if self.current_is_pending && self.state == State::Parameters {
+                    self.params.apply(field.name, field.value);
+                }
+                None
+            }
+            Event::Timestamp(t) => {
+                if self.current_is_pending && self.state == State::SyncRead {
+                    // The midpoint of request and answer is the best estimate of when
+                    // the sensor read its clock.
+                    let mid = self.sent_at + now.saturating_sub(self.sent_at) / 2;
+                    return Some(Notice::TimeSync {
+                        sensor_ms: *t,
+                        now_ms: mid,
+                    });
+                }
+                None
+            }
+            Event::Data(_) | Event::Payload(_) => {
+                self.last_rx = now;
+                None
+            }
+            Event::End(summary) => {
+                self.last_rx = now;
+                self.on_response(summary, now)
+            }
+            Event::Error(_) => {
+                self.last_rx = now;
+                if self.current_is_frame && !self.current_is_pending {
+                    self.stats.damaged_frames += 1;
+                } else if self.current_is_pending && self.pending.is_some() {
+                    // A damaged answer: ask again.
+                    return self.retry_or_recover(RecoverReason::Timeout, now);
+                }
+                self.current_is_pending = false;
+                self.current_is_frame = false;
+                None
+            }
+        }
+    }
+
+    fn on_response(&mut self, summary: &Summary, now: u64) -> Option<Notice> {
+        let status = summary.status;
+        let is_pending = core::mem::take(&mut self.current_is_pending);
+        let is_frame = core::mem::take(&mut self.current_is_frame);
+        if let Status::Scip11(_) = status {
+            if self.reached_scip2 && self.state != State::Switch {
+                // A SCIP 2 sensor answering in 1.1: it rebooted (URG-04LX boots in 1.1).
+                self.stats.reboots += 1;
+                self.reached_scip2 = false;
+                return self.recover(RecoverReason::Reboot, now);
+            }
+        } else {
+            self.reached_scip2 = true;
+        }
+        if is_frame && !is_pending {
+            return self.on_frame(status, now);
+        }
+        if !is_pending {
+            self.stats.unexpected += 1;
+            return None;
+        }
+        self.pending = None;
+        self.retries = 0;
+        let kind = status.kind(&command_code(&summary.request));
+        match self.state {
+            State::Probe => {
+                if let Status::Scip11(_) = status {
+                    self.send(State::Switch, Request::new(Command::Scip20), now);
+                    return Some(Notice::Scip11Detected);
+                }
+                self.send(State::Version, Request::new(Command::Version), now);
+            }
+            State::Switch => {
+                // Whatever the answer, probe again: a SCIP 2 status proves the switch.
+                self.probe(now);
+            }
+            State::Version => self.send(State::Parameters, Request::new(Command::Parameters), now),
+            State::Parameters => {
+                self.send(State::Info, Request::new(Command::Info), now);
+                return Some(Notice::Identified);
+            }
+            State::Info => match self.config.bit_rate {
+                Some(rate) => self.send(State::BitRate, Request::new(Command::BitRate(rate)), now),
+                None => self.start_stream(now),
+            },
+            State::BitRate => {
+                if kind == StatusKind::Ok {
+                    if let Some(rate) = self.config.bit_rate {
+                        self.push_action(Action::SetBitRate(rate));
+                    }
+                }
+                self.start_stream(now);
+            }
+            State::Start => match kind {
+                StatusKind::Ok => {
+                    self.state = State::Streaming;
+                    self.backoff_ms = self.config.backoff_min_ms;
+                    return Some(Notice::Streaming);
+                }
+                StatusKind::Refused => {
+                    self.state = State::Off;
+                    return Some(Notice::StreamRefused(status));
+                }
+                _ => return self.recover(RecoverReason::StartFailed(status), now),
+            },
+            State::SyncStop => self.send(
+                State::SyncEnter,
+                Request::new(Command::Time(TimeMode::Enter)),
+                now,
+            ),
+            State::SyncEnter => self.send(
+                State::SyncRead,
+                Request::new(Command::Time(TimeMode::Read)),
+                now,
+            ),
+            State::SyncRead => self.send(
+                State::SyncLeave,
+                Request::new(Command::Time(TimeMode::Leave)),
+                now,
+            ),
+            State::SyncLeave => {
+                self.sync_wanted = false;
+                self.start_stream(now);
+            }
+            State::Stopping => {
+                self.state = State::Off;
+                return Some(Notice::Stopped);
+            }
+            State::Resetting => {
+                if matches!(summary.request.map(|r| r.command), Some(Command::LaserOff)) {
+                    self.send(State::Resetting, Request::new(Command::Reset), now);
+                } else {
+                    // RS puts the sensor's bit rate back to its power-up value.
+                    if self.config.bit_rate.is_some() {
+                        self.push_action(Action::SetBitRate(self.config.initial_bit_rate));
+                    }
+                    self.state = State::Backoff;
+                    self.backoff_until = now + u64::from(self.backoff_ms);
+                    self.backoff_ms = self
+                        .backoff_ms
+                        .saturating_mul(2)
+                        .min(self.config.backoff_max_ms);
+                }
+            }
+            State::Off | State::Streaming | State::Backoff => {}
+        }
+        None
+    }
+
+    fn on_frame(&mut self, status: Status, now: u64) -> Option<Notice> {
+        match status.kind(b"MD") {
+            StatusKind::StreamFrame | StatusKind::Unstable | StatusKind::Ok => {
+                self.stats.frames += 1;
+                None
+            }
+            StatusKind::HardwareFault | StatusKind::Stopped => {
+                self.stats.error_statuses += 1;
+                self.recover(RecoverReason::SensorFault(status), now)
+            }
+            _ => {
+                self.stats.error_statuses += 1;
+                None
+            }
+        }
+    }
+
+    fn silence_timeout(&self) -> u32 {
+        if self.config.silence_timeout_ms != 0 {
+            return self.config.silence_timeout_ms;
+        }
+        let period_ms = self
+            .params
+            .scan_period_us()
+            .map_or(100, |us| us.div_ceil(1000));
+        let skip = u32::from(self.config.scan.skip) + 1;
+        period_ms
+            .saturating_mul(4)
+            .saturating_mul(skip)
+            .saturating_add(200)
+    }
+
+    fn probe(&mut self, now: u64) {
+        self.send(State::Probe, Request::new(Command::LaserOff), now);
+    }
+
+    fn start_stream(&mut self, now: u64) {
+        if self.sync_wanted {
+            self.send(
+                State::SyncEnter,
+                Request::new(Command::Time(TimeMode::Enter)),
+                now,
+            );
+            return;
+        }
+        self.send(
+            State::Start,
+            Request::new(Command::Scan(self.config.scan)),
+            now,
+        );
+    }
+
+    fn send(&mut self, state: State, request: Request, now: u64) {
+        self.state = state;
+        self.pending = Some(request);
+        self.sent_at = now;
+        self.stats.commands += 1;
+        self.push_action(Action::Send(request));
+    }
+
+    fn retry_or_recover(&mut self, reason: RecoverReason, now: u64) -> Option<Notice> {
+        let Some(request) = self.pending else {
+            return None;
+        };
+        if self.retries < self.config.max_retries && self.state != State::Resetting {
+            self.retries += 1;
+            self.stats.retries += 1;
+            self.send(self.state, request, now);
+            return None;
+        }
+        if self.state == State::Resetting {
+            // The sensor does not even answer QT/RS: wait, then probe from scratch.
+            self.pending = None;
+            self.retries = 0;
+            self.state = State::Backoff;
+            self.backoff_until = now + u64::from(self.backoff_ms);
+            self.backoff_ms = self
+                .backoff_ms
+                .saturating_mul(2)
+                .min(self.config.backoff_max_ms);
+            return None;
+        }
+        self.recover(reason, now)
+    }
+
+    fn recover(&mut self, reason: RecoverReason, now: u64) -> Option<Notice> {
+        self.stats.recoveries += 1;
+        self.retries = 0;
+        self.send(State::Resetting, Request::new(Command::LaserOff), now);
+        Some(Notice::Recovering(reason))
+    }
+
+    fn push_action(&mut self, action: Action) {
+        match self.outbox {
+            [None, _] => self.outbox[0] = Some(action),
+            [Some(_), None] => self.outbox[1] = Some(action),
+            // Full: the newest command replaces the queued one (only the latest matters).
+            [Some(_), Some(_)] => self.outbox[1] = Some(action),
+        }
+    }
+
+    fn take_action(&mut self) -> Option<Action> {
+        let first = self.outbox[0].take();
+        self.outbox[0] = self.outbox[1].take();
+        first
+    }
+}
+
+/// The two command letters (or `SC`/`%S`), for status meanings.
+fn command_code(request: &Option<Request>) -> [u8; 2] {
+    match request.map(|r| r.command) {
+        Some(Command::Scan(s)) => s.code(),
+        Some(Command::LaserOn) => *b"BM",
+        Some(Command::BitRate(_)) => *b"SS",
+        Some(Command::MotorSpeed(_)) => *b"CR",
+        Some(Command::Time(_)) => *b"TM",
+        _ => *b"??",
+    }
+}
+
+/// An answer's echo stands for the pending command (a scan ack echoes it exactly).
+fn same_command(echo: &Command, sent: &Command) -> bool {
+    match (echo, sent) {
+        (Command::Scan(a), Command::Scan(b)) => a == b,
+        (a, b) => core::mem::discriminant(a) == core::mem::discriminant(b),
+    }
+}
+
+/// A stream frame of `sent`: the same request but for the remaining count.
+fn same_scan(echo: &ScanRequest, sent: &ScanRequest) -> bool {
+    ScanRequest {
+        count: sent.count,
+        ..*echo
+    } == *sent
+}

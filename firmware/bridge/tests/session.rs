@@ -1,0 +1,348 @@
+//! The session state machine against a scripted sensor: the bytes of each answer are
+//! written with the codec's `ResponseWriter` and decoded with its `Decoder`, as on the MCU.
+
+use bridge::session::{Action, Notice, RecoverReason, Session, SessionConfig, State};
+use scip::{Command, Decoder, Request, ResponseWriter, ScanMode, ScanRequest, TimeMode};
+
+/// A scripted sensor: SCIP 1.1 until switched, UTM-30LX parameters.
+struct Sensor {
+    scip11: bool,
+    mute: bool,
+    baud: u32,
+}
+
+impl Sensor {
+    fn answer(&mut self, req: &Request) -> Vec<u8> {
+        let mut out = Vec::new();
+        if self.mute {
+            return out;
+        }
+        let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+        w.echo(req);
+        if self.scip11 {
+            if req.command == Command::Scip20 {
+                self.scip11 = false;
+                w.status_scip11(b'0');
+            } else {
+                w.status_scip11(b'E');
+            }
+            w.end();
+            let _ = w.into_inner();
+            return out;
+        }
+        match req.command {
+            Command::Version => {
+                w.status(*b"00");
+                w.field(b"VEND", b"Hokuyo Automatic Co.,Ltd.");
+                w.field(b"PROD", b"SOKUIKI Sensor TOP-URG UTM-30LX");
+            }
+            Command::Parameters => {
+                w.status(*b"00");
+                for (n, v) in [
+                    (&b"MODL"[..], &b"UTM-30LX(Hokuyo Automatic Co.,Ltd.)"[..]),
+                    (b"DMIN", b"23"),
+                    (b"DMAX", b"60000"),
+                    (b"ARES", b"1440"),
+                    (b"AMIN", b"0"),
+                    (b"AMAX", b"1080"),
+                    (b"AFRT", b"540"),
+                    (b"SCAN", b"2400"),
+                ] {
+                    w.field(n, v);
+                }
+            }
+            Command::Info => {
+                w.status(*b"00");
+                w.field(b"LASR", b"OFF");
+            }
+            Command::BitRate(rate) => {
+                w.status(if rate == self.baud { *b"03" } else { *b"00" });
+                self.baud = rate;
+            }
+            Command::Scan(s) if s.end > 1080 => w.status(*b"04"),
+            Command::Time(TimeMode::Read) => {
+                w.status(*b"00");
+                w.timestamp(123_456);
+            }
+            _ => w.status(*b"00"),
+        }
+        w.end();
+        let _ = w.into_inner();
+        out
+    }
+}
+
+fn frame(scan: &ScanRequest, status: [u8; 2]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+    w.echo(&Request::new(Command::Scan(*scan)));
+    w.status(status);
+    if status == *b"99" || status == *b"0M" {
+        w.timestamp(1000);
+        for _ in 0..scan.value_count() {
+            w.step(1000, 0);
+        }
+    }
+    w.end();
+    let _ = w.into_inner();
+    out
+}
+
+/// Runs the session against the sensor until it has nothing to do; returns the commands
+/// it sent, the bit-rate changes and the notices.
+struct Rig {
+    session: Session,
+    decoder: Decoder,
+    sensor: Sensor,
+    sent: Vec<Request>,
+    rates: Vec<u32>,
+    notices: Vec<Notice>,
+}
+
+impl Rig {
+    fn new(config: SessionConfig, scip11: bool) -> Self {
+        Self {
+            session: Session::new(config).expect("valid config"),
+            decoder: Decoder::new(),
+            sensor: Sensor {
+                scip11,
+                mute: false,
+                baud: 115_200,
+            },
+            sent: Vec::new(),
+            rates: Vec::new(),
+            notices: Vec::new(),
+        }
+    }
+
+    fn feed(&mut self, bytes: &[u8], now: u64) {
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            let (used, ev) = self.decoder.feed(rest);
+            rest = &rest[used..];
+            if let Some(ev) = ev {
+                if let Some(n) = self.session.on_event(&ev, now) {
+                    self.notices.push(n);
+                }
+            }
+        }
+    }
+
+    fn run(&mut self, now: u64) {
+        for _ in 0..100 {
+            let action = self.session.poll(now);
+            if let Some(n) = self.session.take_notice() {
+                self.notices.push(n);
+            }
+            match action {
+                Some(Action::Send(req)) => {
+                    self.sent.push(req);
+                    let answer = self.sensor.answer(&req);
+                    self.feed(&answer, now);
+                }
+                Some(Action::SetBitRate(r)) => self.rates.push(r),
+                None => return,
+            }
+        }
+        panic!("session never settles");
+    }
+
+    fn codes(&self) -> Vec<String> {
+        self.sent
+            .iter()
+            .map(|r| {
+                let mut b = [0u8; scip::REQUEST_MAX];
+                let n = r.encode(&mut b).unwrap();
+                String::from_utf8_lossy(&b[..n - 1]).into_owned()
+            })
+            .collect()
+    }
+}
+
+fn config() -> SessionConfig {
+    SessionConfig {
+        scan: ScanRequest::distance(ScanMode::Continuous, 0, 1080),
+        ..SessionConfig::default()
+    }
+}
+
+#[test]
+fn scip11_sensor_is_switched_identified_and_streams() {
+    let mut rig = Rig::new(config(), true);
+    rig.session.start(0);
+    rig.run(0);
+    assert_eq!(
+        rig.codes(),
+        ["QT", "SCIP2.0", "QT", "VV", "PP", "II", "MD0000108001000"]
+    );
+    assert_eq!(
+        rig.notices,
+        [
+            Notice::Scip11Detected,
+            Notice::Identified,
+            Notice::Streaming
+        ]
+    );
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.params().scan_rpm, Some(2400));
+    assert_eq!(rig.session.params().dmin, Some(23));
+
+    // Frames keep it streaming; their count is kept.
+    let scan = rig.session.scan_request();
+    for t in 1..=5 {
+        rig.feed(&frame(&scan, *b"99"), t * 25);
+        rig.run(t * 25);
+    }
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.stats().frames, 5);
+}
+
+#[test]
+fn silence_is_recovered_with_growing_back_off() {
+    let mut rig = Rig::new(config(), false);
+    rig.session.start(0);
+    rig.run(0);
+    assert_eq!(rig.session.state(), State::Streaming);
+    // 2400 rpm = 25 ms per scan: silence limit 4 * 25 + 200 = 300 ms.
+    rig.run(300);
+    assert_eq!(rig.session.state(), State::Streaming);
+    rig.sent.clear();
+    rig.run(301);
+    assert_eq!(
+        rig.notices.last(),
+        Some(&Notice::Recovering(RecoverReason::Silence))
+    );
+    assert_eq!(rig.codes(), ["QT", "RS"]);
+    assert_eq!(rig.session.state(), State::Backoff);
+    // 100 ms back-off, then the whole bring-up again.
+    rig.run(400);
+    assert_eq!(rig.session.state(), State::Backoff);
+    rig.sent.clear();
+    rig.run(401);
+    assert_eq!(rig.codes(), ["QT", "VV", "PP", "II", "MD0000108001000"]);
+    assert_eq!(rig.session.state(), State::Streaming);
+    // Streaming resets the back-off; a second silence waits 100 ms again.
+    rig.run(1000);
+    assert_eq!(rig.session.state(), State::Backoff);
+    rig.sent.clear();
+    rig.run(1101);
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.stats().recoveries, 2);
+}
+
+#[test]
+fn a_reboot_into_scip11_mid_stream_is_recovered() {
+    let mut rig = Rig::new(config(), false);
+    rig.session.start(0);
+    rig.run(0);
+    let scan = rig.session.scan_request();
+    rig.feed(&frame(&scan, *b"99"), 10);
+    // The sensor reboots: it answers in SCIP 1.1 now (e.g. to a stray command).
+    rig.sensor.scip11 = true;
+    rig.feed(b"QT\nE\n\n", 20);
+    assert_eq!(
+        rig.notices.last(),
+        Some(&Notice::Recovering(RecoverReason::Reboot))
+    );
+    assert_eq!(rig.session.stats().reboots, 1);
+    rig.sent.clear();
+    rig.run(20);
+    // QT and RS are answered in 1.1; then back-off and the SCIP 1.1 bring-up.
+    rig.run(200);
+    assert_eq!(
+        rig.codes(),
+        [
+            "QT",
+            "RS",
+            "QT",
+            "SCIP2.0",
+            "QT",
+            "VV",
+            "PP",
+            "II",
+            "MD0000108001000"
+        ]
+    );
+    assert_eq!(rig.session.state(), State::Streaming);
+}
+
+#[test]
+fn hardware_fault_status_recovers_and_other_statuses_are_counted() {
+    let mut rig = Rig::new(config(), false);
+    rig.session.start(0);
+    rig.run(0);
+    let scan = rig.session.scan_request();
+    rig.feed(&frame(&scan, *b"0M"), 5);
+    assert_eq!(rig.session.state(), State::Streaming);
+    rig.feed(&frame(&scan, *b"98"), 6);
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.stats().error_statuses, 1);
+    rig.feed(&frame(&scan, *b"55"), 7);
+    assert_eq!(
+        rig.notices.last(),
+        Some(&Notice::Recovering(RecoverReason::SensorFault(
+            scip::Status::Scip2(*b"55")
+        )))
+    );
+}
+
+#[test]
+fn timeouts_retry_then_recover() {
+    let mut rig = Rig::new(config(), false);
+    rig.sensor.mute = true;
+    rig.session.start(0);
+    rig.run(0);
+    rig.run(1001); // retry 1
+    rig.run(2002); // retry 2
+    assert_eq!(rig.codes(), ["QT", "QT", "QT"]);
+    rig.run(3003); // give up: recover
+    assert_eq!(rig.notices, [Notice::Recovering(RecoverReason::Timeout)]);
+    assert_eq!(rig.session.stats().retries, 2);
+    // QT and RS go unanswered too: back-off, then probing again.
+    rig.run(4004);
+    assert_eq!(rig.session.state(), State::Backoff);
+    rig.sensor.mute = false;
+    rig.run(4105);
+    assert_eq!(rig.session.state(), State::Streaming);
+}
+
+#[test]
+fn bit_rate_change_and_time_sync() {
+    let mut rig = Rig::new(
+        SessionConfig {
+            bit_rate: Some(500_000),
+            ..config()
+        },
+        false,
+    );
+    rig.session.start(0);
+    rig.run(0);
+    assert_eq!(rig.rates, [500_000]);
+    assert!(rig.codes().contains(&"SS500000".to_string()));
+    rig.sent.clear();
+    rig.session.request_time_sync(50);
+    rig.run(50);
+    assert_eq!(rig.codes(), ["QT", "TM0", "TM1", "TM2", "MD0000108001000"]);
+    assert!(rig.notices.contains(&Notice::TimeSync {
+        sensor_ms: 123_456,
+        now_ms: 50
+    }));
+    assert_eq!(rig.session.state(), State::Streaming);
+}
+
+#[test]
+fn refused_parameters_turn_the_session_off() {
+    let mut scan = ScanRequest::distance(ScanMode::Continuous, 0, 1440);
+    scan.cluster = 1;
+    let mut rig = Rig::new(SessionConfig { scan, ..config() }, false);
+    rig.session.start(0);
+    rig.run(0);
+    assert_eq!(
+        rig.notices.last(),
+        Some(&Notice::StreamRefused(scip::Status::Scip2(*b"04")))
+    );
+    assert_eq!(rig.session.state(), State::Off);
+    rig.session.stop(10);
+    rig.run(10);
+    assert_eq!(rig.notices.last(), Some(&Notice::Stopped));
+}
