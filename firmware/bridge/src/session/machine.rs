@@ -496,9 +496,7 @@ impl Session {
     }
 
     fn retry_or_recover(&mut self, reason: RecoverReason, now: u64) -> Option<Notice> {
-        let Some(request) = self.pending else {
-            return None;
-        };
+        let request = self.pending?;
         if self.retries < self.config.max_retries && self.state != State::Resetting {
             self.retries += 1;
             self.stats.retries += 1;
