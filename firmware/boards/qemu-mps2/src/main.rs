@@ -2,8 +2,9 @@
 //!
 //! UART0 is the sensor port, UART1 the output port. This first version
 //! feeds the SCIP stream arriving on UART0 to the `scip` streaming decoder
-//! and prints one summary line per response (and one per error) on UART1. A byte 0x04 (EOT, never part of SCIP) on UART0 ends
-//! the program (see README.md).
+//! and prints one summary line per response (and one per error) on UART1.
+//! A byte 0x04 (EOT, never part of SCIP) on UART0 ends the program (see
+//! README.md).
 
 #![no_std]
 #![no_main]
