@@ -1,0 +1,253 @@
+//! The bandwidth governor: keeps the bridge inside its share of the CAN bus.
+//!
+//! - [`Governor::plan`] picks the angular decimation (and, if even the coarsest is too
+//!   much, a temporal decimation) that keeps the *average* load under the budget, from the
+//!   worst-case bus time of a scan (bit stuffing included, `can_wire::bandwidth`).
+//! - [`Governor::admit`] decides at the start of each scan whether it may be sent: a
+//!   token bucket of bus time (refilled at `share` of real time, capped at two scans'
+//!   worth) must hold the scan's whole worst-case cost, and the transmit queue must be
+//!   able to take every frame of the scan that the bus cannot drain while the scan's
+//!   bytes are still arriving on the UART. Otherwise the scan is dropped whole — never
+//!   half — and counted. The decision is made once, before the first frame, so the UART
+//!   path never waits for the bus.
+
+use can_wire::bandwidth::{scan_cost, BitRates, ScanCost};
+use can_wire::{Encoding, FrameFormat};
+
+/// Largest angular decimation the governor will choose.
+pub const MAX_FACTOR: u8 = 16;
+
+/// The bus and the bridge's share of it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Budget {
+    /// Bit rates of the bus.
+    pub rates: BitRates,
+    /// Classic or FD frames.
+    pub format: FrameFormat,
+    /// 29-bit identifiers.
+    pub extended: bool,
+    /// Share of the bus the bridge may use, in parts per thousand (1..=1000).
+    pub share_permille: u16,
+}
+
+/// What the governor chose for a stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Plan {
+    /// Angular decimation factor (1 = every point).
+    pub factor: u8,
+    /// Send every n-th scan (1 = every scan).
+    pub every_nth: u8,
+    /// Points per sent scan.
+    pub points: u16,
+    /// Worst-case cost of one sent scan.
+    pub cost: ScanCost,
+    /// Average worst-case bus load, parts per million.
+    pub load_ppm: u64,
+}
+
+/// Counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GovernorStats {
+    /// Scans admitted.
+    pub admitted: u32,
+    /// Scans dropped because the bus-time budget was spent.
+    pub dropped_budget: u32,
+    /// Scans dropped because the transmit queue could not take them.
+    pub dropped_queue: u32,
+}
+
+/// The governor. See the [module docs](self).
+#[derive(Debug, Clone)]
+pub struct Governor {
+    budget: Budget,
+    /// Bus time credit, ns.
+    credit_ns: u64,
+    last_ms: Option<u64>,
+    stats: GovernorStats,
+}
+
+impl Governor {
+    /// A governor for `budget`; a zero share is taken as 1 ‰, above 1000 as 1000.
+    pub fn new(budget: Budget) -> Self {
+        Self {
+            budget: Budget {
+                share_permille: budget.share_permille.clamp(1, 1000),
+                ..budget
+            },
+            credit_ns: 0,
+            last_ms: None,
+            stats: GovernorStats::default(),
+        }
+    }
+
+    /// The budget.
+    pub fn budget(&self) -> &Budget {
+        &self.budget
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> &GovernorStats {
+        &self.stats
+    }
+
+    /// Worst-case cost of a scan of `points` points.
+    pub fn cost(&self, points: u16, encoding: &Encoding) -> ScanCost {
+        scan_cost(
+            points,
+            encoding,
+            self.budget.format,
+            self.budget.extended,
+            self.budget.rates,
+        )
+    }
+
+    /// The smallest decimation (angular first, then temporal) whose average load fits the
+    /// share, for scans of `points` points at `scans_per_s_milli` / 1000 scans per second.
+    /// When even the coarsest does not fit, the coarsest is returned (its load says so).
+    pub fn plan(&self, points: u16, encoding: &Encoding, scans_per_s_milli: u32) -> Plan {
+        let limit = u64::from(self.budget.share_permille) * 1000;
+        let mut best = None;
+        for every_nth in 1..=u8::MAX {
+            let rate = scans_per_s_milli / u32::from(every_nth);
+            for factor in 1..=MAX_FACTOR {
+                let n = points.div_ceil(u16::from(factor));
+                let cost = self.cost(n, encoding);
+                let plan = Plan {
+                    factor,
+                    every_nth,
+                    points: n,
+                    cost,
+                    load_ppm: cost.load_ppm(rate),
+                };
+                best = Some(plan);
+                if plan.load_ppm <= limit {
+                    return plan;
+                }
+            }
+        }
+        // Unreachable in practice (one scan in 255 always fits); keep the coarsest.
+        best.unwrap_or(Plan {
+            factor: MAX_FACTOR,
+            every_nth: u8::MAX,
+            points,
+            cost: self.cost(points, encoding),
+            load_ppm: u64::MAX,
+        })
+    }
+
+    /// Decides, at the start of a scan, whether it is sent.
+    ///
+    /// `cost` is the scan's worst-case cost, `uart_us` the time its bytes take to arrive
+    /// on the UART, `queue_free` the free frames of the transmit queue now.
+    pub fn admit(&mut self, now_ms: u64, cost: &ScanCost, uart_us: u64, queue_free: usize) -> bool {
+        self.refill(now_ms, cost);
+        if self.credit_ns < cost.time_ns {
+            self.stats.dropped_budget += 1;
+            return false;
+        }
+        // Frames the bus carries (at our share) while the scan is still arriving.
+        let frame_ns = cost.time_ns / u64::from(cost.frames.max(1));
+        let share_ns = uart_us * 1000 * u64::from(self.budget.share_permille) / 1000;
+        let drained = (share_ns / frame_ns.max(1)) as usize;
+        let frames = cost.frames as usize;
+        if frames > queue_free.saturating_add(drained) {
+            self.stats.dropped_queue += 1;
+            return false;
+        }
+        self.credit_ns -= cost.time_ns;
+        self.stats.admitted += 1;
+        true
+    }
+
+    fn refill(&mut self, now_ms: u64, cost: &ScanCost) {
+        let cap = cost.time_ns.saturating_mul(2);
+        match self.last_ms {
+            None => self.credit_ns = cap,
+            Some(last) => {
+                let dt_ms = now_ms.saturating_sub(last);
+                let add = dt_ms
+                    .saturating_mul(1_000_000)
+                    .saturating_mul(u64::from(self.budget.share_permille))
+                    / 1000;
+                self.credit_ns = self.credit_ns.saturating_add(add).min(cap);
+            }
+        }
+        self.last_ms = Some(now_ms);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use can_wire::{DistanceEncoding, IntensityEncoding};
+
+    const D12: Encoding = Encoding {
+        distance: DistanceEncoding::D12,
+        intensity: IntensityEncoding::None,
+        unit_exp: 0,
+    };
+
+    fn classic(share: u16) -> Governor {
+        Governor::new(Budget {
+            rates: BitRates::CLASSIC_1M,
+            format: FrameFormat::Classic,
+            extended: false,
+            share_permille: share,
+        })
+    }
+
+    #[test]
+    fn urg04lx_full_resolution_fits_a_quarter_of_classic_1m() {
+        let g = classic(250);
+        let plan = g.plan(682, &D12, 10_000);
+        assert_eq!((plan.factor, plan.every_nth), (1, 1));
+        assert!(plan.load_ppm <= 250_000, "{plan:?}");
+    }
+
+    #[test]
+    fn a_small_share_decimates_then_skips_scans() {
+        let g = classic(100);
+        let plan = g.plan(682, &D12, 10_000);
+        assert!(plan.factor > 1 && plan.every_nth == 1, "{plan:?}");
+        assert!(plan.load_ppm <= 100_000);
+        // The factor is the smallest that fits.
+        let finer = g.cost(682u16.div_ceil(u16::from(plan.factor - 1)), &D12);
+        assert!(finer.load_ppm(10_000) > 100_000);
+
+        // 40 Hz UTM-30LX in 1 ‰ of a classic bus: even 1/16 of the points does not fit,
+        // so scans are skipped too.
+        let g = classic(1);
+        let plan = g.plan(1081, &D12, 40_000);
+        assert_eq!(plan.factor, MAX_FACTOR);
+        assert!(plan.every_nth > 1 && plan.load_ppm <= 1000, "{plan:?}");
+    }
+
+    #[test]
+    fn admission_spends_and_refills_bus_time() {
+        let mut g = classic(250);
+        let cost = g.cost(682, &D12);
+        // 682 points * 3 bytes at 19200 bit/s ≈ 1.07 s of UART time: plenty of drain.
+        assert!(g.admit(0, &cost, 1_000_000, 8));
+        assert!(g.admit(0, &cost, 1_000_000, 8));
+        // Two scans' credit spent: the third at the same instant is dropped whole.
+        assert!(!g.admit(0, &cost, 1_000_000, 8));
+        assert_eq!(g.stats().dropped_budget, 1);
+        // A quarter of the bus refills one scan's cost in 4 × its bus time.
+        let wait_ms = (cost.time_ns * 4).div_ceil(1_000_000);
+        assert!(g.admit(wait_ms, &cost, 1_000_000, 8));
+        assert_eq!(g.stats().admitted, 3);
+    }
+
+    #[test]
+    fn admission_needs_queue_room_for_what_the_bus_cannot_drain() {
+        let mut g = classic(1000);
+        let cost = g.cost(682, &D12);
+        // Bytes arriving instantly (a replay at full speed): the queue must hold it all.
+        assert!(!g.admit(0, &cost, 0, cost.frames as usize - 1));
+        assert_eq!(g.stats().dropped_queue, 1);
+        assert!(g.admit(0, &cost, 0, cost.frames as usize));
+    }
+}
