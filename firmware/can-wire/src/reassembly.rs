@@ -219,11 +219,11 @@ impl<const P: usize> Scan<P> {
 
     /// Estimated data frames needed for the missing points among the first `count`.
     fn missing_frames(&self, count: u16) -> u32 {
-        let cap = if self.frame_capacity > 0 {
-            usize::from(self.frame_capacity)
-        } else {
-            self.header.encoding.capacity(8).max(1)
-        };
+        // A full frame holds at least a classic frame's points; the largest frame seen
+        // tells more on CAN FD.
+        let cap = usize::from(self.frame_capacity)
+            .max(self.header.encoding.capacity(8))
+            .max(1);
         let mut frames = 0u32;
         let mut run = 0usize;
         for i in 0..usize::from(count) {
@@ -646,5 +646,210 @@ fn scan_frame<const P: usize>(
             Ok(reportable.then_some(cur))
         }
         Kind::Control | Kind::ControlAnswer | Kind::Status => Ok(None),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::id::NodeIds;
+    use crate::{DistanceEncoding, Encoding, Grouping, IntensityEncoding};
+    use embedded_can::StandardId;
+
+    const D12: Encoding = Encoding {
+        distance: DistanceEncoding::D12,
+        intensity: IntensityEncoding::None,
+        unit_exp: 0,
+    };
+
+    fn ids(node: u8) -> NodeIds {
+        IdWindow::DEFAULT.node(node).unwrap()
+    }
+
+    // Scan seq 0x0107, 5 D12 points (ABC, invalid, out of range, 123, out of range), as
+    // in the encoder's golden test.
+    const A: [u8; 8] = [0x07, 0x01, 0xE8, 0x03, 0, 0, 0x05, 0x00];
+    const B: [u8; 8] = [0x07, 0x03, 0x00, 0x01, 0xFE, 0xFF, 0x00, 0x04];
+    const D0: [u8; 8] = [0x00, 0x70, 0xBC, 0x0A, 0x00, 0xFF, 0x3F, 0x12];
+    const D1: [u8; 4] = [0x04, 0x70, 0xFF, 0x0F];
+
+    fn trailer() -> [u8; 8] {
+        let mut crc = ScanCrc::new(&A, &B);
+        for c in [0xABC, 0, 0xFFF, 0x123, 0xFFF] {
+            crc.point(c, None);
+        }
+        let head = [0x07, 0x01, 0x05, 0x00, 0x02, 0x00];
+        let c = crc.finish(&head).to_le_bytes();
+        [
+            head[0], head[1], head[2], head[3], head[4], head[5], c[0], c[1],
+        ]
+    }
+
+    fn feed(dec: &mut Decoder<16, 2>, node: u8, kind: Kind, data: &[u8]) -> Option<Completeness> {
+        match dec.push(ids(node).id(kind), data) {
+            Ok(Some(Event::Scan { scan, .. })) => Some(scan.completeness()),
+            _ => None,
+        }
+    }
+
+    #[test]
+    fn golden_scan_decodes() {
+        let mut dec: Decoder<16, 2> = Decoder::new(IdWindow::DEFAULT);
+        assert_eq!(feed(&mut dec, 2, Kind::HeaderA, &A), None);
+        assert_eq!(feed(&mut dec, 2, Kind::HeaderB, &B), None);
+        assert_eq!(feed(&mut dec, 2, Kind::Data, &D0), None);
+        assert_eq!(feed(&mut dec, 2, Kind::Data, &D1), None);
+        let t = trailer();
+        let id = ids(2).id(Kind::Trailer);
+        let Ok(Some(Event::Scan { node, scan })) = dec.push(id, &t) else {
+            panic!("no scan");
+        };
+        assert_eq!(node, 2);
+        assert!(scan.is_intact());
+        assert_eq!(scan.header().point_count, 5);
+        assert_eq!(scan.header().encoding, D12);
+        assert_eq!(scan.header().grouping, Grouping::Single);
+        let pts: Vec<_> = scan.points().map(|p| p.map(|p| p.distance)).collect();
+        assert_eq!(
+            pts,
+            vec![
+                Some(Distance::Mm(0xABC)),
+                Some(Distance::Invalid),
+                Some(Distance::OutOfRange),
+                Some(Distance::Mm(0x123)),
+                Some(Distance::OutOfRange),
+            ]
+        );
+        assert_eq!(scan.point(5), None);
+        assert_eq!(scan.point(0).unwrap().intensity, None);
+        // A repeated trailer is a duplicate.
+        assert_eq!(feed(&mut dec, 2, Kind::Trailer, &t), None);
+        assert_eq!(dec.stats(2).unwrap().duplicates, 1);
+        assert_eq!(dec.stats(2).unwrap().scans_intact, 1);
+    }
+
+    #[test]
+    fn crc_mismatch_and_valid_count() {
+        let mut dec: Decoder<16, 2> = Decoder::new(IdWindow::DEFAULT);
+        for (k, d) in [
+            (Kind::HeaderA, &A[..]),
+            (Kind::HeaderB, &B),
+            (Kind::Data, &D0),
+        ] {
+            feed(&mut dec, 0, k, d);
+        }
+        // Last point changed from out of range to 0xFFE: valid count 3 ≠ 2 and CRC differs.
+        feed(&mut dec, 0, Kind::Data, &[0x04, 0x70, 0xFE, 0x0F]);
+        assert_eq!(
+            feed(&mut dec, 0, Kind::Trailer, &trailer()),
+            Some(Completeness::CrcMismatch)
+        );
+        assert_eq!(dec.stats(0).unwrap().corrupt, 1);
+    }
+
+    #[test]
+    fn conflicting_and_orphan_frames() {
+        let mut dec: Decoder<16, 2> = Decoder::new(IdWindow::DEFAULT);
+        // Data before any header: orphan.
+        assert_eq!(feed(&mut dec, 1, Kind::Data, &D0), None);
+        assert_eq!(dec.stats(1).unwrap().frames_orphaned, 1);
+        feed(&mut dec, 1, Kind::HeaderA, &A);
+        // Header B of another scan: orphan.
+        let mut b = B;
+        b[0] = 0x08;
+        feed(&mut dec, 1, Kind::HeaderB, &b);
+        assert_eq!(dec.stats(1).unwrap().frames_orphaned, 2);
+        feed(&mut dec, 1, Kind::HeaderB, &B);
+        feed(&mut dec, 1, Kind::Data, &D0);
+        // Same index, other codes: conflict → the scan cannot be intact.
+        let mut d = D0;
+        d[2] ^= 1;
+        feed(&mut dec, 1, Kind::Data, &d);
+        feed(&mut dec, 1, Kind::Data, &D1);
+        assert_eq!(
+            feed(&mut dec, 1, Kind::Trailer, &trailer()),
+            Some(Completeness::Corrupt)
+        );
+        // Data frame of another scan (sequence low bits 8): orphan.
+        feed(&mut dec, 1, Kind::HeaderA, &[0x08, 0x01, 0, 0, 0, 0, 5, 0]);
+        feed(&mut dec, 1, Kind::HeaderB, &b);
+        let before = dec.stats(1).unwrap().frames_orphaned;
+        feed(&mut dec, 1, Kind::Data, &D0);
+        assert_eq!(dec.stats(1).unwrap().frames_orphaned, before + 1);
+    }
+
+    #[test]
+    fn next_header_reports_the_unfinished_scan() {
+        let mut dec: Decoder<16, 2> = Decoder::new(IdWindow::DEFAULT);
+        feed(&mut dec, 0, Kind::HeaderA, &A);
+        feed(&mut dec, 0, Kind::HeaderB, &B);
+        feed(&mut dec, 0, Kind::Data, &D1);
+        let next = [0x08, 0x01, 0, 0, 0, 0, 5, 0];
+        assert_eq!(
+            feed(&mut dec, 0, Kind::HeaderA, &next),
+            Some(Completeness::Incomplete {
+                missing_points: 4,
+                trailer_missing: true
+            })
+        );
+        let s = dec.stats(0).unwrap();
+        assert_eq!(s.frames_lost, 2); // the trailer and the 4-point frame
+        assert_eq!(s.scans_damaged, 1);
+        assert!(dec.flush(0).is_none()); // the new scan has no header B yet
+    }
+
+    #[test]
+    fn scan_larger_than_decoder() {
+        let mut dec: Decoder<4, 1> = Decoder::new(IdWindow::DEFAULT);
+        let push = |dec: &mut Decoder<4, 1>, k: Kind, d: &[u8]| match dec.push(ids(0).id(k), d) {
+            Ok(Some(Event::Scan { scan, .. })) => Some(scan.completeness()),
+            _ => None,
+        };
+        push(&mut dec, Kind::HeaderA, &A);
+        push(&mut dec, Kind::HeaderB, &B);
+        push(&mut dec, Kind::Data, &D0);
+        push(&mut dec, Kind::Data, &D1);
+        assert_eq!(
+            push(&mut dec, Kind::Trailer, &trailer()),
+            Some(Completeness::Incomplete {
+                missing_points: 1,
+                trailer_missing: false
+            })
+        );
+        // A second bridge does not fit.
+        assert_eq!(
+            dec.push(ids(1).id(Kind::HeaderA), &A).map(|e| e.is_some()),
+            Err(Error::TooManyBridges)
+        );
+    }
+
+    #[test]
+    fn other_frames() {
+        let mut dec: Decoder<16, 1> = Decoder::new(IdWindow::DEFAULT);
+        let foreign = Id::Standard(StandardId::new(0x0FF).unwrap());
+        assert!(matches!(dec.push(foreign, &[1, 2]), Ok(None)));
+        let hb = [0, 3, 10, 20, 1, 0, 0, 0];
+        assert!(matches!(
+            dec.push(ids(4).id(Kind::Status), &hb),
+            Ok(Some(Event::Status { node: 4, .. }))
+        ));
+        assert!(matches!(
+            dec.push(ids(4).id(Kind::ControlAnswer), &[1, 2, 0, 0]),
+            Ok(Some(Event::Answer { node: 4, .. }))
+        ));
+        assert!(matches!(
+            dec.push(ids(4).id(Kind::Control), &[1, 2]),
+            Ok(Some(Event::Control { node: 4, .. }))
+        ));
+        assert_eq!(
+            dec.push(ids(4).id(Kind::Status), &hb[..7])
+                .map(|e| e.is_some()),
+            Err(Error::BadLength {
+                expected: 8,
+                actual: 7
+            })
+        );
+        assert_eq!(dec.stats(4).unwrap().corrupt, 1);
+        assert_eq!(dec.stats(16), None);
     }
 }
