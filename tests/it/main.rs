@@ -1,4 +1,5 @@
 //! Integration tests of scip2can, one binary: each module is one topic.
 
+mod bridge_replay;
 mod codec_props;
 mod recordings;

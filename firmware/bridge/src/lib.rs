@@ -6,11 +6,13 @@
 //!
 //! - [`pipeline`]: the streaming scan pipeline (region of interest, range window,
 //!   intensity threshold, speckle removal, median, angular and temporal decimation).
+//! - [`engine`]: the bridge itself: UART bytes in, CAN frames out.
 //! - [`governor`]: the bandwidth governor (decimation plan, whole-scan admission).
 //! - [`session`]: the sensor session state machine (SCIP 1.1 detection, identification,
 //!   bit rate, streaming, silence/fault/reboot detection, recovery with back-off, time
 //!   sync).
 
+pub mod engine;
 pub mod governor;
 pub mod pipeline;
 pub mod session;

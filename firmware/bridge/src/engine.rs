@@ -1,0 +1,531 @@
+//! The bridge engine: UART bytes in, CAN frames out, with the session, the pipeline, the
+//! governor and the CAN scan encoder wired together.
+//!
+//! ```text
+//! UART bytes ─▶ scip::Decoder ─▶ events ─┬─▶ Session ─▶ commands for the sensor (poll)
+//!                                        └─▶ scan path: admit (governor) ─▶ Pipeline
+//!                                              ─▶ can_wire::ScanEncoder ─▶ frame queue ─▶ CAN
+//! ```
+//! A scan is processed line by line as it arrives; its header frames are queued when its
+//! timestamp line is decoded, each data frame as soon as it is full, and its trailer when
+//! the response ends intact. A damaged response (any decode error) ends the scan with an
+//! abort frame instead, so a receiver never takes a damaged scan for an intact one.
+//!
+//! Every measurement response is a scan: a single scan (G*/H*, status 00) or a stream
+//! frame (M*/N*, status 99 or 0M). Only the first echo of multi-echo steps is published.
+//! Intensities above 65535 are saturated to 65535 before the wire encoding.
+//!
+//! The frame queue (capacity `Q`) always keeps one slot for a scan's trailer or abort:
+//! a data frame that finds fewer than two free slots is not queued, and the scan ends with
+//! an abort frame (`QueueOverflow`), counted. The governor admits a scan only when the
+//! queue and the bus can take all of it, so this happens only when the bus is busier than
+//! the bridge's share assumed.
+
+use can_wire::{
+    AbortReason, Distance, Encoding, Frame, Grouping, NodeIds, ScanEncoder, ScanHeader,
+    TrailerFlags,
+};
+use heapless::Deque;
+use scip::{Command, Decoder, Event, Range, ScanMode, ScanRequest, Status};
+
+use crate::governor::{Budget, Governor};
+use crate::pipeline::{
+    DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo, ScanStart,
+};
+use crate::session::{Action, Notice, RecoverReason, Session, SessionConfig, SessionError};
+
+/// Everything the bridge is configured with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BridgeConfig {
+    /// The sensor session.
+    pub session: SessionConfig,
+    /// The scan pipeline.
+    pub pipeline: PipelineConfig,
+    /// Point encoding on the wire.
+    pub encoding: Encoding,
+    /// The bus and the bridge's share of it (frame format included).
+    pub budget: Budget,
+    /// The bridge's CAN identifiers.
+    pub ids: NodeIds,
+    /// The UART bit rate (to know how long a scan takes to arrive).
+    pub uart_bit_rate: u32,
+}
+
+/// Why a bridge configuration is refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BridgeError {
+    /// The session settings.
+    Session(SessionError),
+    /// The pipeline settings.
+    Pipeline(crate::pipeline::ConfigError),
+    /// The wire encoding or frame format.
+    Wire(can_wire::Error),
+    /// A UART bit rate of 0.
+    UartBitRate,
+}
+
+impl core::fmt::Display for BridgeError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Session(e) => write!(f, "session: {e}"),
+            Self::Pipeline(e) => write!(f, "pipeline: {e}"),
+            Self::Wire(e) => write!(f, "wire: {e:?}"),
+            Self::UartBitRate => f.write_str("UART bit rate must be non-zero"),
+        }
+    }
+}
+
+/// Counters of the scan path.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BridgeStats {
+    /// Measurement responses that began (timestamp decoded).
+    pub scans_in: u32,
+    /// Scans sent whole, with their trailer.
+    pub scans_sent: u32,
+    /// Scans ended with an abort frame.
+    pub scans_aborted: u32,
+    /// Scans left out by temporal decimation.
+    pub scans_skipped: u32,
+    /// Scans the governor dropped whole.
+    pub scans_dropped: u32,
+    /// Data frames that found the queue full (their scan was aborted).
+    pub queue_overflows: u32,
+    /// Frames queued.
+    pub frames: u32,
+}
+
+/// Where the scan path is within the current response.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// Not in a measurement response.
+    None,
+    /// A measurement echo; the status decides.
+    Echo(ScanRequest),
+    /// A status that carries a scan; the timestamp starts it.
+    Framed(ScanRequest),
+    /// A scan being published.
+    Active(ScanRequest),
+    /// A scan not published (skipped, dropped, or aborted): its lines are ignored.
+    Ignored,
+}
+
+/// The parts of the bridge other than the decoder (so that the decoder's events, which
+/// borrow it, can be handled with mutable access to everything else).
+#[derive(Debug)]
+struct Core<const Q: usize> {
+    config: BridgeConfig,
+    session: Session,
+    pipeline: Pipeline,
+    encoder: ScanEncoder,
+    governor: Governor,
+    queue: Deque<Frame, Q>,
+    phase: Phase,
+    seq: u16,
+    overflow: bool,
+    filtered: bool,
+    stats: BridgeStats,
+    notice: Option<Notice>,
+}
+
+/// The bridge. `Q` is the capacity of the CAN transmit queue, in frames (at least 4).
+#[derive(Debug)]
+pub struct Bridge<const Q: usize> {
+    decoder: Decoder,
+    core: Core<Q>,
+}
+
+impl<const Q: usize> Bridge<Q> {
+    /// A bridge with every setting validated; the session is off until [`Bridge::start`].
+    pub fn new(config: BridgeConfig) -> Result<Self, BridgeError> {
+        if config.uart_bit_rate == 0 {
+            return Err(BridgeError::UartBitRate);
+        }
+        config.encoding.validate().map_err(BridgeError::Wire)?;
+        Ok(Self {
+            decoder: Decoder::new(),
+            core: Core {
+                session: Session::new(config.session).map_err(BridgeError::Session)?,
+                pipeline: Pipeline::new(config.pipeline).map_err(BridgeError::Pipeline)?,
+                encoder: ScanEncoder::new(config.ids, config.budget.format)
+                    .map_err(BridgeError::Wire)?,
+                governor: Governor::new(config.budget),
+                queue: Deque::new(),
+                phase: Phase::None,
+                seq: 0,
+                overflow: false,
+                filtered: false,
+                stats: BridgeStats::default(),
+                notice: None,
+                config,
+            },
+        })
+    }
+
+    /// Starts the sensor session.
+    pub fn start(&mut self, now_ms: u64) {
+        self.core.session.start(now_ms);
+    }
+
+    /// Stops the stream (and aborts a scan in progress).
+    pub fn stop(&mut self, now_ms: u64) {
+        self.core.abort_scan(AbortReason::Stopped);
+        self.core.session.stop(now_ms);
+    }
+
+    /// Takes bytes from the sensor's UART. Work is linear in `bytes.len()`.
+    pub fn on_uart(&mut self, bytes: &[u8], now_ms: u64) {
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            let (used, event) = self.decoder.feed(rest);
+            rest = rest.get(used..).unwrap_or(&[]);
+            if let Some(event) = event {
+                self.core.event(&event, now_ms);
+            }
+        }
+    }
+
+    /// The next command for the sensor or UART change, if any. Call after `on_uart` and
+    /// periodically.
+    pub fn poll(&mut self, now_ms: u64) -> Option<Action> {
+        let action = self.core.session.poll(now_ms);
+        if let Some(notice) = self.core.session.take_notice() {
+            self.core.notice(notice);
+        }
+        action
+    }
+
+    /// The next frame to transmit, oldest first.
+    pub fn pop_frame(&mut self) -> Option<Frame> {
+        self.core.queue.pop_front()
+    }
+
+    /// Frames waiting to be transmitted.
+    pub fn queued(&self) -> usize {
+        self.core.queue.len()
+    }
+
+    /// The last notice of the session (taken once).
+    pub fn take_notice(&mut self) -> Option<Notice> {
+        self.core.notice.take()
+    }
+
+    /// Counters of the scan path.
+    pub fn stats(&self) -> &BridgeStats {
+        &self.core.stats
+    }
+
+    /// The decoder (its counters, its learned limits).
+    pub fn decoder(&self) -> &Decoder {
+        &self.decoder
+    }
+
+    /// The session.
+    pub fn session(&self) -> &Session {
+        &self.core.session
+    }
+
+    /// The pipeline.
+    pub fn pipeline(&self) -> &Pipeline {
+        &self.core.pipeline
+    }
+
+    /// The governor.
+    pub fn governor(&self) -> &Governor {
+        &self.core.governor
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &BridgeConfig {
+        &self.core.config
+    }
+}
+
+impl<const Q: usize> Core<Q> {
+    fn event(&mut self, event: &Event<'_>, now: u64) {
+        if let Some(n) = self.session.on_event(event, now) {
+            self.notice(n);
+        }
+        match (event, self.phase) {
+            (Event::Start { request, .. }, phase) => {
+                if matches!(phase, Phase::Active(_)) {
+                    // A response began before the scan's end: cannot happen with a sound
+                    // decoder, but never leave a scan open.
+                    self.abort_scan(AbortReason::BadData);
+                }
+                self.phase = match request.map(|r| r.command) {
+                    Some(Command::Scan(s)) => Phase::Echo(s),
+                    _ => Phase::None,
+                };
+            }
+            (Event::Status(status), Phase::Echo(s)) => {
+                self.phase = if carries_scan(&s, *status) {
+                    Phase::Framed(s)
+                } else {
+                    Phase::None
+                };
+            }
+            (Event::Timestamp(t), Phase::Framed(s)) => self.begin_scan(s, *t, now),
+            (Event::Data(line), Phase::Active(s)) => {
+                let cluster = u32::from(s.cluster.max(1));
+                let has_aux = line.data.aux_width() > 0;
+                for r in line.readings.iter().filter(|r| r.echo == 0) {
+                    let step = u32::from(s.start) + u32::from(r.index) * cluster;
+                    let range = line.range(r);
+                    let point = RawPoint {
+                        step: u16::try_from(step).unwrap_or(u16::MAX),
+                        distance: r.distance,
+                        intensity: has_aux.then_some(r.aux),
+                        valid: matches!(range, Range::Mm(_)),
+                    };
+                    let Self {
+                        pipeline,
+                        encoder,
+                        queue,
+                        overflow,
+                        filtered,
+                        stats,
+                        ..
+                    } = self;
+                    pipeline.push(point, &mut |p: Point| {
+                        emit_point(p, encoder, queue, overflow, filtered, stats)
+                    });
+                }
+            }
+            (Event::End(_), Phase::Active(_)) => self.finish_scan(),
+            (Event::Error(e), Phase::Active(_)) => {
+                let reason = match e.kind {
+                    scip::ErrorKind::BadSum { .. } => AbortReason::Checksum,
+                    scip::ErrorKind::Truncated => AbortReason::Timeout,
+                    _ => AbortReason::BadData,
+                };
+                self.abort_scan(reason);
+            }
+            (Event::End(_) | Event::Error(_), _) => self.phase = Phase::None,
+            _ => {}
+        }
+    }
+
+    fn notice(&mut self, notice: Notice) {
+        if let Notice::Recovering(reason) = notice {
+            self.abort_scan(match reason {
+                RecoverReason::Reboot => AbortReason::SensorRestart,
+                RecoverReason::Silence | RecoverReason::Timeout => AbortReason::Timeout,
+                _ => AbortReason::SensorError,
+            });
+        }
+        self.notice = Some(notice);
+    }
+
+    fn begin_scan(&mut self, s: ScanRequest, timestamp: u32, now: u64) {
+        self.stats.scans_in += 1;
+        self.phase = Phase::Ignored;
+        let info = ScanInfo {
+            seq: u32::from(self.seq),
+            timestamp_ms: timestamp,
+            first_step: s.start,
+            last_step: s.end,
+            cluster: u16::from(s.cluster),
+        };
+        let points = match self.pipeline.begin_scan(info) {
+            ScanStart::Publish { points } => points,
+            ScanStart::Skip => {
+                self.stats.scans_skipped += 1;
+                return;
+            }
+            ScanStart::BadGeometry => return,
+        };
+        let Ok(point_count) = u16::try_from(points) else {
+            self.pipeline_discard();
+            return;
+        };
+        let encoding = self.wire_encoding(&s);
+        let cost = self.governor.cost(point_count, &encoding);
+        // 10 bits per UART byte; a step is `width` chars, lines add 2 bytes per 64 chars.
+        let width = u64::from(s.data.distance_width() + s.data.aux_width());
+        let chars = u64::from(s.value_count()) * width;
+        let bytes = chars + chars.div_ceil(64) * 2 + 40;
+        let uart_us = bytes * 10 * 1_000_000 / u64::from(self.config.uart_bit_rate.max(1));
+        let free = Q.saturating_sub(self.queue.len());
+        if !self.governor.admit(now, &cost, uart_us, free) {
+            self.stats.scans_dropped += 1;
+            self.pipeline_discard();
+            return;
+        }
+        let header = ScanHeader {
+            seq: self.seq,
+            timestamp_ms: timestamp,
+            point_count,
+            encoding,
+            time_synced: false,
+            grouping: self.grouping(&s),
+            step_increment: u8::try_from(self.step_increment(&s)).unwrap_or(u8::MAX),
+            first_step: self.first_output_step(&s),
+            ares: self
+                .session
+                .params()
+                .ares
+                .and_then(|a| u16::try_from(a).ok())
+                .unwrap_or(1440),
+        };
+        match self.encoder.begin(&header) {
+            Ok(frames) => {
+                for f in frames {
+                    push(&mut self.queue, f, &mut self.stats);
+                }
+                self.seq = self.seq.wrapping_add(1);
+                self.overflow = false;
+                self.filtered = false;
+                self.phase = Phase::Active(s);
+            }
+            Err(_) => self.pipeline_discard(),
+        }
+    }
+
+    /// The configured encoding, without an intensity channel when the scan has none.
+    fn wire_encoding(&self, s: &ScanRequest) -> Encoding {
+        let mut e = self.config.encoding;
+        if s.data.aux_width() == 0 {
+            e.intensity = can_wire::IntensityEncoding::None;
+        }
+        e
+    }
+
+    fn step_increment(&self, s: &ScanRequest) -> u32 {
+        let factor = self
+            .config
+            .pipeline
+            .decimation
+            .map_or(1, |d| u32::from(d.factor));
+        u32::from(s.cluster.max(1)) * factor
+    }
+
+    fn grouping(&self, s: &ScanRequest) -> Grouping {
+        match self.config.pipeline.decimation.map(|d| d.mode) {
+            Some(DecimationMode::Mean) => Grouping::Mean,
+            Some(DecimationMode::Min) => Grouping::Min,
+            _ if s.cluster > 1 => Grouping::Min,
+            _ => Grouping::Single,
+        }
+    }
+
+    /// Step of the first output point, relative to the sensor's front step (AFRT).
+    fn first_output_step(&self, s: &ScanRequest) -> i16 {
+        let cluster = u32::from(s.cluster.max(1));
+        let mut first = u32::from(s.start);
+        if let Some(roi) = self.config.pipeline.roi {
+            let lo = u32::from(roi.first);
+            if lo > first {
+                first += (lo - first).div_ceil(cluster) * cluster;
+            }
+        }
+        let afrt = self.session.params().afrt.unwrap_or(0);
+        let rel = i64::from(first) - i64::from(afrt);
+        i16::try_from(rel).unwrap_or(i16::MIN)
+    }
+
+    fn finish_scan(&mut self) {
+        let Self {
+            pipeline,
+            encoder,
+            queue,
+            overflow,
+            filtered,
+            stats,
+            ..
+        } = self;
+        let _ = pipeline.end_scan(true, &mut |p: Point| {
+            emit_point(p, encoder, queue, overflow, filtered, stats)
+        });
+        self.phase = Phase::None;
+        if self.overflow {
+            self.abort_scan_now(AbortReason::QueueOverflow);
+            return;
+        }
+        let flags = TrailerFlags {
+            truncated: false,
+            sensor_error: false,
+            filtered: self.filtered,
+        };
+        match self.encoder.finish(flags) {
+            Ok(frames) => {
+                for f in frames {
+                    push(&mut self.queue, f, &mut self.stats);
+                }
+                self.stats.scans_sent += 1;
+            }
+            Err(_) => self.abort_scan_now(AbortReason::BadData),
+        }
+    }
+
+    /// Ends the scan in progress, if any, with an abort frame.
+    fn abort_scan(&mut self, reason: AbortReason) {
+        if matches!(self.phase, Phase::Active(_)) {
+            self.pipeline_discard();
+            self.abort_scan_now(reason);
+        }
+        self.phase = Phase::None;
+    }
+
+    fn abort_scan_now(&mut self, reason: AbortReason) {
+        if let Ok(f) = self.encoder.abort(reason, 0) {
+            push(&mut self.queue, f, &mut self.stats);
+            self.stats.scans_aborted += 1;
+        }
+        self.phase = Phase::None;
+    }
+
+    /// Ends the pipeline's scan without publishing what its windows still hold.
+    fn pipeline_discard(&mut self) {
+        let _ = self.pipeline.end_scan(false, &mut |_p: Point| {});
+    }
+}
+
+/// A measurement response whose status carries a scan.
+fn carries_scan(s: &ScanRequest, status: Status) -> bool {
+    match s.mode {
+        ScanMode::Single => status == Status::OK,
+        ScanMode::Continuous => matches!(status, Status::Scip2([b'9', b'9'] | [b'0', b'M'])),
+    }
+}
+
+fn push<const Q: usize>(queue: &mut Deque<Frame, Q>, f: Frame, stats: &mut BridgeStats) {
+    if queue.push_back(f).is_ok() {
+        stats.frames += 1;
+    }
+}
+
+/// One output point into the encoder; a full data frame into the queue, if two slots are
+/// free (one stays for the trailer or abort).
+fn emit_point<const Q: usize>(
+    p: Point,
+    encoder: &mut ScanEncoder,
+    queue: &mut Deque<Frame, Q>,
+    overflow: &mut bool,
+    filtered: &mut bool,
+    stats: &mut BridgeStats,
+) {
+    if *overflow {
+        return;
+    }
+    let distance = match p.range_mm {
+        Some(mm) => Distance::Mm(mm),
+        None => Distance::Invalid,
+    };
+    let intensity = p
+        .intensity
+        .map_or(0, |i| u16::try_from(i).unwrap_or(u16::MAX));
+    match encoder.push_point(distance, intensity) {
+        Ok(Some(frame)) => {
+            if Q.saturating_sub(queue.len()) >= 2 {
+                push(queue, frame, stats);
+            } else {
+                *overflow = true;
+                stats.queue_overflows += 1;
+            }
+        }
+        Ok(None) => {}
+        Err(_) => *filtered = true,
+    }
+}
