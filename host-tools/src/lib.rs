@@ -4,3 +4,5 @@
 //! that the integration tests run exactly what the command runs.
 
 pub mod parse;
+pub mod sensor;
+pub mod sim;

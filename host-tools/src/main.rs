@@ -26,6 +26,8 @@ enum Cmd {
         /// The stream file, or `-` for standard input.
         file: PathBuf,
     },
+    /// A simulated Hokuyo sensor on TCP (default 127.0.0.1:10940), a pty, or stdio.
+    Sim(scip2can_host::sim::cli::SimArgs),
 }
 
 fn main() -> ExitCode {
@@ -41,6 +43,7 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
+        Cmd::Sim(args) => scip2can_host::sim::cli::run(args),
         Cmd::Parse { file } => {
             let out = BufWriter::new(io::stdout().lock());
             if file.as_os_str() == "-" {
