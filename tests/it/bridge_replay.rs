@@ -33,6 +33,8 @@ fn config(format: FrameFormat, encoding: Encoding) -> BridgeConfig {
         },
         ids: IdWindow::DEFAULT.node(0).expect("node 0"),
         uart_bit_rate: 115_200,
+        status_period_ms: 0,
+        fd_capable: true,
     }
 }
 

@@ -49,6 +49,10 @@ pub struct BridgeConfig {
     pub ids: NodeIds,
     /// The UART bit rate (to know how long a scan takes to arrive).
     pub uart_bit_rate: u32,
+    /// Period of the heartbeat and counter status frames, ms; 0 sends none.
+    pub status_period_ms: u32,
+    /// The CAN controller can send CAN FD frames (a control frame may switch to FD).
+    pub fd_capable: bool,
 }
 
 /// Why a bridge configuration is refused.
@@ -127,6 +131,10 @@ struct Core<const Q: usize> {
     filtered: bool,
     stats: BridgeStats,
     notice: Option<Notice>,
+    /// A frame format asked for by a control frame, applied when the next scan begins.
+    pending_format: Option<can_wire::FrameFormat>,
+    /// Status, bus and load bookkeeping.
+    health: crate::status::Health,
 }
 
 /// The bridge. `Q` is the capacity of the CAN transmit queue, in frames (at least 4).
@@ -158,6 +166,8 @@ impl<const Q: usize> Bridge<Q> {
                 filtered: false,
                 stats: BridgeStats::default(),
                 notice: None,
+                pending_format: None,
+                health: crate::status::Health::new(),
                 config,
             },
         })
@@ -189,6 +199,7 @@ impl<const Q: usize> Bridge<Q> {
     /// The next command for the sensor or UART change, if any. Call after `on_uart` and
     /// periodically.
     pub fn poll(&mut self, now_ms: u64) -> Option<Action> {
+        self.core.periodic_status(now_ms, self.decoder.stats());
         let action = self.core.session.poll(now_ms);
         if let Some(notice) = self.core.session.take_notice() {
             self.core.notice(notice);
@@ -196,9 +207,50 @@ impl<const Q: usize> Bridge<Q> {
         action
     }
 
-    /// The next frame to transmit, oldest first.
+    /// The next frame to transmit: control answers and status first, then the frames
+    /// of scans in their order.
     pub fn pop_frame(&mut self) -> Option<Frame> {
-        self.core.queue.pop_front()
+        let frame = self.core.queue.pop_front()?;
+        let budget = self.core.config.budget;
+        self.core.health.sent(&frame, budget.rates, budget.extended);
+        Some(frame)
+    }
+
+    /// Takes a frame received from the bus; control frames addressed to this bridge are
+    /// applied and answered (the answer is queued). Returns true for such a frame.
+    pub fn on_can_frame(&mut self, frame: &Frame, now_ms: u64) -> bool {
+        let ids = self.core.config.ids;
+        match ids.window().classify(frame.id()) {
+            Some((node, can_wire::Kind::Control)) if node == ids.node() => {
+                self.core.control(frame.data(), now_ms);
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// The board saw a CAN bus error.
+    pub fn on_bus_error(&mut self) {
+        self.core.health.bus_errors = self.core.health.bus_errors.saturating_add(1);
+    }
+
+    /// The CAN controller's error state changed; entering bus-off is counted.
+    pub fn set_bus_state(&mut self, state: can_wire::BusState) {
+        let code = u8::from(state);
+        if state == can_wire::BusState::BusOff && self.core.health.bus_state != code {
+            self.core.health.bus_off_events = self.core.health.bus_off_events.saturating_add(1);
+        }
+        self.core.health.bus_state = code;
+    }
+
+    /// The board's measured CPU load, permille.
+    pub fn set_cpu_load(&mut self, permille: u16) {
+        self.core.health.cpu_permille = permille.min(1000);
+    }
+
+    /// Bus-side counters and loads.
+    pub fn health(&self) -> &crate::status::Health {
+        &self.core.health
     }
 
     /// Frames waiting to be transmitted.
@@ -307,6 +359,133 @@ impl<const Q: usize> Core<Q> {
         }
     }
 
+    /// A frame that goes ahead of queued scan frames (control answers, status). It never
+    /// takes the last free slot while a scan is open (that one is the trailer's).
+    fn push_priority(&mut self, frame: Frame) {
+        let reserve = if matches!(self.phase, Phase::Active(_)) {
+            2
+        } else {
+            1
+        };
+        if Q.saturating_sub(self.queue.len()) >= reserve && self.queue.push_front(frame).is_ok() {
+            self.stats.frames += 1;
+        } else {
+            self.health.tx_overflows = self.health.tx_overflows.saturating_add(1);
+        }
+    }
+
+    fn push_status(&mut self, status: can_wire::Status) {
+        let id = self.config.ids.id(can_wire::Kind::Status);
+        let fd = self.encoder.format().is_fd();
+        if let Ok(bytes) = status.emit() {
+            if let Ok(frame) = Frame::new(id, &bytes, fd) {
+                self.push_priority(frame);
+            }
+        }
+    }
+
+    fn periodic_status(&mut self, now: u64, dec: &scip::DecoderStats) {
+        let boot = *self.health.boot_ms.get_or_insert(now);
+        let period = u64::from(self.config.status_period_ms);
+        if period == 0 {
+            return;
+        }
+        let last = self.health.last_status_ms.unwrap_or(boot);
+        if self.health.last_status_ms.is_some() && now.saturating_sub(last) < period {
+            return;
+        }
+        if self.health.last_status_ms.is_some() {
+            self.health.close_period(now.saturating_sub(last));
+        }
+        self.health.last_status_ms = Some(now);
+        let sum_errors = dec
+            .by_kind
+            .get(
+                scip::ErrorKind::BadSum {
+                    expected: 0,
+                    found: 0,
+                }
+                .index(),
+            )
+            .copied()
+            .unwrap_or(0);
+        let g = self.governor.stats();
+        let dropped = self
+            .stats
+            .scans_aborted
+            .saturating_add(g.dropped_budget)
+            .saturating_add(g.dropped_queue);
+        let pages = crate::status::periodic_pages(
+            &self.health,
+            crate::status::bridge_state(self.session.state()),
+            now,
+            sum_errors,
+            dec.resyncs,
+            dropped,
+            self.session.stats().recoveries,
+        );
+        // Pushed to the front in reverse, so they leave as heartbeat, sensor, bus.
+        for page in pages.into_iter().rev() {
+            self.push_status(page);
+        }
+    }
+
+    fn control(&mut self, data: &[u8], now: u64) {
+        let answer = match can_wire::Control::parse(data) {
+            Err(e) => can_wire::Answer::reject(data, &e),
+            Ok(control) => {
+                match crate::control::plan(&control, self.pipeline.config(), self.config.fd_capable)
+                {
+                    Err((outcome, detail)) => crate::control::rejection(&control, outcome, detail),
+                    Ok(apply) => {
+                        self.apply(apply, now);
+                        can_wire::Answer::accept(&control)
+                    }
+                }
+            }
+        };
+        let id = self.config.ids.id(can_wire::Kind::ControlAnswer);
+        if let Ok(frame) = Frame::new(id, &answer.emit(), self.encoder.format().is_fd()) {
+            self.push_priority(frame);
+        }
+    }
+
+    fn apply(&mut self, apply: crate::control::Apply, now: u64) {
+        use crate::control::Apply;
+        match apply {
+            Apply::Start => self.session.start(now),
+            Apply::Stop => {
+                self.abort_scan(AbortReason::Stopped);
+                self.session.stop(now);
+            }
+            Apply::SensorInfo => {
+                let pages = crate::status::info_pages(self.session.params());
+                for page in pages.into_iter().rev() {
+                    self.push_status(page);
+                }
+            }
+            Apply::ResetCounters => {
+                self.stats = BridgeStats::default();
+                let boot = self.health.boot_ms;
+                let state = self.health.bus_state;
+                self.health = crate::status::Health::new();
+                self.health.boot_ms = boot;
+                self.health.bus_state = state;
+            }
+            Apply::Pipeline(cfg) => {
+                // Validated by `plan`; takes effect when the next scan begins.
+                let _ = self.pipeline.set_config(cfg);
+                self.config.pipeline = cfg;
+            }
+            Apply::Encoding(e) => self.config.encoding = e,
+            Apply::Format(f) => {
+                self.pending_format = Some(f);
+                self.config.budget.format = f;
+                self.governor = Governor::new(self.config.budget);
+            }
+        }
+    }
+
     fn notice(&mut self, notice: Notice) {
         if let Notice::Recovering(reason) = notice {
             self.abort_scan(match reason {
@@ -369,6 +548,10 @@ impl<const Q: usize> Core<Q> {
                 .and_then(|a| u16::try_from(a).ok())
                 .unwrap_or(1440),
         };
+        if let Some(format) = self.pending_format.take() {
+            // Between scans: cannot fail for a validated format.
+            let _ = self.encoder.set_format(format);
+        }
         match self.encoder.begin(&header) {
             Ok(frames) => {
                 for f in frames {
@@ -394,15 +577,15 @@ impl<const Q: usize> Core<Q> {
 
     fn step_increment(&self, s: &ScanRequest) -> u32 {
         let factor = self
-            .config
             .pipeline
+            .config()
             .decimation
             .map_or(1, |d| u32::from(d.factor));
         u32::from(s.cluster.max(1)) * factor
     }
 
     fn grouping(&self, s: &ScanRequest) -> Grouping {
-        match self.config.pipeline.decimation.map(|d| d.mode) {
+        match self.pipeline.config().decimation.map(|d| d.mode) {
             Some(DecimationMode::Mean) => Grouping::Mean,
             Some(DecimationMode::Min) => Grouping::Min,
             _ if s.cluster > 1 => Grouping::Min,
@@ -414,7 +597,7 @@ impl<const Q: usize> Core<Q> {
     fn first_output_step(&self, s: &ScanRequest) -> i16 {
         let cluster = u32::from(s.cluster.max(1));
         let mut first = u32::from(s.start);
-        if let Some(roi) = self.config.pipeline.roi {
+        if let Some(roi) = self.pipeline.config().roi {
             let lo = u32::from(roi.first);
             if lo > first {
                 first += (lo - first).div_ceil(cluster) * cluster;

@@ -7,12 +7,16 @@
 //! - [`pipeline`]: the streaming scan pipeline (region of interest, range window,
 //!   intensity threshold, speckle removal, median, angular and temporal decimation).
 //! - [`engine`]: the bridge itself: UART bytes in, CAN frames out.
+//! - [`control`]: control frames validated, applied and answered.
+//! - [`status`]: health counters and the status (heartbeat) frames.
 //! - [`governor`]: the bandwidth governor (decimation plan, whole-scan admission).
 //! - [`session`]: the sensor session state machine (SCIP 1.1 detection, identification,
 //!   bit rate, streaming, silence/fault/reboot detection, recovery with back-off, time
 //!   sync).
 
+pub mod control;
 pub mod engine;
 pub mod governor;
 pub mod pipeline;
 pub mod session;
+pub mod status;
