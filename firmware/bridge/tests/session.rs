@@ -162,6 +162,7 @@ impl Rig {
 fn config() -> SessionConfig {
     SessionConfig {
         scan: ScanRequest::distance(ScanMode::Continuous, 0, 1080),
+        full_range: false,
         ..SessionConfig::default()
     }
 }
@@ -327,6 +328,26 @@ fn bit_rate_change_and_time_sync() {
         sensor_ms: 123_456,
         now_ms: 50
     }));
+    assert_eq!(rig.session.state(), State::Streaming);
+}
+
+#[test]
+fn full_range_takes_the_sensors_amin_amax() {
+    let mut rig = Rig::new(
+        SessionConfig {
+            scan: ScanRequest::distance(ScanMode::Continuous, 100, 200),
+            full_range: true,
+            ..SessionConfig::default()
+        },
+        false,
+    );
+    rig.session.start(0);
+    rig.run(0);
+    // The scripted sensor is a UTM-30LX: AMIN 0, AMAX 1080.
+    assert_eq!(
+        rig.codes().last().map(String::as_str),
+        Some("MD0000108001000")
+    );
     assert_eq!(rig.session.state(), State::Streaming);
 }
 

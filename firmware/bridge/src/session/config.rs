@@ -10,6 +10,9 @@ use scip::{Command, Request, ScanMode, ScanRequest};
 pub struct SessionConfig {
     /// The stream to run: a continuous request (M*/N*); `count` 0 streams until stopped.
     pub scan: ScanRequest,
+    /// Replace `scan.start`/`scan.end` by the sensor's AMIN/AMAX once PP is decoded, so
+    /// one configuration streams the full range of any model.
+    pub full_range: bool,
     /// Bit rate to raise the UART to with `SS` after identification (serial links only).
     pub bit_rate: Option<u32>,
     /// The UART's bit rate at power-up, restored after a reset (`RS` resets the sensor's).
@@ -29,11 +32,12 @@ pub struct SessionConfig {
 }
 
 impl Default for SessionConfig {
-    /// Full-range distance stream of a UTM-class sensor (steps 0..=1080), at the UART's
-    /// power-up rate of 115200 bit/s, 1 s answer timeout, 100 ms .. 5 s back-off.
+    /// Full-range distance stream (AMIN..AMAX from PP; 0..=1080 until then), at the
+    /// UART's power-up rate of 115200 bit/s, 1 s answer timeout, 100 ms .. 5 s back-off.
     fn default() -> Self {
         Self {
             scan: ScanRequest::distance(ScanMode::Continuous, 0, 1080),
+            full_range: true,
             bit_rate: None,
             initial_bit_rate: 115_200,
             response_timeout_ms: 1000,

@@ -364,6 +364,29 @@ impl Session {
             }
             State::Version => self.send(State::Parameters, Request::new(Command::Parameters), now),
             State::Parameters => {
+                if self.config.full_range {
+                    if let (Some(amin), Some(amax)) = (self.params.amin, self.params.amax) {
+                        let (Ok(start), Ok(end)) = (u16::try_from(amin), u16::try_from(amax))
+                        else {
+                            return self.recover(RecoverReason::StartFailed(status), now);
+                        };
+                        let scan = ScanRequest {
+                            start,
+                            end,
+                            ..self.config.scan
+                        };
+                        // Keep the old range if the sensor's makes an invalid request.
+                        if (SessionConfig {
+                            scan,
+                            ..self.config
+                        })
+                        .validate()
+                        .is_ok()
+                        {
+                            self.config.scan = scan;
+                        }
+                    }
+                }
                 self.send(State::Info, Request::new(Command::Info), now);
                 return Some(Notice::Identified);
             }
