@@ -28,6 +28,12 @@ enum Cmd {
     },
     /// A simulated Hokuyo sensor on TCP (default 127.0.0.1:10940), a pty, or stdio.
     Sim(scip2can_host::sim::cli::SimArgs),
+    /// VV, PP and II of a sensor, pretty.
+    Info(scip2can_host::sensor::cli::InfoArgs),
+    /// N scans of a sensor as JSON lines or CSV.
+    Scan(scip2can_host::sensor::cli::ScanCmdArgs),
+    /// Record a session (both directions, timestamps) until Ctrl-C or -n scans.
+    Record(scip2can_host::sensor::cli::RecordArgs),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +50,9 @@ fn main() -> ExitCode {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Cmd::Sim(args) => scip2can_host::sim::cli::run(args),
+        Cmd::Info(args) => scip2can_host::sensor::cli::run_info(args),
+        Cmd::Scan(args) => scip2can_host::sensor::cli::run_scan(args),
+        Cmd::Record(args) => scip2can_host::sensor::cli::run_record(args),
         Cmd::Parse { file } => {
             let out = BufWriter::new(io::stdout().lock());
             if file.as_os_str() == "-" {

@@ -11,6 +11,9 @@
 //! and a decode error in `errors` (`{"kind", "line", "offset", "message"}`), with what
 //! was decoded before the damage. Garbage between responses gives an object with
 //! `command` null.
+//!
+//! The input may also be a `scip2can record` file: its sensor → host chunks are decoded
+//! (see [`sensor_side`]).
 
 use std::io::{self, Read, Write};
 
@@ -166,7 +169,8 @@ pub fn parse_bytes(bytes: &[u8]) -> Vec<ResponseJson> {
 }
 
 /// Reads a stream to its end and writes one JSON line per response; returns how many.
-pub fn run(mut input: impl Read, mut out: impl Write) -> io::Result<usize> {
+pub fn run(input: impl Read, mut out: impl Write) -> io::Result<usize> {
+    let mut input = sensor_side(input)?;
     let mut dec = Decoder::new();
     let mut col = Collector::default();
     let mut buf = vec![0u8; 64 * 1024];
@@ -195,4 +199,10 @@ fn write_all(done: &mut Vec<ResponseJson>, out: &mut impl Write) -> io::Result<u
         out.write_all(b"\n")?;
     }
     Ok(n)
+}
+
+/// The sensor → host bytes of `input`: the `<` chunks of a record file
+/// (`crate::sensor::record_file`), or `input` itself for a raw stream.
+pub fn sensor_side<'a>(input: impl Read + 'a) -> io::Result<Box<dyn Read + 'a>> {
+    crate::sensor::record_file::sensor_side(input)
 }
