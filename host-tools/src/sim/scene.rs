@@ -189,18 +189,19 @@ impl Scene {
     }
 
     /// The hits of a ray at `angle` (radians) at time `t` seconds, nearest first, as
-    /// (distance m, surface); stops after the first opaque one.
-    fn cast(&self, angle: f64, t: f64, hits: &mut Vec<(f64, Surface)>) {
+    /// (distance m, surface, object number); stops after the first opaque one.
+    fn cast(&self, angle: f64, t: f64, hits: &mut Vec<(f64, Surface, usize)>) {
         hits.clear();
         let (dx, dy) = (angle.cos(), angle.sin());
-        for s in &self.segments {
+        for (i, s) in self.segments.iter().enumerate() {
             if let Some(d) = ray_segment(dx, dy, s.a, s.b) {
-                hits.push((d, s.surface));
+                hits.push((d, s.surface, i));
             }
         }
-        for m in &self.movers {
+        let n = self.segments.len();
+        for (i, m) in self.movers.iter().enumerate() {
             if let Some(d) = ray_circle(dx, dy, m.centre(t), m.radius) {
-                hits.push((d, m.surface));
+                hits.push((d, m.surface, n + i));
             }
         }
         hits.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -217,7 +218,7 @@ impl Scene {
         let mut hits = Vec::new();
         self.cast(angle, t, &mut hits);
         let mut power = 1.0;
-        for &(d, surface) in &hits {
+        for &(d, surface, _) in &hits {
             out.push(Echo {
                 distance_mm: d * 1000.0,
                 reflectance: surface.reflectance,
@@ -225,17 +226,18 @@ impl Scene {
             });
             power *= surface.transmittance;
         }
-        // The beam's footprint: rays at both edges of the step.
-        let first = hits.first().map(|h| h.0);
+        // The beam's footprint: rays at both edges of the step. One that meets another
+        // object, well apart from what the centre sees, is a partial hit (an edge).
+        let seen: Vec<usize> = hits.iter().map(|h| h.2).collect();
         for side in [-0.45, 0.45] {
             self.cast(angle + side * width, t, &mut hits);
-            let Some(&(d, surface)) = hits.iter().find(|h| h.1.transmittance <= 0.0) else {
+            let Some(&(d, surface, id)) = hits.iter().find(|h| h.1.transmittance <= 0.0) else {
                 continue;
             };
             let far_from_all = out
                 .iter()
                 .all(|e| (e.distance_mm / 1000.0 - d).abs() > EDGE_GAP_M);
-            if first.is_some() && far_from_all {
+            if !seen.is_empty() && !seen.contains(&id) && far_from_all {
                 out.push(Echo {
                     distance_mm: d * 1000.0,
                     reflectance: surface.reflectance,
