@@ -215,6 +215,9 @@ pub struct Decoder {
     pp: SensorParams,
     limits: RangeLimits,
     stats: DecoderStats,
+    /// Tests and fuzzing only: never take the whole-step fast path.
+    #[cfg(any(test, fuzzing))]
+    char_by_char: bool,
 }
 
 impl Default for Decoder {
@@ -288,7 +291,20 @@ impl Decoder {
                 by_kind: [0; ErrorKind::COUNT],
                 resyncs: 0,
             },
+            #[cfg(any(test, fuzzing))]
+            char_by_char: false,
         }
+    }
+
+    /// A decoder that decodes every value char by char, never a whole step at a time:
+    /// the reference the fast path is checked against. Only in tests and under
+    /// `cfg(fuzzing)` (set by `cargo fuzz`).
+    #[cfg(any(test, fuzzing))]
+    #[doc(hidden)]
+    pub fn char_by_char() -> Self {
+        let mut d = Self::new();
+        d.char_by_char = true;
+        d
     }
 
     /// A decoder that already knows the sensor's range limits (e.g. from an earlier PP).
@@ -337,11 +353,12 @@ impl Decoder {
     ///
     /// Call again with the rest of the input until it is empty. Work is linear in the
     /// bytes consumed.
+    #[inline]
     pub fn feed(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
         let mut consumed = 0;
         let mut rest = input;
         loop {
-            let Some(lf) = rest.iter().position(|&b| b == b'\n') else {
+            let Some(lf) = find_lf(rest) else {
                 self.append(rest);
                 self.offset += rest.len() as u64;
                 self.stats.bytes += rest.len() as u64;
@@ -383,6 +400,7 @@ impl Decoder {
         }
     }
 
+    #[inline]
     fn append(&mut self, bytes: &[u8]) {
         if self.overflow {
             return;
@@ -398,6 +416,7 @@ impl Decoder {
 
     /// Handles a complete line quickly when it produces no event (empty lines between
     /// responses, lines skipped after an error); true when [`Self::line_event`] must run.
+    #[inline]
     fn line_has_event(&mut self) -> bool {
         let empty = self.len == 0 && !self.overflow;
         match self.state {
@@ -464,7 +483,9 @@ impl Decoder {
         Some(self.error(kind, line))
     }
 
-    /// Processes the complete line in the buffer.
+    /// Processes the complete line in the buffer. Kept out of line so that [`Self::feed`]
+    /// stays small for the calls that only buffer bytes.
+    #[inline(never)]
     fn line_event(&mut self) -> Option<Event<'_>> {
         let len = self.len;
         let overflow = self.overflow;
@@ -687,8 +708,12 @@ impl Decoder {
             return self.fail(ErrorKind::BadDataLineLength);
         }
         let n = len - 1;
-        let (expected, found) = match self.buf.get(..len) {
-            Some([data @ .., s]) => (checksum(data), *s),
+        // One pass for the sum and the value-char check of the fast path.
+        let (expected, found, all_valid) = match self.buf.get(..len) {
+            Some([data @ .., s]) => {
+                let (sum, valid) = sum_and_check(data);
+                (sum, *s, valid)
+            }
             _ => return self.fail(ErrorKind::BadDataLineLength),
         };
         if expected != found {
@@ -701,7 +726,7 @@ impl Decoder {
             self.short_line_seen = true;
         }
         self.n_readings = 0;
-        if let Err(kind) = self.decode_values(n) {
+        if let Err(kind) = self.decode_values(n, all_valid) {
             return self.fail(kind);
         }
         Some(Event::Data(DataLine {
@@ -712,14 +737,141 @@ impl Decoder {
         }))
     }
 
-    /// Decodes the first `n` bytes of the buffer as value chars, carrying partial values.
-    fn decode_values(&mut self, n: usize) -> Result<(), ErrorKind> {
+    /// Decodes the first `n` bytes of the buffer as value chars, carrying partial values;
+    /// `all_valid` tells that all of them are value chars (see [`sum_and_check`]).
+    fn decode_values(&mut self, n: usize, all_valid: bool) -> Result<(), ErrorKind> {
+        // Fast path: a line of valid value chars only (no `&`, nothing to report by
+        // column) is decoded a whole step at a time. Anything else goes char by char.
+        #[cfg(any(test, fuzzing))]
+        let all_valid = all_valid && !self.char_by_char;
+        if !self.shape.multi_echo && all_valid {
+            match (self.shape.dist_width, self.shape.aux_width) {
+                (3, 0) => return self.decode_steps::<3, 0>(n),
+                (2, 0) => return self.decode_steps::<2, 0>(n),
+                (3, 3) => return self.decode_steps::<3, 3>(n),
+                (3, 2) => return self.decode_steps::<3, 2>(n),
+                (3, 4) => return self.decode_steps::<3, 4>(n),
+                _ => {}
+            }
+        }
+        self.decode_chars_copied(n)
+    }
+
+    /// Decodes the first `n` bytes of the buffer (all valid value chars, see
+    /// [`sum_and_check`]) of a data set
+    /// with `D`-char distances and `A`-char second values, a whole step at a time: the
+    /// step begun on the previous line is completed from the carried value, the whole
+    /// steps go straight into readings, the partial step at the end is carried. Same
+    /// readings, state and errors as [`Self::decode_chars`] on the same chars.
+    fn decode_steps<const D: usize, const A: usize>(&mut self, n: usize) -> Result<(), ErrorKind> {
+        let width = D + A;
+        let chars = self.buf.get(..n).unwrap_or(&[]);
+        let carried = usize::from(self.carry_n);
+        // The step begun on the previous line, completed.
+        let mut head = None;
+        let mut rest = chars;
+        if carried != 0 || self.in_aux {
+            let (distance, aux, used) = if self.in_aux {
+                let need = A.saturating_sub(carried);
+                let Some(a) = chars.get(..need) else {
+                    return self.decode_chars_copied(n);
+                };
+                (self.pending_distance, continue_valid(self.carry, a), need)
+            } else {
+                let need = D.saturating_sub(carried);
+                let (Some(d), Some(a)) = (chars.get(..need), chars.get(need..need + A)) else {
+                    return self.decode_chars_copied(n);
+                };
+                (
+                    continue_valid(self.carry, d),
+                    continue_valid(0, a),
+                    need + A,
+                )
+            };
+            head = Some((distance, aux));
+            rest = chars.get(used..).unwrap_or(&[]);
+        }
+        let whole = rest.len() / width;
+        let (mid, tail) = rest.split_at(whole * width);
+        let total = whole + usize::from(head.is_some());
+        let too_many = ErrorKind::TooManyValues {
+            expected: self.shape.expected,
+        };
+        if usize::from(self.values) + total > usize::from(self.shape.expected) {
+            return Err(too_many);
+        }
+        let first = self.n_readings;
+        let slots = self
+            .readings
+            .get_mut(first..first + total)
+            .ok_or(too_many)?;
+        let mut index = self.values;
+        let mut slots = slots.iter_mut();
+        if let Some((distance, aux)) = head {
+            if let Some(slot) = slots.next() {
+                *slot = Reading {
+                    index,
+                    echo: 0,
+                    distance,
+                    aux,
+                };
+                index = index.wrapping_add(1);
+            }
+        }
+        for (slot, step) in slots.zip(mid.chunks_exact(width)) {
+            let Some((d, a)) = step.split_first_chunk::<D>() else {
+                continue;
+            };
+            let Some(a) = a.first_chunk::<A>() else {
+                continue;
+            };
+            *slot = Reading {
+                index,
+                echo: 0,
+                distance: decode_valid(d),
+                aux: decode_valid(a),
+            };
+            index = index.wrapping_add(1);
+        }
+        if total > 0 {
+            self.echo_no = 0;
+        }
+        self.values = index;
+        self.n_readings = first + total;
+        // The partial step at the end: a distance and part of its second value, or part
+        // of a distance.
+        match tail.split_at_checked(D) {
+            Some((d, a)) if A > 0 => {
+                self.pending_distance = continue_valid(0, d);
+                self.in_aux = true;
+                self.carry = continue_valid(0, a);
+                self.carry_n = a.len() as u8;
+                self.want = A as u8;
+            }
+            _ => {
+                self.in_aux = false;
+                self.carry = continue_valid(0, tail);
+                self.carry_n = tail.len() as u8;
+                self.want = D as u8;
+            }
+        }
+        Ok(())
+    }
+
+    /// [`Self::decode_chars`] on the first `n` bytes of the buffer.
+    fn decode_chars_copied(&mut self, n: usize) -> Result<(), ErrorKind> {
+        let buf = self.buf;
+        self.decode_chars(buf.get(..n).unwrap_or(&[]), 0)
+    }
+
+    /// Decodes `chars` one by one, carrying partial values; `col0` is the column of the
+    /// first of them in its line.
+    fn decode_chars(&mut self, chars: &[u8], col0: usize) -> Result<(), ErrorKind> {
         let mut carry = self.carry;
         let mut carry_n = self.carry_n;
         let mut want = self.want;
-        let buf = self.buf;
-        let chars = buf.get(..n).unwrap_or(&[]);
-        for (col, &c) in chars.iter().enumerate() {
+        for (i, &c) in chars.iter().enumerate() {
+            let col = col0 + i;
             let v = c.wrapping_sub(CHAR_MIN);
             if v >= 0x40 {
                 if c == b'&' {
@@ -834,5 +986,291 @@ impl Decoder {
             extra_echoes: self.extra_echoes,
             timestamp: self.timestamp,
         }))
+    }
+}
+
+/// The sum char of `bytes` (as [`checksum`]) and whether every byte is a value char
+/// (`0x30..=0x6F`), in one branch-free pass that vectorises.
+#[inline]
+fn sum_and_check(bytes: &[u8]) -> (u8, bool) {
+    let (sum, chars) = bytes.iter().fold((0u8, 0u8), |(sum, chars), &c| {
+        (sum.wrapping_add(c), chars | c.wrapping_sub(CHAR_MIN))
+    });
+    ((sum & 0x3F) + 0x30, chars < 0x40)
+}
+
+/// The value of `N` valid value chars (see [`sum_and_check`]), most significant first.
+///
+/// Sums the raw bytes in base 64, then takes the `0x30` of every char off at once:
+/// `Σ (c - 0x30)·64^k = Σ c·64^k - 0x30·Σ 64^k`, exact in `u32` for up to 4 chars.
+#[inline(always)]
+fn decode_valid<const N: usize>(chars: &[u8; N]) -> u32 {
+    let raw = chars
+        .iter()
+        .fold(0u32, |acc, &c| (acc << 6).wrapping_add(u32::from(c)));
+    let offset = chars
+        .iter()
+        .fold(0u32, |acc, _| (acc << 6).wrapping_add(u32::from(CHAR_MIN)));
+    raw.wrapping_sub(offset)
+}
+
+/// `carry` continued by valid value chars (see [`sum_and_check`]).
+#[inline]
+fn continue_valid(carry: u32, chars: &[u8]) -> u32 {
+    chars.iter().fold(carry, |acc, &c| {
+        (acc << 6) | u32::from(c.wrapping_sub(CHAR_MIN) & 0x3F)
+    })
+}
+
+/// Index of the first LF in `bytes`, eight bytes at a time: a zero-byte test on the
+/// bytes XOR LF, whose lowest flagged byte is exact (borrows only run upwards).
+#[inline]
+fn find_lf(bytes: &[u8]) -> Option<usize> {
+    const ONES: u64 = u64::from_le_bytes([0x01; 8]);
+    const HIGHS: u64 = u64::from_le_bytes([0x80; 8]);
+    const LFS: u64 = u64::from_le_bytes([b'\n'; 8]);
+    let lf_in = |word: [u8; 8]| {
+        let x = u64::from_le_bytes(word) ^ LFS;
+        let hit = x.wrapping_sub(ONES) & !x & HIGHS;
+        (hit != 0).then_some((hit.trailing_zeros() / 8) as usize)
+    };
+    let mut words = bytes.chunks_exact(8);
+    let mut at = 0;
+    for word in &mut words {
+        if let Some(i) = lf_in(word.try_into().unwrap_or([0; 8])) {
+            return Some(at + i);
+        }
+        at += 8;
+    }
+    if words.remainder().is_empty() {
+        return None;
+    }
+    // The last eight bytes, overlapping bytes already found free of LF.
+    match bytes.last_chunk::<8>() {
+        Some(last) => lf_in(*last).map(|i| bytes.len() - 8 + i),
+        None => bytes.iter().position(|&b| b == b'\n'),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::command::ScanMode;
+    use crate::response::ResponseWriter;
+
+    const SETS: [DataSet; 5] = [
+        DataSet::Distance,
+        DataSet::ShortDistance,
+        DataSet::DistanceIntensity,
+        DataSet::DistanceReflectance,
+        DataSet::DistanceAux,
+    ];
+
+    /// A single-scan response over steps `0..n` of `data`, with the values written.
+    fn scan(data: DataSet, n: u16) -> (Vec<u8>, Vec<(u32, u32)>) {
+        let request = Request::new(Command::Scan(ScanRequest {
+            data,
+            ..ScanRequest::distance(ScanMode::Single, 0, n - 1)
+        }));
+        let dmax = (1u32 << (6 * u32::from(data.distance_width()))) - 1;
+        let amax = (1u64 << (6 * u32::from(data.aux_width()))) as u32 - 1;
+        let values: Vec<(u32, u32)> = (0..u32::from(n))
+            .map(|i| {
+                let x = i.wrapping_mul(2_654_435_761);
+                (x % (dmax + 1), (x >> 7) % amax.saturating_add(1))
+            })
+            .collect();
+        let mut out = Vec::new();
+        let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+        w.echo(&request);
+        w.status(*b"00");
+        w.timestamp(0x00AB_CDEF);
+        for &(d, a) in &values {
+            w.step(d, a);
+        }
+        w.end();
+        (out, values)
+    }
+
+    /// Every event of `stream` fed in `chunk`-byte pieces, as text, and every reading.
+    fn decode(mut dec: Decoder, stream: &[u8], chunk: usize) -> (Vec<String>, Vec<Reading>) {
+        let mut log = Vec::new();
+        let mut readings = Vec::new();
+        for piece in stream.chunks(chunk) {
+            let mut rest = piece;
+            while !rest.is_empty() {
+                let (used, ev) = dec.feed(rest);
+                rest = &rest[used..];
+                if let Some(ev) = ev {
+                    if let Event::Data(line) = &ev {
+                        readings.extend_from_slice(line.readings);
+                    }
+                    log.push(format!("{ev:?}"));
+                }
+            }
+        }
+        if let Some(ev) = dec.finish() {
+            log.push(format!("{ev:?}"));
+        }
+        log.push(format!("{:?}", dec.stats()));
+        (log, readings)
+    }
+
+    /// The fast path and the char-by-char reference agree on `stream`, whole and in
+    /// pieces of sizes around a line's.
+    fn assert_same(stream: &[u8]) -> Vec<String> {
+        let whole = stream.len().max(1);
+        let (reference, _) = decode(Decoder::char_by_char(), stream, whole);
+        for chunk in [1, 2, 3, 5, 7, 11, 31, 63, 64, 65, 66, 67, 100, whole] {
+            let (fast, _) = decode(Decoder::new(), stream, chunk);
+            assert_eq!(
+                fast,
+                reference,
+                "chunk {chunk}, stream {:?}",
+                stream.escape_ascii().to_string()
+            );
+        }
+        reference
+    }
+
+    /// GE over steps 0..=10: distance 1000 + i, intensity 100 i + 7. 66 value chars: the
+    /// first line ends with the distance and one intensity char of step 10, whose other
+    /// two intensity chars open the second line (sums computed by hand).
+    const GE_SPLIT: &[u8] = b"GE0000001001\n00P\nZlg_<\n\
+        0?X0070?Y01[0?Z03?0?[04c0?\\06G0?]07k0?^09O0?_0;30?`0<W0?a0>;0?b0a\n\
+        ?_N\n\n";
+
+    #[test]
+    fn golden_ge_intensity_split_across_lines() {
+        let mut dec = Decoder::new();
+        let mut rest = GE_SPLIT;
+        let mut lines = Vec::new();
+        let mut end = None;
+        while !rest.is_empty() {
+            let (used, ev) = dec.feed(rest);
+            rest = &rest[used..];
+            match ev {
+                Some(Event::Timestamp(t)) => assert_eq!(t, 0xAB_CDEF),
+                Some(Event::Data(line)) => lines.push((line.line, line.readings.to_vec())),
+                Some(Event::End(summary)) => end = Some(summary),
+                Some(Event::Error(e)) => panic!("{e}"),
+                _ => {}
+            }
+        }
+        let expected = |i: u16| Reading {
+            index: i,
+            echo: 0,
+            distance: 1000 + u32::from(i),
+            aux: 100 * u32::from(i) + 7,
+        };
+        assert_eq!(lines.len(), 2);
+        assert_eq!(lines[0], (3, (0..10).map(expected).collect::<Vec<_>>()));
+        assert_eq!(lines[1], (4, vec![expected(10)]));
+        let end = end.unwrap();
+        assert_eq!(
+            (end.values, end.lines, end.timestamp),
+            (11, 5, Some(0xAB_CDEF))
+        );
+        assert_same(GE_SPLIT);
+    }
+
+    #[test]
+    fn golden_ge_bad_char_column_in_fast_and_reference() {
+        // `p` (0x70) is one past the value chars; the sum is fixed so the decode sees it.
+        let damaged = damage(GE_SPLIT, 17 + 6 + 13, Some(b'p'));
+        let log = assert_same(&damaged);
+        assert!(
+            log.iter().any(|l| l.contains("BadChar { column: 13 }")),
+            "{log:?}"
+        );
+    }
+
+    #[test]
+    fn fast_path_reads_what_the_writer_wrote() {
+        for data in SETS {
+            for n in [1, 2, 10, 11, 21, 22, 23, 32, 33, 100, 682, 1081] {
+                let (stream, values) = scan(data, n);
+                let (log, readings) = decode(Decoder::new(), &stream, 64);
+                assert!(
+                    log.iter().any(|l| l.starts_with("End(")),
+                    "{data:?} {n}: {log:?}"
+                );
+                let got: Vec<(u32, u32)> = readings.iter().map(|r| (r.distance, r.aux)).collect();
+                assert_eq!(got, values, "{data:?} {n}");
+                let indices: Vec<u16> = readings.iter().map(|r| r.index).collect();
+                assert_eq!(indices, (0..n).collect::<Vec<_>>(), "{data:?} {n}");
+                assert_same(&stream);
+            }
+        }
+    }
+
+    /// Changes byte `at` of `stream` to `c` and fixes the sum char of its line, so that
+    /// the damage reaches the value decoding.
+    fn damage(stream: &[u8], at: usize, c: Option<u8>) -> Vec<u8> {
+        let mut s = stream.to_vec();
+        match c {
+            Some(c) => s[at] = c,
+            None => {
+                s.remove(at);
+            }
+        }
+        let start = s[..at]
+            .iter()
+            .rposition(|&b| b == b'\n')
+            .map_or(0, |i| i + 1);
+        if let Some(end) = s[start..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map(|i| start + i)
+        {
+            if end >= start + 2 {
+                s[end - 1] = checksum(&s[start..end - 1]);
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn fast_path_matches_char_by_char_on_damaged_values() {
+        for data in SETS {
+            let (stream, _) = scan(data, 40);
+            // The data lines start after echo, status and timestamp lines.
+            let first = stream
+                .iter()
+                .enumerate()
+                .filter(|&(_, &b)| b == b'\n')
+                .nth(2)
+                .map(|(i, _)| i + 1)
+                .unwrap();
+            for at in first..stream.len() - 2 {
+                if stream[at] == b'\n' || stream.get(at + 1) == Some(&b'\n') {
+                    continue;
+                }
+                for c in [
+                    Some(b'/'),
+                    Some(b'p'),
+                    Some(b'&'),
+                    Some(b'o'),
+                    Some(0),
+                    None,
+                ] {
+                    assert_same(&damage(&stream, at, c));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fast_path_counts_too_many_values_like_the_reference() {
+        // The echo asks for 5 steps; the line carries 22.
+        let (stream, _) = scan(DataSet::Distance, 22);
+        let text = String::from_utf8(stream).unwrap();
+        let damaged = text.replacen("GD0000002101", "GD0000000401", 1);
+        let log = assert_same(damaged.as_bytes());
+        assert!(
+            log.iter()
+                .any(|l| l.contains("TooManyValues { expected: 5 }")),
+            "{log:?}"
+        );
     }
 }

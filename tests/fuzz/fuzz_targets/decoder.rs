@@ -1,6 +1,7 @@
 //! Fuzzes the streaming response decoder: arbitrary bytes, fed whole, byte by byte and
 //! in a chunking derived from the first input byte, must never panic, must keep the
-//! response framing rules, and must give the same events and counters every way.
+//! response framing rules, and must give the same events and counters every way, and
+//! the same as the char-by-char reference decoder (no whole-step fast path).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
@@ -70,8 +71,15 @@ impl Checker {
 
 /// Feeds `stream` in pieces of the sizes `sizes` yields (the last piece takes the rest),
 /// then finishes; returns the events as text and the counters.
-fn run(stream: &[u8], mut sizes: impl FnMut() -> usize) -> (Vec<String>, DecoderStats) {
-    let mut dec = Decoder::new();
+fn run(stream: &[u8], sizes: impl FnMut() -> usize) -> (Vec<String>, DecoderStats) {
+    run_with(Decoder::new(), stream, sizes)
+}
+
+fn run_with(
+    mut dec: Decoder,
+    stream: &[u8],
+    mut sizes: impl FnMut() -> usize,
+) -> (Vec<String>, DecoderStats) {
     let mut ck = Checker::default();
     let mut rest = stream;
     while !rest.is_empty() {
@@ -108,6 +116,8 @@ fuzz_target!(|data: &[u8]| {
         return;
     };
     let whole = run(stream, || usize::MAX);
+    let reference = run_with(Decoder::char_by_char(), stream, || usize::MAX);
+    assert_eq!(whole, reference, "fast path differs from the char-by-char reference");
     let bytewise = run(stream, || 1);
     assert_eq!(whole, bytewise, "byte-by-byte feeding differs from one-shot");
     let chunked = if sel < 0x80 {
