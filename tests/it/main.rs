@@ -4,3 +4,4 @@ mod bridge_replay;
 mod codec_props;
 mod recordings;
 mod sim_protocol;
+mod sim_clients;

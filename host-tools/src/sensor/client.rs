@@ -238,8 +238,16 @@ impl Client {
         let desc = self.link.describe();
         let busy = |e: anyhow::Error| -> anyhow::Error {
             let eof = e.chain().any(|c| {
-                c.downcast_ref::<std::io::Error>()
-                    .is_some_and(|io| io.kind() == std::io::ErrorKind::UnexpectedEof)
+                c.downcast_ref::<std::io::Error>().is_some_and(|io| {
+                    use std::io::ErrorKind as K;
+                    matches!(
+                        io.kind(),
+                        K::UnexpectedEof
+                            | K::BrokenPipe
+                            | K::ConnectionReset
+                            | K::ConnectionAborted
+                    )
+                })
             });
             if eof {
                 anyhow!("{desc} closed the connection at once: sensor busy with another client?")
