@@ -3,5 +3,5 @@
 mod bridge_replay;
 mod codec_props;
 mod recordings;
-mod sim_protocol;
 mod sim_clients;
+mod sim_protocol;

@@ -48,7 +48,7 @@ pub struct SimOptions {
     /// Seed of the scene and its range noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Scene: room, empty, wall:<mm>.
+    /// Scene: room, empty, or wall:MM (a flat wall MM millimetres ahead).
     #[arg(long, default_value = "room")]
     pub scene: SceneSpec,
     /// Range noise σ in mm (default: the model's).
