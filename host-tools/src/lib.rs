@@ -3,6 +3,10 @@
 //! The host side of scip2can: the pieces behind the `scip2can` command, as a library so
 //! that the integration tests run exactly what the command runs.
 
+pub mod candump;
+pub mod decode;
 pub mod parse;
+pub mod plot;
+pub mod replay;
 pub mod sensor;
 pub mod sim;

@@ -34,6 +34,13 @@ enum Cmd {
     Scan(scip2can_host::sensor::cli::ScanCmdArgs),
     /// Record a session (both directions, timestamps) until Ctrl-C or -n scans.
     Record(scip2can_host::sensor::cli::RecordArgs),
+    /// Run the bridge core on a recorded stream (or `sim:...`); write its CAN frames as a
+    /// candump log and print the bus load.
+    Replay(scip2can_host::replay::args::ReplayArgs),
+    /// Reassemble the scans of a candump log; JSON lines (or CSV) and loss statistics.
+    Decode(scip2can_host::decode::DecodeArgs),
+    /// Draw scans of a candump log to a PNG (sensor frame, metres, x forward).
+    Plot(scip2can_host::plot::PlotArgs),
 }
 
 fn main() -> ExitCode {
@@ -53,6 +60,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Info(args) => scip2can_host::sensor::cli::run_info(args),
         Cmd::Scan(args) => scip2can_host::sensor::cli::run_scan(args),
         Cmd::Record(args) => scip2can_host::sensor::cli::run_record(args),
+        Cmd::Replay(args) => scip2can_host::replay::run(args),
+        Cmd::Decode(args) => scip2can_host::decode::run(args),
+        Cmd::Plot(args) => scip2can_host::plot::run(args),
         Cmd::Parse { file } => {
             let out = BufWriter::new(io::stdout().lock());
             if file.as_os_str() == "-" {

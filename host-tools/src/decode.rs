@@ -1,0 +1,314 @@
+//! `scip2can decode`: a candump log → scans (JSON lines or CSV), status and control
+//! frames (JSON), and the loss statistics of every bridge.
+//!
+//! Frames are fed in log order to `can_wire::reassembly::Decoder`, which handles any
+//! interleaving of up to 16 bridges of one identifier window; frames outside the window
+//! (other devices), remote and error frames are skipped. A scan is printed when its
+//! trailer or abort arrives, when its bridge's next scan begins, or at the end of the log
+//! (then as incomplete). See [`json`] for the output formats.
+
+pub mod json;
+
+use std::collections::BTreeMap;
+use std::io::{self, BufRead, BufReader, Write};
+
+use anyhow::{anyhow, Context};
+use can_wire::reassembly::{Completeness, Decoder, Event, LossStats, Point, Scan};
+use can_wire::{Answer, Control, IdWindow, ScanHeader, Status, TrailerFlags, MAX_POINTS};
+
+use crate::candump::{CandumpError, Reader, Record};
+
+/// Points per scan the decoder holds (every point a header can announce).
+pub const POINTS: usize = MAX_POINTS as usize;
+/// Bridges one decoder follows at once.
+pub const BRIDGES: usize = 16;
+
+/// The identifier window flags shared by replay, decode and plot.
+#[derive(Debug, Clone, clap::Args)]
+pub struct WindowArgs {
+    /// Base identifier of the window (hex with 0x, or decimal).
+    #[arg(long, default_value = "0x100", value_parser = parse_id)]
+    pub base_id: u32,
+    /// 29-bit identifiers.
+    #[arg(long)]
+    pub extended: bool,
+}
+
+fn parse_id(s: &str) -> Result<u32, String> {
+    let parsed = match s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")) {
+        Some(hex) => u32::from_str_radix(hex, 16),
+        None => s.parse(),
+    };
+    parsed.map_err(|_| format!("{s:?} is not a number (0x100 or 256)"))
+}
+
+impl WindowArgs {
+    /// The window.
+    pub fn window(&self) -> anyhow::Result<IdWindow> {
+        let w = if self.extended {
+            IdWindow::extended(self.base_id)
+        } else {
+            u16::try_from(self.base_id)
+                .map_err(|_| can_wire::Error::BadIdWindow)
+                .and_then(IdWindow::standard)
+        };
+        w.map_err(|_| {
+            anyhow!(
+                "--base-id {:#x}: the window of 128 identifiers does not fit {} IDs",
+                self.base_id,
+                if self.extended { "29-bit" } else { "11-bit" }
+            )
+        })
+    }
+}
+
+/// A reassembled scan, owned.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecodedScan {
+    /// The bridge's node number.
+    pub node: u8,
+    /// Log time of the frame that completed it, µs.
+    pub time_us: u64,
+    /// Its header.
+    pub header: ScanHeader,
+    /// The verdict.
+    pub completeness: Completeness,
+    /// The trailer's flags, if the trailer arrived.
+    pub flags: Option<TrailerFlags>,
+    /// Every point, `None` where it did not arrive.
+    pub points: Vec<Option<Point>>,
+}
+
+impl DecodedScan {
+    fn new<const P: usize>(node: u8, time_us: u64, scan: &Scan<P>) -> Self {
+        Self {
+            node,
+            time_us,
+            header: *scan.header(),
+            completeness: scan.completeness(),
+            flags: scan.trailer().map(|t| t.flags),
+            points: scan.points().collect(),
+        }
+    }
+}
+
+/// What the log held, in order.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Item {
+    /// A scan.
+    Scan(DecodedScan),
+    /// A status frame.
+    Status {
+        /// Node.
+        node: u8,
+        /// Log time, µs.
+        time_us: u64,
+        /// Content.
+        status: Status,
+    },
+    /// A control answer.
+    Answer {
+        /// Node.
+        node: u8,
+        /// Log time, µs.
+        time_us: u64,
+        /// Content.
+        answer: Answer,
+    },
+    /// A control request.
+    Control {
+        /// Addressed node.
+        node: u8,
+        /// Log time, µs.
+        time_us: u64,
+        /// Content.
+        control: Control,
+    },
+}
+
+/// Frame counts of a decoded log.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct FrameCounts {
+    /// Data frames in the log.
+    pub frames: u64,
+    /// Frames of the window (fed to the decoder).
+    pub ours: u64,
+    /// Frames the decoder rejected (bad layout; counted as corrupt).
+    pub rejected: u64,
+    /// Remote and error frames (skipped).
+    pub skipped: u64,
+}
+
+/// A candump log decoder: records in, [`Item`]s out.
+pub struct LogDecoder {
+    window: IdWindow,
+    decoder: Box<Decoder<POINTS, BRIDGES>>,
+    nodes: BTreeMap<u8, ()>,
+    counts: FrameCounts,
+    last_us: u64,
+}
+
+impl std::fmt::Debug for LogDecoder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LogDecoder")
+            .field("window", &self.window)
+            .field("counts", &self.counts)
+            .finish_non_exhaustive()
+    }
+}
+
+impl LogDecoder {
+    /// A decoder for the bridges of `window`.
+    pub fn new(window: IdWindow) -> Self {
+        Self {
+            window,
+            decoder: Box::new(Decoder::new(window)),
+            nodes: BTreeMap::new(),
+            counts: FrameCounts::default(),
+            last_us: 0,
+        }
+    }
+
+    /// One log record; returns what it completed.
+    pub fn push(&mut self, record: &Record) -> Option<Item> {
+        let Some(frame) = record.to_frame() else {
+            self.counts.skipped += 1;
+            return None;
+        };
+        self.counts.frames += 1;
+        let (node, _) = self.window.classify(frame.id())?;
+        self.counts.ours += 1;
+        self.nodes.insert(node, ());
+        self.last_us = record.time_us;
+        let t = record.time_us;
+        match self.decoder.push_frame(&frame) {
+            Err(_) => {
+                self.counts.rejected += 1;
+                None
+            }
+            Ok(None) => None,
+            Ok(Some(event)) => Some(match event {
+                Event::Scan { node, scan } => Item::Scan(DecodedScan::new(node, t, scan)),
+                Event::Status { node, status } => Item::Status {
+                    node,
+                    time_us: t,
+                    status,
+                },
+                Event::Answer { node, answer } => Item::Answer {
+                    node,
+                    time_us: t,
+                    answer,
+                },
+                Event::Control { node, control } => Item::Control {
+                    node,
+                    time_us: t,
+                    control,
+                },
+            }),
+        }
+    }
+
+    /// The end of the log: every bridge's scan in progress, as incomplete.
+    pub fn finish(&mut self) -> Vec<Item> {
+        let nodes: Vec<u8> = self.nodes.keys().copied().collect();
+        let t = self.last_us;
+        nodes
+            .into_iter()
+            .filter_map(|n| {
+                let scan = self.decoder.flush(n)?;
+                Some(Item::Scan(DecodedScan::new(n, t, scan)))
+            })
+            .collect()
+    }
+
+    /// Loss statistics of every bridge seen, by node.
+    pub fn stats(&self) -> Vec<(u8, LossStats)> {
+        self.nodes
+            .keys()
+            .filter_map(|&n| Some((n, *self.decoder.stats(n)?)))
+            .collect()
+    }
+
+    /// Frame counts.
+    pub fn counts(&self) -> FrameCounts {
+        self.counts
+    }
+}
+
+/// Decodes a whole log into items (for tests and `plot`).
+pub fn decode_log(
+    input: impl BufRead,
+    window: IdWindow,
+) -> Result<(Vec<Item>, LogDecoder), CandumpError> {
+    let mut dec = LogDecoder::new(window);
+    let mut items = Vec::new();
+    for record in Reader::new(input) {
+        items.extend(dec.push(&record?));
+    }
+    items.extend(dec.finish());
+    Ok((items, dec))
+}
+
+/// `scip2can decode` flags.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DecodeArgs {
+    /// The candump log, or `-` for standard input.
+    pub log: String,
+    /// One CSV row per point (seq,index,angle_rad,distance_mm,intensity,valid) instead of
+    /// JSON lines; status and control frames are left out.
+    #[arg(long)]
+    pub csv: bool,
+    /// The summary as one JSON object on standard error.
+    #[arg(long)]
+    pub stats: bool,
+    /// Identifier window.
+    #[command(flatten)]
+    pub window: WindowArgs,
+}
+
+/// Opens a log path or `-`.
+pub fn open_log(path: &str) -> anyhow::Result<Box<dyn BufRead>> {
+    if path == "-" {
+        return Ok(Box::new(BufReader::new(io::stdin())));
+    }
+    let f = std::fs::File::open(path).with_context(|| format!("opening {path}"))?;
+    Ok(Box::new(BufReader::new(f)))
+}
+
+/// `scip2can decode`.
+pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
+    let window = args.window.window()?;
+    let input = open_log(&args.log)?;
+    let mut out = io::BufWriter::new(io::stdout().lock());
+    let mut dec = LogDecoder::new(window);
+    if args.csv {
+        json::write_csv_header(&mut out)?;
+    }
+    let emit = |item: &Item, out: &mut dyn Write| -> io::Result<()> {
+        if args.csv {
+            match item {
+                Item::Scan(s) => json::write_csv(out, s),
+                _ => Ok(()),
+            }
+        } else {
+            serde_json::to_writer(&mut *out, &json::item(item))?;
+            out.write_all(b"\n")
+        }
+    };
+    for record in Reader::new(input) {
+        let record = record.with_context(|| format!("reading {}", args.log))?;
+        if let Some(item) = dec.push(&record) {
+            emit(&item, &mut out)?;
+        }
+    }
+    for item in dec.finish() {
+        emit(&item, &mut out)?;
+    }
+    out.flush()?;
+    if args.stats {
+        eprintln!("{}", json::summary(&dec));
+    } else {
+        eprint!("{}", json::summary_text(&dec));
+    }
+    Ok(())
+}

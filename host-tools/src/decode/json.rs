@@ -1,0 +1,286 @@
+//! Output formats of `scip2can decode`.
+//!
+//! **JSON lines**, one object per item, with a `"type"`:
+//! - `"scan"`: `node`, `seq`, `time` (log time of the completing frame, s), `timestamp`
+//!   (sensor time, ms), `completeness` (`"intact"`, `"incomplete"`, `"crc_mismatch"`,
+//!   `"corrupt"`, `"aborted"`) with `missing_points`/`trailer_missing` or
+//!   `abort_reason`/`abort_detail` where they apply, `flags` (the trailer's, null without
+//!   it), `point_count`, `received`, the geometry (`first_step` relative to the sensor's
+//!   front, `step_increment`, `ares`, `first_angle_rad`, `angle_increment_rad`, angles
+//!   counter-clockwise from the front), `grouping`, `encoding`, `unit_mm`, `time_synced`,
+//!   `distances` (mm; null for invalid and missing points), `out_of_range` (indices of
+//!   points beyond what the encoding expresses, when any), `missing` (indices of points
+//!   that did not arrive, when any), `intensities` (when the channel is present; null
+//!   for missing points).
+//! - `"status"`: `node`, `time`, `page` and the page's fields.
+//! - `"answer"`: `node`, `time`, `opcode`, `token`, `outcome`, `detail`.
+//! - `"control"`: `node`, `time`, `token`, `command`.
+//!
+//! **CSV**: `seq,index,angle_rad,distance_mm,intensity,valid`, one row per point of
+//! every scan; distance and intensity are empty where unknown, `valid` is 1 for a range.
+//!
+//! **Summary** (standard error): frames read, and per bridge `LossStats`.
+
+use std::io::{self, Write};
+
+use can_wire::reassembly::Completeness;
+use can_wire::{Distance, Status};
+use serde_json::{json, Map, Value};
+
+use super::{DecodedScan, Item, LogDecoder};
+
+fn seconds(time_us: u64) -> f64 {
+    time_us as f64 / 1e6
+}
+
+fn completeness(c: &Completeness, obj: &mut Map<String, Value>) {
+    let name = match *c {
+        Completeness::Intact => "intact",
+        Completeness::Incomplete {
+            missing_points,
+            trailer_missing,
+        } => {
+            obj.insert("missing_points".into(), missing_points.into());
+            obj.insert("trailer_missing".into(), trailer_missing.into());
+            "incomplete"
+        }
+        Completeness::CrcMismatch => "crc_mismatch",
+        Completeness::Corrupt => "corrupt",
+        Completeness::Aborted { reason, detail } => {
+            obj.insert("abort_reason".into(), format!("{reason:?}").into());
+            obj.insert("abort_detail".into(), detail.into());
+            "aborted"
+        }
+    };
+    obj.insert("completeness".into(), name.into());
+}
+
+/// A scan as a JSON object.
+pub fn scan(s: &DecodedScan) -> Value {
+    let h = &s.header;
+    let mut o = Map::new();
+    o.insert("type".into(), "scan".into());
+    o.insert("node".into(), s.node.into());
+    o.insert("seq".into(), h.seq.into());
+    o.insert("time".into(), seconds(s.time_us).into());
+    o.insert("timestamp".into(), h.timestamp_ms.into());
+    completeness(&s.completeness, &mut o);
+    o.insert(
+        "flags".into(),
+        s.flags.map_or(Value::Null, |f| {
+            json!({"truncated": f.truncated, "sensor_error": f.sensor_error, "filtered": f.filtered})
+        }),
+    );
+    o.insert("point_count".into(), h.point_count.into());
+    o.insert(
+        "received".into(),
+        s.points.iter().filter(|p| p.is_some()).count().into(),
+    );
+    o.insert("first_step".into(), h.first_step.into());
+    o.insert("step_increment".into(), h.step_increment.into());
+    o.insert("ares".into(), h.ares.into());
+    o.insert("first_angle_rad".into(), f64::from(h.angle_rad(0)).into());
+    let inc = std::f64::consts::TAU * f64::from(h.step_increment) / f64::from(h.ares.max(1));
+    o.insert("angle_increment_rad".into(), inc.into());
+    o.insert("grouping".into(), format!("{:?}", h.grouping).into());
+    let e = &h.encoding;
+    o.insert(
+        "encoding".into(),
+        format!("{:?}+{:?}", e.distance, e.intensity).into(),
+    );
+    o.insert("unit_mm".into(), e.unit_mm().into());
+    o.insert("time_synced".into(), h.time_synced.into());
+    let distances: Vec<Value> = s
+        .points
+        .iter()
+        .map(|p| match p.map(|p| p.distance) {
+            Some(Distance::Mm(mm)) => mm.into(),
+            _ => Value::Null,
+        })
+        .collect();
+    o.insert("distances".into(), distances.into());
+    let indices = |f: &dyn Fn(&Option<can_wire::Point>) -> bool| -> Vec<usize> {
+        s.points
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| f(p))
+            .map(|(i, _)| i)
+            .collect()
+    };
+    let out_of_range = indices(&|p| matches!(p.map(|p| p.distance), Some(Distance::OutOfRange)));
+    if !out_of_range.is_empty() {
+        o.insert("out_of_range".into(), out_of_range.into());
+    }
+    let missing = indices(&|p| p.is_none());
+    if !missing.is_empty() {
+        o.insert("missing".into(), missing.into());
+    }
+    if e.intensity.is_present() {
+        let intensities: Vec<Value> = s
+            .points
+            .iter()
+            .map(|p| p.and_then(|p| p.intensity).map_or(Value::Null, Value::from))
+            .collect();
+        o.insert("intensities".into(), intensities.into());
+    }
+    Value::Object(o)
+}
+
+/// A status frame's fields.
+pub fn status(status: &Status) -> Value {
+    match *status {
+        Status::Heartbeat {
+            state,
+            cpu_load,
+            bus_load,
+            uptime_s,
+        } => json!({"page": "heartbeat", "state": format!("{state:?}"),
+            "cpu_load_percent": f64::from(cpu_load) / 2.0,
+            "bus_load_percent": f64::from(bus_load) / 2.0, "uptime_s": uptime_s}),
+        Status::SensorCounters {
+            sum_errors,
+            resyncs,
+            dropped_scans,
+            recoveries,
+        } => json!({"page": "sensor_counters", "sum_errors": sum_errors, "resyncs": resyncs,
+            "dropped_scans": dropped_scans, "recoveries": recoveries}),
+        Status::BusCounters {
+            bus_errors,
+            bus_off_events,
+            tx_overflows,
+            error_state,
+        } => json!({"page": "bus_counters", "bus_errors": bus_errors,
+            "bus_off_events": bus_off_events, "tx_overflows": tx_overflows,
+            "error_state": format!("{error_state:?}")}),
+        Status::Firmware {
+            protocol,
+            major,
+            minor,
+            patch,
+            build,
+        } => json!({"page": "firmware", "protocol": protocol,
+            "version": format!("{major}.{minor}.{patch}"), "build": build}),
+        Status::SensorRange {
+            model,
+            dmin_mm,
+            dmax_mm,
+        } => json!({"page": "sensor_range", "model": format!("{model:?}"),
+            "dmin_mm": dmin_mm, "dmax_mm": dmax_mm}),
+        Status::SensorSteps { ares, amin, amax } => {
+            json!({"page": "sensor_steps", "ares": ares, "amin": amin, "amax": amax})
+        }
+        Status::SensorTiming { afrt, scan_rpm } => {
+            json!({"page": "sensor_timing", "afrt": afrt, "scan_rpm": scan_rpm})
+        }
+    }
+}
+
+fn with_head(kind: &str, node: u8, time_us: u64, body: Value) -> Value {
+    let mut o = Map::new();
+    o.insert("type".into(), kind.into());
+    o.insert("node".into(), node.into());
+    o.insert("time".into(), seconds(time_us).into());
+    if let Value::Object(fields) = body {
+        o.extend(fields);
+    }
+    Value::Object(o)
+}
+
+/// Any item as a JSON object.
+pub fn item(item: &Item) -> Value {
+    match item {
+        Item::Scan(s) => scan(s),
+        Item::Status {
+            node,
+            time_us,
+            status: st,
+        } => with_head("status", *node, *time_us, status(st)),
+        Item::Answer {
+            node,
+            time_us,
+            answer: a,
+        } => with_head(
+            "answer",
+            *node,
+            *time_us,
+            json!({"opcode": a.opcode, "token": a.token,
+                "outcome": format!("{:?}", a.outcome), "detail": a.detail}),
+        ),
+        Item::Control {
+            node,
+            time_us,
+            control: c,
+        } => with_head(
+            "control",
+            *node,
+            *time_us,
+            json!({"token": c.token, "command": format!("{:?}", c.command)}),
+        ),
+    }
+}
+
+/// The CSV header line.
+pub fn write_csv_header(out: &mut dyn Write) -> io::Result<()> {
+    writeln!(out, "seq,index,angle_rad,distance_mm,intensity,valid")
+}
+
+/// One CSV row per point of `s`.
+pub fn write_csv(out: &mut dyn Write, s: &DecodedScan) -> io::Result<()> {
+    let h = &s.header;
+    for (i, p) in s.points.iter().enumerate() {
+        let index = u16::try_from(i).unwrap_or(u16::MAX);
+        let angle = h.angle_rad(index);
+        let (dist, valid) = match p.map(|p| p.distance) {
+            Some(Distance::Mm(mm)) => (mm.to_string(), 1),
+            _ => (String::new(), 0),
+        };
+        let intensity = p
+            .and_then(|p| p.intensity)
+            .map_or(String::new(), |v| v.to_string());
+        writeln!(out, "{},{i},{angle:.6},{dist},{intensity},{valid}", h.seq)?;
+    }
+    Ok(())
+}
+
+/// The summary as JSON: frame counts and per-bridge loss statistics.
+pub fn summary(dec: &LogDecoder) -> Value {
+    let c = dec.counts();
+    let nodes: Vec<Value> = dec
+        .stats()
+        .iter()
+        .map(|(node, s)| {
+            json!({"node": node, "scans_intact": s.scans_intact,
+                "scans_damaged": s.scans_damaged, "scans_aborted": s.scans_aborted,
+                "scans_lost": s.scans_lost, "frames_lost": s.frames_lost,
+                "frames_orphaned": s.frames_orphaned, "duplicates": s.duplicates,
+                "corrupt": s.corrupt, "sequence_resets": s.sequence_resets})
+        })
+        .collect();
+    json!({"frames": c.frames, "frames_ours": c.ours, "frames_rejected": c.rejected,
+        "frames_skipped": c.skipped, "bridges": nodes})
+}
+
+/// The summary as text lines.
+pub fn summary_text(dec: &LogDecoder) -> String {
+    let c = dec.counts();
+    let mut s = format!(
+        "frames: {} ({} of the window, {} rejected), {} remote/error frames skipped\n",
+        c.frames, c.ours, c.rejected, c.skipped
+    );
+    for (node, l) in dec.stats() {
+        s += &format!(
+            "node {node}: scans {} intact, {} damaged, {} aborted, {} lost; frames {} lost, \
+             {} orphaned, {} duplicate, {} corrupt; {} sequence resets\n",
+            l.scans_intact,
+            l.scans_damaged,
+            l.scans_aborted,
+            l.scans_lost,
+            l.frames_lost,
+            l.frames_orphaned,
+            l.duplicates,
+            l.corrupt,
+            l.sequence_resets
+        );
+    }
+    s
+}

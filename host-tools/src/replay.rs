@@ -1,0 +1,350 @@
+//! `scip2can replay`: the bridge core (`bridge::engine::Bridge`) on a recorded sensor
+//! stream or an in-process simulated sensor, its CAN frames written as a candump log,
+//! and the bus load they make.
+//!
+//! **Recordings** (raw sensor → host streams or `scip2can record` files): the session is
+//! not started, so the bridge only listens, and publishes every measurement response it
+//! decodes. The stream is fed line by line; the time of a line is its end position in
+//! the stream at `--uart-baud` (10 bits per byte), so the same input always gives the
+//! same log, and the governor's bus-time budget sees the stream at the pace a UART at
+//! that rate delivers it.
+//!
+//! **`sim:key=value,...`** (the keys of `scip2can sim`): the bridge's session is started
+//! and talks to a simulated sensor in virtual time (1 ms steps): it probes, identifies
+//! and starts the stream itself; the run ends when `--scans` scans have begun and the
+//! last is finished. Times are the simulator's.
+//!
+//! **The bus** ([`bus`]) has one sender, the bridge: frames leave its transmit queue in
+//! order when the bus is free, each taking its worst-case length (bit stuffing included,
+//! `can_wire::bandwidth::frame_bits`) at `--bitrate`/`--data-bitrate`. A frame's log
+//! time is the end of its transmission.
+
+pub mod args;
+pub mod bus;
+
+use std::fmt::Write as _;
+use std::fs::File;
+use std::io::{self, BufWriter, Read, Write};
+
+use anyhow::{bail, Context};
+use bridge::engine::{Bridge, BridgeConfig, BridgeStats};
+use bridge::governor::GovernorStats;
+use bridge::session::Action;
+use can_wire::{Frame, Kind};
+
+use self::args::ReplayArgs;
+use self::bus::{Bus, BusTotals};
+use crate::candump::{write_record, Record};
+use crate::sim::SimOptions;
+
+/// Capacity of the bridge's transmit queue, frames (what a board would give it).
+pub const QUEUE: usize = 128;
+
+/// A frame and the end of its transmission.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TimedFrame {
+    /// End of transmission, ns since the stream began.
+    pub time_ns: u64,
+    /// The frame.
+    pub frame: Frame,
+}
+
+/// Everything a replay produced.
+#[derive(Debug, Clone)]
+pub struct Replayed {
+    /// The bridge's configuration.
+    pub config: BridgeConfig,
+    /// Frames in transmit order.
+    pub frames: Vec<TimedFrame>,
+    /// The bridge's scan counters.
+    pub stats: BridgeStats,
+    /// The governor's counters.
+    pub governor: GovernorStats,
+    /// What went over the bus.
+    pub bus: BusTotals,
+    /// Length of the input: stream bytes at the UART rate, or the simulated time, ns.
+    pub stream_ns: u64,
+    /// The sensor's scan rate, when known (PP `SCAN`, or the simulator's).
+    pub scan_hz: Option<f64>,
+}
+
+/// The bridge and the bus, stepped together.
+struct Driver {
+    bridge: Box<Bridge<QUEUE>>,
+    bus: Bus,
+    frames: Vec<TimedFrame>,
+}
+
+impl Driver {
+    fn new(config: BridgeConfig) -> anyhow::Result<Self> {
+        let bridge = Bridge::new(config).map_err(|e| anyhow::anyhow!("bridge settings: {e}"))?;
+        Ok(Self {
+            bridge: Box::new(bridge),
+            bus: Bus::new(config.budget.rates, config.ids.window()),
+            frames: Vec::new(),
+        })
+    }
+
+    /// Sends queued frames while the bus is free by `now_ns`; a frame cannot start before
+    /// `ready_ns`.
+    fn drain(&mut self, now_ns: u64, ready_ns: u64) {
+        while self.bus.free_at_ns() <= now_ns {
+            let Some(frame) = self.bridge.pop_frame() else {
+                break;
+            };
+            let time_ns = self.bus.transmit(ready_ns, &frame);
+            self.frames.push(TimedFrame { time_ns, frame });
+        }
+    }
+
+    /// UART bytes arriving at `now_ns`; returns the session's actions.
+    fn input(&mut self, now_ns: u64, bytes: &[u8]) -> Vec<Action> {
+        // Frames queued earlier leave as the bus frees up, before the new ones exist.
+        self.drain(now_ns, 0);
+        let ms = now_ns / 1_000_000;
+        self.bridge.on_uart(bytes, ms);
+        let actions: Vec<Action> = std::iter::from_fn(|| self.bridge.poll(ms))
+            .take(16)
+            .collect();
+        self.drain(now_ns, now_ns);
+        actions
+    }
+
+    fn finish(mut self, stream_ns: u64, scan_hz: Option<f64>) -> Replayed {
+        while let Some(frame) = self.bridge.pop_frame() {
+            let time_ns = self.bus.transmit(0, &frame);
+            self.frames.push(TimedFrame { time_ns, frame });
+        }
+        Replayed {
+            config: *self.bridge.config(),
+            frames: self.frames,
+            stats: *self.bridge.stats(),
+            governor: *self.bridge.governor().stats(),
+            bus: *self.bus.totals(),
+            stream_ns,
+            scan_hz,
+        }
+    }
+}
+
+/// Time of stream position `bytes` at `baud` (10 bits per byte), ns.
+pub fn uart_time_ns(bytes: u64, baud: u32) -> u64 {
+    bytes * 10 * 1_000_000_000 / u64::from(baud.max(1))
+}
+
+/// The scan rate a stream's PP answer gives (`SCAN` rpm / 60).
+fn pp_scan_hz(bytes: &[u8]) -> Option<f64> {
+    crate::parse::parse_bytes(bytes).iter().find_map(|r| {
+        let rpm = r.fields.get("SCAN")?.as_str()?.parse::<f64>().ok()?;
+        (r.command.as_deref() == Some("PP") && rpm > 0.0).then_some(rpm / 60.0)
+    })
+}
+
+/// Replays a sensor → host stream through a listening bridge, line by line.
+pub fn replay_stream(bytes: &[u8], config: BridgeConfig) -> anyhow::Result<Replayed> {
+    let mut driver = Driver::new(config)?;
+    let mut pos = 0u64;
+    for line in bytes.split_inclusive(|&b| b == b'\n') {
+        pos += line.len() as u64;
+        driver.input(uart_time_ns(pos, config.uart_bit_rate), line);
+    }
+    let end = uart_time_ns(pos, config.uart_bit_rate);
+    Ok(driver.finish(end, pp_scan_hz(bytes)))
+}
+
+/// Runs a started bridge against a simulated sensor until `scans` scans have begun (and
+/// the last is over), or fails if the stream does not come up within a minute.
+pub fn replay_sim(sim: &SimOptions, scans: u32, config: BridgeConfig) -> anyhow::Result<Replayed> {
+    let mut sensor = sim.build()?;
+    let mut driver = Driver::new(config)?;
+    driver.bridge.start(0);
+    let limit_ms = 60_000 + u64::from(scans) * 2 * sensor.scan_period_us() / 1000;
+    let mut ms = 0u64;
+    let mut pending = Vec::new();
+    while driver.bridge.stats().scans_in < scans {
+        if ms > limit_ms {
+            bail!(
+                "the simulated sensor gave {} of {scans} scans in {} s (session {:?})",
+                driver.bridge.stats().scans_in,
+                limit_ms / 1000,
+                driver.bridge.session().state()
+            );
+        }
+        let now_us = ms * 1000;
+        for action in pending.drain(..) {
+            if let Action::Send(request) = action {
+                let mut buf = [0u8; scip::REQUEST_MAX];
+                let n = scip::Request::encode(&request, &mut buf)
+                    .map_err(|e| anyhow::anyhow!("encoding {request:?}: {e:?}"))?;
+                sensor.receive(now_us, buf.get(..n).unwrap_or(&[]));
+            }
+        }
+        let out = sensor.take_output(now_us);
+        pending = driver.input(ms * 1_000_000, &out);
+        ms += 1;
+    }
+    driver.bridge.stop(ms);
+    let hz = 1e6 / sensor.scan_period_us().max(1) as f64;
+    Ok(driver.finish(ms * 1_000_000, Some(hz)))
+}
+
+impl Replayed {
+    /// The frames as candump records.
+    pub fn records(&self, interface: &str, brs: bool) -> Vec<Record> {
+        self.frames
+            .iter()
+            .map(|f| Record::from_frame(f.time_ns / 1000, interface, &f.frame, brs))
+            .collect()
+    }
+
+    /// Scans that went out (whole or aborted).
+    pub fn scans_out(&self) -> u64 {
+        self.bus.by_kind[Kind::HeaderA as usize]
+    }
+
+    /// The human-readable summary: counters and bus load.
+    pub fn report(&self) -> String {
+        let mut s = String::new();
+        let st = &self.stats;
+        let g = &self.governor;
+        let b = &self.bus;
+        let k = |kind: Kind| b.by_kind[kind as usize];
+        let budget = &self.config.budget;
+        let bus = if budget.format.is_fd() {
+            format!(
+                "CAN FD {}/{} Mbit/s, {}-byte frames",
+                mbit(budget.rates.nominal),
+                mbit(budget.rates.data),
+                budget.format.max_len()
+            )
+        } else {
+            format!("classic CAN {} Mbit/s", mbit(budget.rates.nominal))
+        };
+        let _ = writeln!(
+            s,
+            "scans: {} in, {} sent, {} aborted, {} skipped, {} dropped ({} budget, {} queue)",
+            st.scans_in,
+            st.scans_sent,
+            st.scans_aborted,
+            st.scans_skipped,
+            st.scans_dropped,
+            g.dropped_budget,
+            g.dropped_queue
+        );
+        let _ = writeln!(
+            s,
+            "frames: {} ({} header, {} data, {} trailer, {} abort, {} status, {} answer), {} payload bytes",
+            b.frames,
+            k(Kind::HeaderA) + k(Kind::HeaderB),
+            k(Kind::Data),
+            k(Kind::Trailer),
+            k(Kind::Abort),
+            k(Kind::Status),
+            k(Kind::ControlAnswer),
+            b.payload_bytes
+        );
+        let span = self
+            .stream_ns
+            .max(self.frames.last().map_or(0, |f| f.time_ns));
+        let _ = writeln!(
+            s,
+            "bus: {bus}, worst-case stuffing: {} + {} bits, {:.3} ms busy in {:.3} s = {:.2} % load",
+            b.nominal_bits,
+            b.data_bits,
+            b.busy_ns as f64 / 1e6,
+            span as f64 / 1e9,
+            percent(b.busy_ns as f64, span as f64)
+        );
+        let scans = self.scans_out();
+        if scans > 0 {
+            let per_scan = b.scan_ns as f64 / scans as f64;
+            let _ = write!(
+                s,
+                "per scan: {:.1} frames, {:.1} µs of bus",
+                (k(Kind::HeaderA)
+                    + k(Kind::HeaderB)
+                    + k(Kind::Data)
+                    + k(Kind::Trailer)
+                    + k(Kind::Abort)) as f64
+                    / scans as f64,
+                per_scan / 1e3
+            );
+            if let Some(hz) = self.scan_hz {
+                let _ = write!(
+                    s,
+                    "; at {hz:.2} scans/s: {:.2} % load",
+                    percent(per_scan * hz, 1e9)
+                );
+            }
+            s.push('\n');
+        }
+        s
+    }
+}
+
+fn mbit(rate: u32) -> String {
+    let m = f64::from(rate) / 1e6;
+    format!("{m}")
+}
+
+fn percent(part: f64, whole: f64) -> f64 {
+    if whole > 0.0 {
+        100.0 * part / whole
+    } else {
+        0.0
+    }
+}
+
+/// `scip2can replay`.
+pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
+    let config = args.bridge_config()?;
+    let mut replayed = if let Some(spec) = args.input.strip_prefix("sim:") {
+        let sim = SimOptions::from_spec(spec)?;
+        replay_sim(&sim, args.scans, config)?
+    } else {
+        let mut contents = Vec::new();
+        if args.input == "-" {
+            io::stdin()
+                .lock()
+                .read_to_end(&mut contents)
+                .context("reading standard input")?;
+        } else {
+            File::open(&args.input)
+                .and_then(|mut f| f.read_to_end(&mut contents))
+                .with_context(|| format!("reading {}", args.input))?;
+        }
+        let stream = crate::sensor::record_file::sensor_bytes(&contents)
+            .with_context(|| format!("reading {}", args.input))?;
+        replay_stream(&stream, config)?
+    };
+    if args.scan_hz.is_some() {
+        replayed.scan_hz = args.scan_hz;
+    }
+    let records = replayed.records(&args.interface, args.can.brs());
+    let write = |out: &mut dyn Write| -> io::Result<()> {
+        let mut out = BufWriter::new(out);
+        for r in &records {
+            write_record(&mut out, r)?;
+        }
+        out.flush()
+    };
+    match &args.output {
+        Some(path) => File::create(path)
+            .and_then(|mut f| write(&mut f))
+            .with_context(|| format!("writing {}", path.display()))?,
+        None => write(&mut io::stdout().lock()).context("writing standard output")?,
+    }
+    eprint!("{}", replayed.report());
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn uart_time_is_ten_bits_per_byte() {
+        assert_eq!(uart_time_ns(11_520, 115_200), 1_000_000_000);
+        assert_eq!(uart_time_ns(1, 1_000_000), 10_000);
+    }
+}
