@@ -160,9 +160,18 @@ impl std::fmt::Debug for LogDecoder {
 impl LogDecoder {
     /// A decoder for the bridges of `window`.
     pub fn new(window: IdWindow) -> Self {
+        // The decoder is ~650 kB and `Decoder::new` returns it by value: built on a
+        // thread with a stack large enough for it (and its unoptimised copies), so that
+        // callers on small stacks (test threads have 2 MB) do not overflow.
+        let decoder = std::thread::Builder::new()
+            .stack_size(16 << 20)
+            .spawn(move || Box::new(Decoder::new(window)))
+            .ok()
+            .and_then(|t| t.join().ok());
+        let decoder = decoder.unwrap_or_else(|| Box::new(Decoder::new(window)));
         Self {
             window,
-            decoder: Box::new(Decoder::new(window)),
+            decoder,
             nodes: BTreeMap::new(),
             counts: FrameCounts::default(),
             last_us: 0,

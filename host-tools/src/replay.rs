@@ -11,8 +11,11 @@
 //!
 //! **`sim:key=value,...`** (the keys of `scip2can sim`): the bridge's session is started
 //! and talks to a simulated sensor in virtual time (1 ms steps): it probes, identifies
-//! and starts the stream itself; the run ends when `--scans` scans have begun and the
-//! last is finished. Times are the simulator's.
+//! and starts the stream itself; the run ends when `--scans` scans have begun and ended.
+//! The sensor's answers reach the bridge at `--uart-baud` (so a sensor that measures
+//! faster than the UART carries falls behind, as a real one on a serial line would; use
+//! the USB or Ethernet rate for those sensors, e.g. `--uart-baud 12000000`). Times are
+//! the simulator's.
 //!
 //! **The bus** ([`bus`]) has one sender, the bridge: frames leave its transmit queue in
 //! order when the bus is free, each taking its worst-case length (bit stuffing included,
@@ -152,26 +155,61 @@ pub fn replay_stream(bytes: &[u8], config: BridgeConfig) -> anyhow::Result<Repla
     Ok(driver.finish(end, pp_scan_hz(bytes)))
 }
 
-/// Runs a started bridge against a simulated sensor until `scans` scans have begun (and
-/// the last is over), or fails if the stream does not come up within a minute.
+/// A UART in virtual time: bytes queue up and leave at `baud` (10 bits per byte).
+#[derive(Debug)]
+struct Uart {
+    baud: u32,
+    /// Bit·ms of sending credit (one byte costs 10 000).
+    credit: u64,
+    pending: std::collections::VecDeque<u8>,
+}
+
+impl Uart {
+    /// The bytes that leave in the next millisecond.
+    fn tick(&mut self, incoming: Vec<u8>) -> Vec<u8> {
+        self.pending.extend(incoming);
+        self.credit += u64::from(self.baud);
+        let n = usize::try_from(self.credit / 10_000)
+            .unwrap_or(usize::MAX)
+            .min(self.pending.len());
+        self.credit -= n as u64 * 10_000;
+        if self.pending.len() == n {
+            // An idle line saves no credit for later.
+            self.credit = self.credit.min(10_000);
+        }
+        self.pending.drain(..n).collect()
+    }
+}
+
+/// Runs a started bridge against a simulated sensor in 1 ms steps until `scans` scans
+/// have begun and ended (sent, aborted, skipped or dropped), or fails if that takes more
+/// than a minute of simulated time beyond the scans' own. The sensor's bytes reach the
+/// bridge at the configured UART bit rate.
 pub fn replay_sim(sim: &SimOptions, scans: u32, config: BridgeConfig) -> anyhow::Result<Replayed> {
     let mut sensor = sim.build()?;
     let mut driver = Driver::new(config)?;
+    let mut uart = Uart {
+        baud: config.uart_bit_rate,
+        credit: 0,
+        pending: Default::default(),
+    };
     driver.bridge.start(0);
     let limit_ms = 60_000 + u64::from(scans) * 2 * sensor.scan_period_us() / 1000;
     let mut ms = 0u64;
-    let mut pending = Vec::new();
-    while driver.bridge.stats().scans_in < scans {
+    let mut actions = Vec::new();
+    let ended =
+        |st: &BridgeStats| st.scans_sent + st.scans_aborted + st.scans_skipped + st.scans_dropped;
+    while ended(driver.bridge.stats()) < scans {
         if ms > limit_ms {
             bail!(
                 "the simulated sensor gave {} of {scans} scans in {} s (session {:?})",
-                driver.bridge.stats().scans_in,
+                ended(driver.bridge.stats()),
                 limit_ms / 1000,
                 driver.bridge.session().state()
             );
         }
         let now_us = ms * 1000;
-        for action in pending.drain(..) {
+        for action in actions.drain(..) {
             if let Action::Send(request) = action {
                 let mut buf = [0u8; scip::REQUEST_MAX];
                 let n = scip::Request::encode(&request, &mut buf)
@@ -179,8 +217,8 @@ pub fn replay_sim(sim: &SimOptions, scans: u32, config: BridgeConfig) -> anyhow:
                 sensor.receive(now_us, buf.get(..n).unwrap_or(&[]));
             }
         }
-        let out = sensor.take_output(now_us);
-        pending = driver.input(ms * 1_000_000, &out);
+        let bytes = uart.tick(sensor.take_output(now_us));
+        actions = driver.input(ms * 1_000_000, &bytes);
         ms += 1;
     }
     driver.bridge.stop(ms);

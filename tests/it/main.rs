@@ -1,6 +1,7 @@
 //! Integration tests of scip2can, one binary: each module is one topic.
 
 mod bridge_replay;
+mod can_tools;
 mod codec_props;
 mod recordings;
 mod sim_clients;

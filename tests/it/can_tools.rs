@@ -1,0 +1,357 @@
+//! `scip2can replay` → candump log → `scip2can decode` / `plot`, on the real recordings
+//! and the simulator: the scans that come back are what `scip2can parse` reads from the
+//! sensor stream; the log is read by python-can and its fixed-layout frames by cantools
+//! with the project's DBC; a deleted frame is reported; the plot is a PNG.
+
+use std::io::BufRead;
+use std::path::PathBuf;
+use std::process::Command;
+
+use bridge::engine::BridgeConfig;
+use bridge::governor::Budget;
+use bridge::pipeline::PipelineConfig;
+use bridge::session::SessionConfig;
+use can_wire::bandwidth::BitRates;
+use can_wire::reassembly::Completeness;
+use can_wire::{
+    Distance, DistanceEncoding, Encoding, FrameFormat, IdWindow, IntensityEncoding, Point,
+};
+use scip2can_host::candump::Record;
+use scip2can_host::decode::{decode_log, DecodedScan, Item, LogDecoder};
+use scip2can_host::parse::parse_bytes;
+use scip2can_host::replay::{replay_sim, replay_stream, Replayed};
+use scip2can_host::sim::SimOptions;
+use scip2can_tests::{recordings_or_skip, sensor_streams};
+use serde_json::Value;
+
+fn config(format: FrameFormat, distance: DistanceEncoding) -> BridgeConfig {
+    BridgeConfig {
+        session: SessionConfig::default(),
+        pipeline: PipelineConfig::default(),
+        encoding: Encoding {
+            distance,
+            intensity: IntensityEncoding::I16,
+            unit_exp: 0,
+        },
+        budget: Budget {
+            rates: if format.is_fd() {
+                BitRates::FD_1M_5M
+            } else {
+                BitRates::CLASSIC_1M
+            },
+            format,
+            extended: false,
+            share_permille: 1000,
+        },
+        ids: IdWindow::DEFAULT.node(0).expect("node 0"),
+        uart_bit_rate: 115_200,
+        status_period_ms: 1000,
+        fd_capable: true,
+    }
+}
+
+/// The candump log text of a replay.
+fn log_text(r: &Replayed, brs: bool) -> String {
+    r.records("can0", brs)
+        .iter()
+        .map(|rec| format!("{rec}\n"))
+        .collect()
+}
+
+fn decode(text: &str) -> (Vec<Item>, LogDecoder) {
+    decode_log(text.as_bytes(), IdWindow::DEFAULT).expect("a well-formed log")
+}
+
+fn scans(items: &[Item]) -> Vec<&DecodedScan> {
+    items
+        .iter()
+        .filter_map(|i| match i {
+            Item::Scan(s) => Some(s),
+            _ => None,
+        })
+        .collect()
+}
+
+/// `scip2can parse`'s measurement responses: (damaged, distances with error codes as
+/// None, intensities).
+type Expected = (bool, Vec<Option<u32>>, Vec<u32>);
+
+fn parsed_scans(bytes: &[u8]) -> Vec<Expected> {
+    parse_bytes(bytes)
+        .into_iter()
+        .filter(|r| !r.distances.is_empty() && r.timestamp.is_some())
+        .map(|r| {
+            let codes: Vec<u64> = r
+                .errors
+                .iter()
+                .filter_map(|e| e.get("index")?.as_u64())
+                .collect();
+            let d = r
+                .distances
+                .iter()
+                .enumerate()
+                .map(|(i, &d)| (!codes.contains(&(i as u64))).then_some(d))
+                .collect();
+            (r.damaged, d, r.intensities)
+        })
+        .collect()
+}
+
+fn distances(s: &DecodedScan) -> Vec<Option<u32>> {
+    s.points
+        .iter()
+        .map(|p| match p.map(|p| p.distance) {
+            Some(Distance::Mm(mm)) => Some(mm),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn every_recording_replays_and_decodes_to_what_parse_reads() {
+    let Some(dir) = recordings_or_skip("replay → decode") else {
+        return;
+    };
+    let streams = sensor_streams(&dir);
+    assert!(streams.len() >= 6, "{streams:?}");
+    let mut checked = 0;
+    for path in streams {
+        let bytes = std::fs::read(&path).expect("read");
+        let want = parsed_scans(&bytes);
+        for format in [FrameFormat::Classic, FrameFormat::FD64] {
+            let r = replay_stream(&bytes, config(format, DistanceEncoding::D16)).expect("replay");
+            let (items, dec) = decode(&log_text(&r, true));
+            let got = scans(&items);
+            let name = format!("{} {format:?}", path.display());
+            assert_eq!(got.len(), want.len(), "{name}");
+            for (g, (damaged, d, i)) in got.iter().zip(&want) {
+                if *damaged {
+                    assert!(
+                        matches!(g.completeness, Completeness::Aborted { .. }),
+                        "{name}: {:?}",
+                        g.completeness
+                    );
+                    continue;
+                }
+                checked += 1;
+                assert_eq!(g.completeness, Completeness::Intact, "{name}");
+                assert_eq!(&distances(g), d, "{name}");
+                let gi: Vec<u32> = g
+                    .points
+                    .iter()
+                    .filter_map(|p| p.and_then(|p| p.intensity).map(u32::from))
+                    .collect();
+                let wi: Vec<u32> = i.iter().map(|&v| v.min(65535)).collect();
+                assert_eq!(gi, wi, "{name}");
+            }
+            let lost: u32 = dec.stats().iter().map(|(_, s)| s.frames_lost).sum();
+            assert_eq!(lost, 0, "{name}");
+        }
+    }
+    // URG-04LX GD, UTM-30LX ME, the tagged GD, each over classic and FD.
+    assert_eq!(checked, 6);
+}
+
+/// Runs tests/support/candump_check.py; `None` (with a message) when python-can or
+/// cantools is missing, which fails under CI=true.
+fn python_check(log: &std::path::Path) -> Option<Vec<Value>> {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let ok = Command::new("python3")
+        .args(["-c", "import can, cantools"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok {
+        let msg =
+            "python3 with python-can and cantools is needed (pip install python-can cantools)";
+        if std::env::var("CI").is_ok_and(|v| v == "true") {
+            panic!("{msg}; CI=true, so this is a failure");
+        }
+        eprintln!("{msg}; not run");
+        return None;
+    }
+    let out = Command::new("python3")
+        .arg(root.join("support/candump_check.py"))
+        .arg(root.join("../firmware/can-wire/scip2can.dbc"))
+        .arg(log)
+        .output()
+        .expect("run python3");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Some(
+        out.stdout
+            .lines()
+            .map(|l| serde_json::from_str(&l.expect("utf-8")).expect("json"))
+            .collect(),
+    )
+}
+
+fn temp_path(name: &str) -> PathBuf {
+    std::env::temp_dir().join(format!("scip2can-{}-{name}", std::process::id()))
+}
+
+#[test]
+fn python_can_reads_the_log_and_cantools_decodes_headers_and_trailers() {
+    let Some(dir) = recordings_or_skip("python-can") else {
+        return;
+    };
+    let bytes = std::fs::read(dir.join("hokuyoaist_example_utm_30lx.rx.scip")).expect("read");
+    for (format, brs) in [(FrameFormat::Classic, false), (FrameFormat::FD64, true)] {
+        let r = replay_stream(&bytes, config(format, DistanceEncoding::D14)).expect("replay");
+        let records: Vec<Record> = r.records("can0", brs);
+        let text = log_text(&r, brs);
+        let path = temp_path(&format!("{format:?}.log"));
+        std::fs::write(&path, &text).expect("write log");
+        let Some(py) = python_check(&path) else {
+            return;
+        };
+        let _ = std::fs::remove_file(&path);
+        assert_eq!(py.len(), records.len());
+        for (p, rec) in py.iter().zip(&records) {
+            let frame = rec.to_frame().expect("data frame");
+            let line = rec.to_string();
+            let id_text = line
+                .split_whitespace()
+                .nth(2)
+                .and_then(|f| f.split('#').next());
+            let raw = u32::from_str_radix(id_text.expect("id field"), 16).expect("hex id");
+            assert_eq!(p["id"], raw);
+            assert_eq!(p["extended"], false);
+            assert_eq!(p["fd"], format.is_fd());
+            assert_eq!(p["brs"], brs);
+            let hex: String = frame.data().iter().map(|b| format!("{b:02x}")).collect();
+            assert_eq!(p["data"], hex);
+            let t = p["time"].as_f64().expect("time");
+            assert!((t - rec.time_us as f64 / 1e6).abs() < 1e-6, "{t} {rec}");
+        }
+        // The fixed-layout frames agree with the scan the Rust decoder reassembled.
+        let (items, _) = decode(&text);
+        let scan = scans(&items)[0].clone();
+        let h = scan.header;
+        let signals = |name: &str| -> &Value {
+            &py.iter().find(|p| p["name"] == name).expect(name)["signals"]
+        };
+        let a = signals("ScanHeaderA");
+        assert_eq!(a["seq"], h.seq);
+        assert_eq!(a["timestamp"], h.timestamp_ms);
+        assert_eq!(a["point_count"], 1081);
+        assert_eq!(a["unit_exp"], h.encoding.unit_exp);
+        let b = signals("ScanHeaderB");
+        assert_eq!(b["distance_encoding"], DistanceEncoding::D14.code());
+        assert_eq!(b["intensity_encoding"], IntensityEncoding::I16.code());
+        assert_eq!(b["step_increment"], h.step_increment);
+        assert_eq!(b["first_step"], h.first_step);
+        assert_eq!(b["ares"], h.ares);
+        let t = signals("ScanTrailer");
+        assert_eq!(t["seq"], h.seq);
+        assert_eq!(t["points_sent"], 1081);
+        let valid = distances(&scan).iter().filter(|d| d.is_some()).count();
+        assert_eq!(t["points_valid"], valid);
+        assert_eq!(t["truncated"], 0);
+        let heartbeat = signals("Status");
+        assert_eq!(heartbeat["page"], 0);
+    }
+}
+
+#[test]
+fn a_deleted_frame_is_one_lost_frame_and_an_incomplete_scan() {
+    let Some(dir) = recordings_or_skip("lost frame") else {
+        return;
+    };
+    let bytes = std::fs::read(dir.join("hokuyoaist_example_utm_30lx.rx.scip")).expect("read");
+    let r =
+        replay_stream(&bytes, config(FrameFormat::FD64, DistanceEncoding::D16)).expect("replay");
+    let text = log_text(&r, true);
+    let (items, _) = decode(&text);
+    let whole = scans(&items)[0].clone();
+    // Delete the fifth data frame (ID 0x150 = node 0's data frames).
+    let lines: Vec<&str> = text.lines().collect();
+    let victim = lines
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.contains(" 150##"))
+        .nth(4)
+        .map(|(i, _)| i)
+        .expect("data frames");
+    let kept: String = lines
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != victim)
+        .map(|(_, l)| format!("{l}\n"))
+        .collect();
+    let (items, dec) = decode(&kept);
+    let got = scans(&items);
+    assert_eq!(got.len(), 1);
+    // 64-byte frames of D16+I16 points: (64 - 2) * 8 / 32 = 15 points each.
+    assert_eq!(
+        got[0].completeness,
+        Completeness::Incomplete {
+            missing_points: 15,
+            trailer_missing: false
+        }
+    );
+    let stats = dec.stats();
+    assert_eq!(stats.len(), 1);
+    let (node, s) = stats[0];
+    assert_eq!(node, 0);
+    assert_eq!((s.frames_lost, s.scans_damaged, s.scans_intact), (1, 1, 0));
+    // Exactly points 60..75 are gone; the others are the intact scan's.
+    for (i, (p, w)) in got[0].points.iter().zip(&whole.points).enumerate() {
+        let want: Option<Point> = if (60..75).contains(&i) { None } else { *w };
+        assert_eq!(*p, want, "point {i}");
+    }
+}
+
+#[test]
+fn the_simulator_streams_through_a_started_session() {
+    let sim = SimOptions::from_spec("model=urg04lx,seed=3").expect("spec");
+    // The same simulated scans in plain mm and in 12-bit codes of 2 mm.
+    let plain = replay_sim(&sim, 3, config(FrameFormat::Classic, DistanceEncoding::D16));
+    let mut packed = config(FrameFormat::Classic, DistanceEncoding::D12);
+    packed.encoding.unit_exp = 1;
+    let packed = replay_sim(&sim, 3, packed).expect("sim");
+    assert_eq!(packed.stats.scans_in, 3);
+    let (plain_items, _) = decode(&log_text(&plain.expect("sim"), false));
+    let (items, dec) = decode(&log_text(&packed, false));
+    let (want, got) = (scans(&plain_items), scans(&items));
+    assert_eq!((want.len(), got.len()), (3, 3));
+    for (k, (s, w)) in got.iter().zip(&want).enumerate() {
+        assert_eq!(s.completeness, Completeness::Intact);
+        assert_eq!(s.header.seq, k as u16);
+        // The session learned the geometry from PP: AMIN..AMAX = 44..725, AFRT 384,
+        // ARES 1024.
+        assert_eq!(s.header.point_count, 682);
+        assert_eq!((s.header.first_step, s.header.ares), (44 - 384, 1024));
+        assert_eq!(s.header.timestamp_ms, w.header.timestamp_ms);
+        // 2 mm codes, rounded half up: within 1 mm of the plain ranges, and even.
+        let (d, wd) = (distances(s), distances(w));
+        assert!(wd.iter().filter(|x| x.is_some()).count() > 300);
+        for (x, y) in d.iter().zip(&wd) {
+            match (x, y) {
+                (Some(x), Some(y)) => assert!(x % 2 == 0 && x.abs_diff(*y) <= 1, "{x} {y}"),
+                (None, None) => {}
+                other => panic!("{other:?}"),
+            }
+        }
+    }
+    assert_eq!(dec.stats()[0].1.scans_intact, 3);
+}
+
+#[test]
+fn plot_writes_a_png_of_the_requested_size() {
+    let sim = SimOptions::from_spec("model=utm30lx,seed=2").expect("spec");
+    let r = replay_sim(&sim, 2, config(FrameFormat::FD64, DistanceEncoding::D16)).expect("sim");
+    let (items, _) = decode(&log_text(&r, true));
+    let chosen: Vec<DecodedScan> = scans(&items).into_iter().cloned().collect();
+    let path = temp_path("plot.png");
+    scip2can_host::plot::draw(&chosen, &path, 321, 8.0).expect("draw");
+    let png = std::fs::read(&path).expect("png");
+    let _ = std::fs::remove_file(&path);
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    assert_eq!(&png[12..16], b"IHDR");
+    let dim = |at: usize| u32::from_be_bytes(png[at..at + 4].try_into().expect("4 bytes"));
+    assert_eq!((dim(16), dim(20)), (321, 321));
+    assert!(png.len() > 1000);
+}
