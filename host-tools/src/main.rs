@@ -41,6 +41,9 @@ enum Cmd {
     Decode(scip2can_host::decode::DecodeArgs),
     /// Draw scans of a candump log to a PNG (sensor frame, metres, x forward).
     Plot(scip2can_host::plot::PlotArgs),
+    /// Run the bridge live: a sensor (default: the simulator) to a CAN port (default: a
+    /// candump log on standard output), until Ctrl-C or --seconds.
+    Bridge(scip2can_host::live::BridgeArgs),
 }
 
 fn main() -> ExitCode {
@@ -63,6 +66,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Replay(args) => scip2can_host::replay::run(args),
         Cmd::Decode(args) => scip2can_host::decode::run(args),
         Cmd::Plot(args) => scip2can_host::plot::run(args),
+        Cmd::Bridge(args) => scip2can_host::live::run(args),
         Cmd::Parse { file } => {
             let out = BufWriter::new(io::stdout().lock());
             if file.as_os_str() == "-" {

@@ -3,6 +3,7 @@
 mod bridge_replay;
 mod can_tools;
 mod codec_props;
+mod live_bridge;
 mod recordings;
 mod sim_clients;
 mod sim_protocol;

@@ -30,7 +30,8 @@ use scip::{Command, Decoder, Event, Range, ScanMode, ScanRequest, Status};
 
 use crate::governor::{Budget, Governor};
 use crate::pipeline::{
-    DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo, ScanStart,
+    Decimation, DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo, ScanStart,
+    TemporalDecimation,
 };
 use crate::session::{Action, Notice, RecoverReason, Session, SessionConfig, SessionError};
 
@@ -135,6 +136,10 @@ struct Core<const Q: usize> {
     pending_format: Option<can_wire::FrameFormat>,
     /// Status, bus and load bookkeeping.
     health: crate::status::Health,
+    /// Let the governor choose decimation when the stream starts.
+    auto_decimation: bool,
+    /// The governor's last plan.
+    plan: Option<crate::governor::Plan>,
 }
 
 /// The bridge. `Q` is the capacity of the CAN transmit queue, in frames (at least 4).
@@ -168,6 +173,8 @@ impl<const Q: usize> Bridge<Q> {
                 notice: None,
                 pending_format: None,
                 health: crate::status::Health::new(),
+                auto_decimation: true,
+                plan: None,
                 config,
             },
         })
@@ -251,6 +258,20 @@ impl<const Q: usize> Bridge<Q> {
     /// Bus-side counters and loads.
     pub fn health(&self) -> &crate::status::Health {
         &self.core.health
+    }
+
+    /// Whether the governor chooses the angular and temporal decimation when the stream
+    /// starts (on by default). Its plan keeps the average bus load within the share; it
+    /// replaces the pipeline's decimation settings and keeps every other stage. Turn it
+    /// off to keep configured decimation as it is; a control frame that sets decimation
+    /// turns it off too.
+    pub fn set_auto_decimation(&mut self, on: bool) {
+        self.core.auto_decimation = on;
+    }
+
+    /// The governor's plan for the running stream, once made.
+    pub fn plan(&self) -> Option<&crate::governor::Plan> {
+        self.core.plan.as_ref()
     }
 
     /// Frames waiting to be transmitted.
@@ -473,6 +494,12 @@ impl<const Q: usize> Core<Q> {
                 self.health.bus_state = state;
             }
             Apply::Pipeline(cfg) => {
+                if cfg.decimation != self.config.pipeline.decimation
+                    || cfg.temporal != self.config.pipeline.temporal
+                {
+                    // The user takes the decimation over from the governor.
+                    self.auto_decimation = false;
+                }
                 // Validated by `plan`; takes effect when the next scan begins.
                 let _ = self.pipeline.set_config(cfg);
                 self.config.pipeline = cfg;
@@ -486,7 +513,45 @@ impl<const Q: usize> Core<Q> {
         }
     }
 
+    /// Lets the governor choose decimation for the stream the session runs.
+    fn apply_plan(&mut self) {
+        let scan = self.session.scan_request();
+        let Some(rpm) = self.session.params().scan_rpm.filter(|&r| r > 0) else {
+            return;
+        };
+        let info = ScanInfo {
+            seq: 0,
+            timestamp_ms: 0,
+            first_step: scan.start,
+            last_step: scan.end,
+            cluster: u16::from(scan.cluster),
+        };
+        let mut cfg = self.config.pipeline;
+        cfg.decimation = None;
+        cfg.temporal = TemporalDecimation::All;
+        let points = u16::try_from(crate::pipeline::output_len(&cfg, &info)).unwrap_or(u16::MAX);
+        // Scans per second × 1000: rpm / 60 per second, one in (skip + 1) sent.
+        let rate_milli = rpm * 1000 / 60 / (u32::from(scan.skip) + 1);
+        let plan = self
+            .governor
+            .plan(points, &self.wire_encoding(&scan), rate_milli);
+        cfg.decimation = (plan.factor > 1).then_some(Decimation {
+            factor: u16::from(plan.factor),
+            mode: DecimationMode::Min,
+        });
+        if plan.every_nth > 1 {
+            cfg.temporal = TemporalDecimation::EveryNth(u16::from(plan.every_nth));
+        }
+        if self.pipeline.set_config(cfg).is_ok() {
+            self.config.pipeline = cfg;
+            self.plan = Some(plan);
+        }
+    }
+
     fn notice(&mut self, notice: Notice) {
+        if notice == Notice::Streaming && self.auto_decimation {
+            self.apply_plan();
+        }
         if let Notice::Recovering(reason) = notice {
             self.abort_scan(match reason {
                 RecoverReason::Reboot => AbortReason::SensorRestart,

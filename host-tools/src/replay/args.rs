@@ -119,7 +119,8 @@ pub struct PipelineArgs {
     pub max_rate: Option<f64>,
 }
 
-fn parse_data_set(s: &str) -> Result<DataSet, String> {
+/// Parses a data-set letter (`D`, `S`, `E`, ...).
+pub fn parse_data_set(s: &str) -> Result<DataSet, String> {
     match s {
         "D" | "d" => Ok(DataSet::Distance),
         "S" | "s" => Ok(DataSet::ShortDistance),
@@ -249,36 +250,53 @@ impl CanArgs {
 impl ReplayArgs {
     /// The bridge configuration the flags describe.
     pub fn bridge_config(&self) -> anyhow::Result<BridgeConfig> {
-        let c = &self.can;
-        if c.bitrate == 0 || c.data_bitrate == 0 {
-            bail!("bit rates must be > 0");
-        }
-        if !(c.share.is_finite() && c.share > 0.0 && c.share <= 100.0) {
-            bail!("--share must be in (0, 100] percent");
-        }
-        c.format()
-            .validate()
-            .map_err(|_| anyhow!("--frame-len {} is not a CAN FD length above 8", c.frame_len))?;
-        let window = self.can.window.window()?;
-        let mut session = SessionConfig::default();
-        session.scan.data = self.sensor_data;
-        Ok(BridgeConfig {
-            session,
-            pipeline: self.pipeline.config()?,
-            encoding: c.wire_encoding()?,
-            budget: Budget {
-                rates: c.rates(),
-                format: c.format(),
-                extended: window.is_extended(),
-                share_permille: (c.share * 10.0).round().clamp(1.0, 1000.0) as u16,
-            },
-            ids: window
-                .node(c.node)
-                .map_err(|_| anyhow!("--node {} is not 0..=15", c.node))
-                .context("CAN identifiers")?,
-            uart_bit_rate: self.uart_baud,
-            status_period_ms: self.status_period,
-            fd_capable: c.fd,
-        })
+        bridge_config(
+            &self.can,
+            &self.pipeline,
+            self.uart_baud,
+            self.status_period,
+            self.sensor_data,
+        )
     }
+}
+
+/// The bridge configuration of bus, pipeline and session flags (shared by `replay` and
+/// `bridge`).
+pub fn bridge_config(
+    c: &CanArgs,
+    pipeline: &PipelineArgs,
+    uart_baud: u32,
+    status_period: u32,
+    sensor_data: DataSet,
+) -> anyhow::Result<BridgeConfig> {
+    if c.bitrate == 0 || c.data_bitrate == 0 {
+        bail!("bit rates must be > 0");
+    }
+    if !(c.share.is_finite() && c.share > 0.0 && c.share <= 100.0) {
+        bail!("--share must be in (0, 100] percent");
+    }
+    c.format()
+        .validate()
+        .map_err(|_| anyhow!("--frame-len {} is not a CAN FD length above 8", c.frame_len))?;
+    let window = c.window.window()?;
+    let mut session = SessionConfig::default();
+    session.scan.data = sensor_data;
+    Ok(BridgeConfig {
+        session,
+        pipeline: pipeline.config()?,
+        encoding: c.wire_encoding()?,
+        budget: Budget {
+            rates: c.rates(),
+            format: c.format(),
+            extended: window.is_extended(),
+            share_permille: (c.share * 10.0).round().clamp(1.0, 1000.0) as u16,
+        },
+        ids: window
+            .node(c.node)
+            .map_err(|_| anyhow!("--node {} is not 0..=15", c.node))
+            .context("CAN identifiers")?,
+        uart_bit_rate: uart_baud,
+        status_period_ms: status_period,
+        fd_capable: c.fd,
+    })
 }

@@ -1,0 +1,219 @@
+//! `scip2can bridge`: the bridge core as a host process — a real sensor link (serial,
+//! TCP, or the in-process simulator) to a real CAN port (SLCAN adapter, SocketCAN, or a
+//! candump log), in real time, with the same `bridge::engine::Bridge` the firmware runs.
+//!
+//! The loop: bytes from the sensor go to `Bridge::on_uart`; the session's commands go
+//! back to the sensor (and a bit-rate change to the serial port); frames leave through
+//! the CAN port in queue order; frames received on the port (control frames addressed to
+//! this bridge) go to `Bridge::on_can_frame`, which answers them. Once a second a
+//! summary line goes to standard error (`--quiet` turns it off).
+
+pub mod port;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use bridge::engine::Bridge;
+use bridge::session::Action;
+
+use crate::replay::args::{CanArgs, PipelineArgs};
+use crate::sensor::link;
+use crate::sensor::spec::SensorSpec;
+
+/// Transmit queue of the host bridge, frames.
+pub const QUEUE: usize = 256;
+
+/// Sensor bytes handed to the core at a time (a DMA half-buffer's worth on a board).
+const SLICE: usize = 64;
+
+/// `scip2can bridge` flags.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BridgeArgs {
+    /// The sensor: `tcp://host:port`, a serial device (with --baud), or `sim:key=value,...`
+    /// (an in-process simulated sensor; `sim:` alone is a UTM-30LX).
+    #[arg(default_value = "sim:")]
+    pub sensor: String,
+    /// Bit rate of a serial sensor.
+    #[arg(long, default_value_t = 115_200)]
+    pub baud: u32,
+    /// The CAN port: `candump:-` (standard output), `candump:FILE`, `slcan:DEVICE[@BAUD]`,
+    /// `slcan:tcp://HOST:PORT`, or `socketcan:IFACE` (Linux, built with `--features
+    /// socketcan`).
+    #[arg(long, default_value = "candump:-")]
+    pub can: String,
+    /// Bus and wire encoding.
+    #[command(flatten)]
+    pub bus: CanArgs,
+    /// Scan pipeline.
+    #[command(flatten)]
+    pub pipeline: PipelineArgs,
+    /// What the session streams: D (distance), S (short), E (distance and intensity).
+    #[arg(long, default_value = "D", value_parser = crate::replay::args::parse_data_set)]
+    pub sensor_data: scip::DataSet,
+    /// Period of the status frames, ms (0: none).
+    #[arg(long, default_value_t = 1000)]
+    pub status_period: u32,
+    /// Stop after this many seconds (default: run until Ctrl-C).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// No summary lines on standard error.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Runs the bridge until Ctrl-C or `--seconds`.
+pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
+    let config = crate::replay::args::bridge_config(
+        &args.bus,
+        &args.pipeline,
+        args.baud,
+        args.status_period,
+        args.sensor_data,
+    )?;
+    let spec = SensorSpec::parse(&args.sensor, args.baud)?;
+    let mut link = link::open(&spec, Duration::from_secs(2))
+        .with_context(|| format!("opening the sensor {}", args.sensor))?;
+    let mut can = port::open(
+        &args.can,
+        config.budget.rates.nominal,
+        config.budget.rates.data,
+        args.bus.fd,
+    )?;
+    let mut bridge: Box<Bridge<QUEUE>> =
+        Box::new(Bridge::new(config).map_err(|e| anyhow::anyhow!("{e}"))?);
+    let p = &args.pipeline;
+    if p.decimate.is_some() || p.every_nth.is_some() || p.max_rate.is_some() {
+        bridge.set_auto_decimation(false);
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        // A second handler (e.g. in tests) is not an error worth failing for.
+        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst));
+    }
+    if !args.quiet {
+        eprintln!("scip2can bridge: {} → {}", link.describe(), can.describe());
+    }
+    let start = Instant::now();
+    let deadline = args
+        .seconds
+        .map(|s| start + Duration::from_secs_f64(s.max(0.0)));
+    let now_ms = || start.elapsed().as_millis() as u64;
+    bridge.start(now_ms());
+    let mut buf = vec![0u8; 4096];
+    let mut next_report = Duration::from_secs(1);
+    let mut last = Summary::default();
+    while !stop.load(Ordering::SeqCst) && deadline.is_none_or(|d| Instant::now() < d) {
+        let n = link
+            .recv(&mut buf, Duration::from_millis(2))
+            .context("reading the sensor")?;
+        // In UART-sized pieces, with the queue drained between them, as on the MCU.
+        for piece in buf.get(..n).unwrap_or(&[]).chunks(SLICE) {
+            bridge.on_uart(piece, now_ms());
+            while let Some(frame) = bridge.pop_frame() {
+                can.send(&frame).context("writing to the CAN port")?;
+            }
+        }
+        while let Some(action) = bridge.poll(now_ms()) {
+            match action {
+                Action::Send(request) => {
+                    let mut line = [0u8; scip::REQUEST_MAX];
+                    let len = request
+                        .encode(&mut line)
+                        .map_err(|e| anyhow::anyhow!("encoding {request:?}: {e}"))?;
+                    link.send(line.get(..len).unwrap_or(&[]))
+                        .context("writing to the sensor")?;
+                }
+                Action::SetBitRate(rate) => link
+                    .set_bit_rate(rate)
+                    .with_context(|| format!("switching the sensor link to {rate} bit/s"))?,
+            }
+        }
+        if let Some(notice) = bridge.take_notice() {
+            if !args.quiet {
+                eprintln!("[{:8.3} s] {notice:?}", start.elapsed().as_secs_f64());
+                if notice == bridge::session::Notice::Streaming {
+                    if let Some(plan) = bridge.plan() {
+                        eprintln!(
+                            "           governor: {} points per scan (1 in {} steps kept), 1 scan in {} sent, worst-case bus load {:.1} %",
+                            plan.points,
+                            plan.factor,
+                            plan.every_nth,
+                            plan.load_ppm as f64 / 10_000.0
+                        );
+                    }
+                }
+            }
+        }
+        while let Some(frame) = bridge.pop_frame() {
+            can.send(&frame).context("writing to the CAN port")?;
+        }
+        while let Some(frame) = can.recv().context("reading the CAN port")? {
+            bridge.on_can_frame(&frame, now_ms());
+        }
+        if !args.quiet && start.elapsed() >= next_report {
+            next_report += Duration::from_secs(1);
+            let now = Summary::of(&bridge);
+            eprintln!("{}", now.line(&last, start.elapsed().as_secs_f64()));
+            last = now;
+        }
+    }
+    // Leave the sensor quiet: stop the stream and give the QT a moment to go out.
+    bridge.stop(now_ms());
+    while let Some(action) = bridge.poll(now_ms()) {
+        if let Action::Send(request) = action {
+            let mut line = [0u8; scip::REQUEST_MAX];
+            if let Ok(len) = request.encode(&mut line) {
+                let _ = link.send(line.get(..len).unwrap_or(&[]));
+            }
+        }
+    }
+    while let Some(frame) = bridge.pop_frame() {
+        can.send(&frame)?;
+    }
+    if !args.quiet {
+        let s = Summary::of(&bridge);
+        eprintln!(
+            "scip2can bridge: {} scans sent, {} aborted, {} dropped, {} decoder errors",
+            s.sent, s.aborted, s.dropped, s.errors
+        );
+    }
+    Ok(())
+}
+
+/// Counters for the once-a-second line.
+#[derive(Debug, Clone, Copy, Default)]
+struct Summary {
+    sent: u32,
+    aborted: u32,
+    dropped: u32,
+    frames: u32,
+    errors: u32,
+}
+
+impl Summary {
+    fn of(b: &Bridge<QUEUE>) -> Self {
+        let s = b.stats();
+        Self {
+            sent: s.scans_sent,
+            aborted: s.scans_aborted,
+            dropped: s.scans_dropped + s.scans_skipped,
+            frames: s.frames,
+            errors: b.decoder().stats().errors,
+        }
+    }
+
+    fn line(&self, last: &Summary, t: f64) -> String {
+        format!(
+            "[{t:8.3} s] scans {:3}/s sent ({} total), {} aborted, {} dropped, {} frames/s, {} decoder errors",
+            self.sent - last.sent,
+            self.sent,
+            self.aborted,
+            self.dropped,
+            self.frames - last.frames,
+            self.errors
+        )
+    }
+}

@@ -1,0 +1,158 @@
+//! `scip2can bridge`, live: the in-process simulator to a candump log, and to an SLCAN
+//! adapter on a real TCP socket (the adapter side is the `slcan` crate's `Adapter`, as a
+//! board runs it), with a control frame sent back over the bus.
+
+use std::io::{Read, Write};
+use std::net::TcpListener;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use can_wire::control::{Command as Ctl, DecimationMode};
+use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
+use can_wire::{Control, Frame, IdWindow, Kind};
+use clap::Parser;
+use scip2can_host::live::{self, BridgeArgs};
+
+#[derive(Parser)]
+struct Cli {
+    #[command(flatten)]
+    args: BridgeArgs,
+}
+
+fn args(extra: &[&str]) -> BridgeArgs {
+    let mut argv = vec!["bridge", "--quiet"];
+    argv.extend_from_slice(extra);
+    Cli::parse_from(argv).args
+}
+
+/// Scans of a frame sequence: (step increment, points, intact).
+fn scans(frames: &[Frame]) -> Vec<(u8, u16, bool)> {
+    let mut dec: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
+    let mut out = Vec::new();
+    for f in frames {
+        if let Ok(Some(CanEvent::Scan { scan, .. })) = dec.push_frame(f) {
+            let h = scan.header();
+            out.push((h.step_increment, h.point_count, scan.is_intact()));
+        }
+    }
+    out
+}
+
+#[test]
+fn the_simulator_streams_into_a_candump_log() {
+    let dir = std::env::temp_dir().join(format!("scip2can-live-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let log = dir.join("bridge.log");
+    let can = format!("candump:{}", log.display());
+    live::run(args(&[
+        "sim:model=urg04lx,speed=4",
+        "--can",
+        &can,
+        "--seconds",
+        "2",
+    ]))
+    .expect("bridge runs");
+    let text = std::fs::read_to_string(&log).unwrap();
+    let frames: Vec<Frame> = text
+        .lines()
+        .filter_map(|l| scip2can_host::candump::parse_line(l).ok()?.to_frame())
+        .collect();
+    let s = scans(&frames);
+    // URG-04LX at 10 Hz × speed 4 for 2 s: ~80 scans; the simulator starts in SCIP 1.1.
+    assert!(s.len() >= 20, "only {} scans", s.len());
+    assert!(s.iter().all(|&(_, n, ok)| ok && n == 682), "{s:?}");
+}
+
+/// An SLCAN adapter on a TCP socket: answers commands, keeps transmitted frames, and
+/// once `trigger` frames went by, puts a control frame on the bus.
+fn adapter(listener: TcpListener, trigger: usize, control: Frame, done: mpsc::Sender<Vec<Frame>>) {
+    let (mut sock, _) = listener.accept().unwrap();
+    sock.set_read_timeout(Some(Duration::from_millis(20)))
+        .unwrap();
+    let mut adapter = slcan::Adapter::new(*b"0100", *b"TEST", true);
+    let mut lines = slcan::LineBuffer::new();
+    let mut sent = Vec::new();
+    let mut injected = false;
+    let mut buf = [0u8; 4096];
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while Instant::now() < deadline {
+        let n = match sock.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(_) => 0,
+        };
+        let mut input = &buf[..n];
+        while !input.is_empty() {
+            let (used, line) = lines.feed(input);
+            input = &input[used..];
+            if let Some(line) = line {
+                let outcome = adapter.line(line);
+                if let slcan::Outcome::Transmit(f, _) = outcome {
+                    let fd = f.kind() != slcan::FrameKind::Data;
+                    sent.push(Frame::new(f.id(), f.data(), fd).unwrap());
+                }
+                let mut out = [0u8; slcan::LINE_MAX];
+                let m = outcome.reply().emit(&mut out).unwrap();
+                sock.write_all(&out[..m]).unwrap();
+            }
+        }
+        if !injected && sent.len() >= trigger {
+            injected = true;
+            let f =
+                slcan::Frame::new(control.id(), slcan::FrameKind::Data, control.data()).unwrap();
+            let mut out = [0u8; slcan::LINE_MAX];
+            let m = adapter.received(&f, 0, &mut out).expect("channel open");
+            sock.write_all(&out[..m]).unwrap();
+        }
+    }
+    done.send(sent).unwrap();
+}
+
+#[test]
+fn an_slcan_adapter_carries_the_scans_and_a_control_frame_changes_decimation() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    let ids = IdWindow::DEFAULT.node(0).unwrap();
+    let mut data = [0u8; 8];
+    let n = Control {
+        token: 9,
+        command: Ctl::AngularDecimation {
+            k: 4,
+            mode: DecimationMode::Mean,
+        },
+    }
+    .emit(&mut data)
+    .unwrap();
+    let control = Frame::new(ids.id(Kind::Control), &data[..n], false).unwrap();
+    let (tx, rx) = mpsc::channel();
+    let server = std::thread::spawn(move || adapter(listener, 1500, control, tx));
+    let can = format!("slcan:tcp://{addr}");
+    live::run(args(&[
+        "sim:model=urg04lx,speed=4",
+        "--can",
+        &can,
+        "--encoding",
+        "d12",
+        "--seconds",
+        "4",
+    ]))
+    .expect("bridge runs");
+    let frames = rx.recv_timeout(Duration::from_secs(30)).unwrap();
+    server.join().unwrap();
+    // The control frame was answered (accepted) on the bus.
+    let answers: Vec<can_wire::Answer> = frames
+        .iter()
+        .filter(|f| f.id() == ids.id(Kind::ControlAnswer))
+        .map(|f| can_wire::Answer::parse(f.data()).unwrap())
+        .collect();
+    assert_eq!(answers.len(), 1);
+    assert_eq!(
+        (answers[0].token, answers[0].outcome),
+        (9, can_wire::Outcome::Accepted)
+    );
+    let s = scans(&frames);
+    assert!(s.iter().all(|&(_, _, ok)| ok), "{s:?}");
+    // Full resolution first, decimated by 4 after the control frame.
+    assert_eq!(s.first().map(|x| (x.0, x.1)), Some((1, 682)));
+    assert_eq!(s.last().map(|x| (x.0, x.1)), Some((4, 171)));
+}
