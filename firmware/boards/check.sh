@@ -22,11 +22,12 @@ cargo clippy --release --all-targets -- -D warnings
 cargo build --release
 
 target_dir=${CARGO_TARGET_DIR:-target}
-elf=$target_dir/thumbv7em-none-eabihf/release/scip2can-qemu
+elf=$target_dir/thumbv7em-none-eabihf/release/scip2can-qemu-decode
+bridge_elf=$target_dir/thumbv7em-none-eabihf/release/scip2can-qemu
 
 size_tool=$(command -v llvm-size || command -v rust-size || command -v arm-none-eabi-size || true)
 if [ -n "$size_tool" ]; then
-    "$size_tool" "$elf"
+    "$size_tool" "$bridge_elf" "$elf"
 else
     echo "no llvm-size / rust-size / arm-none-eabi-size: size not shown"
 fi
@@ -42,6 +43,15 @@ boot=$(printf '\004' | timeout 30 qemu-system-arm -machine mps2-an386 -display n
 case "$boot" in
     scip2can-qemu*) echo "boot ok: $boot" ;;
     *) echo "FAIL: no banner on UART0 (got: $boot)" >&2; exit 1 ;;
+esac
+
+# The bridge boots and its CAN port answers SLCAN: V and N on UART1 (stdio), sensor
+# port unconnected. It runs until killed, so `timeout` ends it.
+slcan=$( (printf 'V\rN\r'; sleep 2) | timeout 5 qemu-system-arm -machine mps2-an386 \
+    -display none -no-reboot -serial null -serial stdio -kernel "$bridge_elf" | tr '\r' ' ' || true)
+case "$slcan" in
+    "V0100 NQEMU "*) echo "bridge boot ok: SLCAN answers $slcan" ;;
+    *) echo "FAIL: the bridge's SLCAN port did not answer V and N (got: $slcan)" >&2; exit 1 ;;
 esac
 
 recordings=../../../shared/recordings

@@ -1,6 +1,7 @@
 //! The board's hardware access: the CMSDK APB UARTs of the MPS2 AN386 image,
-//! the UART0 receive interrupt, the idle loop, reset, and the panic and
-//! hard-fault handlers.
+//! their receive interrupts, the millisecond SysTick and a 25 MHz tick count,
+//! the CMSDK watchdog, stack painting, the idle loop, reset, and the panic,
+//! hard-fault and watchdog (NMI) handlers.
 //!
 //! This is the only module with `unsafe` code. Every `unsafe` block is a
 //! volatile access to a fixed, always-mapped device register of this machine
@@ -12,8 +13,11 @@
 use core::fmt::Write as _;
 use core::sync::atomic::{AtomicBool, Ordering};
 
+use core::sync::atomic::{AtomicU32, AtomicU8, AtomicUsize};
+
 use cortex_m::interrupt::InterruptNumber;
-use cortex_m::peripheral::{NVIC, SCB};
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m::peripheral::{NVIC, SCB, SYST};
 use cortex_m_rt::exception;
 
 /// Frequency of the MPS2 SYSCLK, which clocks the CPU, SysTick and the APB
@@ -22,8 +26,13 @@ pub const SYSCLK_HZ: u32 = 25_000_000;
 
 /// Base address of CMSDK APB UART0 (the sensor port).
 const UART0_BASE: usize = 0x4000_4000;
-/// Base address of CMSDK APB UART1 (the output port).
+/// Base address of CMSDK APB UART1 (the output / CAN port).
 const UART1_BASE: usize = 0x4000_5000;
+/// Base address of the CMSDK APB watchdog (its interrupt is the NMI).
+const WATCHDOG_BASE: usize = 0x4000_8000;
+
+/// SysTick ticks per millisecond.
+pub const TICKS_PER_MS: u32 = SYSCLK_HZ / 1000;
 
 /// Register offsets and bits of the CMSDK APB UART (ARM DDI 0479, 4.3).
 mod reg {
@@ -63,6 +72,8 @@ mod reg {
 enum Irq {
     /// CMSDK UART0 receive.
     Uart0Rx = 0,
+    /// CMSDK UART1 receive.
+    Uart1Rx = 2,
 }
 
 // SAFETY: `number` returns the NVIC line of a real interrupt of this
@@ -137,12 +148,13 @@ impl Uart {
         self.regs.write(reg::CTRL, ctrl);
     }
 
-    fn rx_full(&self) -> bool {
-        self.regs.read(reg::STATE) & reg::STATE_RX_FULL != 0
+    /// Whether the transmit buffer is full (a write would not be taken now).
+    pub fn tx_full(&self) -> bool {
+        self.regs.read(reg::STATE) & reg::STATE_TX_FULL != 0
     }
 
-    fn tx_full(&self) -> bool {
-        self.regs.read(reg::STATE) & reg::STATE_TX_FULL != 0
+    fn rx_full(&self) -> bool {
+        self.regs.read(reg::STATE) & reg::STATE_RX_FULL != 0
     }
 
     /// Reports and clears a receive overrun.
@@ -153,6 +165,39 @@ impl Uart {
         } else {
             false
         }
+    }
+
+    /// The next received byte, if one is there (never waits). An overrun is
+    /// reported (and cleared) before the byte that follows it.
+    pub fn try_read(&mut self) -> Result<Option<u8>, UartError> {
+        if self.take_overrun() {
+            return Err(UartError::Overrun);
+        }
+        if !self.rx_full() {
+            return Ok(None);
+        }
+        // Truncation intended: the byte is in DATA bits 7:0.
+        Ok(Some((self.regs.read(reg::DATA) & 0xFF) as u8))
+    }
+
+    /// Sends `byte` if the transmit buffer is free; false (nothing sent) if not.
+    pub fn try_write(&mut self, byte: u8) -> bool {
+        if self.tx_full() {
+            return false;
+        }
+        self.regs.write(reg::DATA, u32::from(byte));
+        true
+    }
+
+    /// Whether a received byte (or an overrun) is waiting.
+    pub fn rx_pending(&self) -> bool {
+        self.regs.read(reg::STATE) & (reg::STATE_RX_FULL | reg::STATE_RX_OVERRUN) != 0
+    }
+
+    /// Changes the bit rate (QEMU ignores it; a real UART would follow).
+    pub fn set_baud(&mut self, baud: u32) {
+        let div = (SYSCLK_HZ / baud.max(1)).max(16);
+        self.regs.write(reg::BAUDDIV, div);
     }
 
     /// Waits until the transmit buffer is free, then sends `byte`.
@@ -232,36 +277,39 @@ impl embedded_io::WriteReady for Uart {
 /// The board's UARTs, handed out once.
 pub struct Board {
     /// UART0, towards the laser range finder.
-    pub sensor: Uart,
-    /// UART1, the output port (summaries now; SLCAN later).
-    pub output: Uart,
+    pub uart0: Uart,
+    /// UART1: the CAN port (SLCAN) of the bridge, the summary output of the
+    /// decoder binary.
+    pub uart1: Uart,
 }
 
 static TAKEN: AtomicBool = AtomicBool::new(false);
 
 impl Board {
-    /// Takes and initialises the UARTs (8N1 at `baud`) and unmasks the UART0
-    /// receive interrupt, which wakes the core from `sleep_until`. Returns
+    /// Takes and initialises the UARTs (8N1 at `baud`) and unmasks their
+    /// receive interrupts, which wake the core from `sleep_until`. Returns
     /// `None` when called a second time.
     pub fn take(baud: u32) -> Option<Board> {
         if TAKEN.swap(true, Ordering::AcqRel) {
             return None;
         }
         let mut board = Board {
-            sensor: Uart {
+            uart0: Uart {
                 regs: Regs { base: UART0_BASE },
             },
-            output: Uart {
+            uart1: Uart {
                 regs: Regs { base: UART1_BASE },
             },
         };
-        board.sensor.init(baud, true);
-        board.output.init(baud, false);
-        NVIC::unpend(Irq::Uart0Rx);
-        // SAFETY: the handler of this line (`DefaultHandler` below) only
-        // clears the UART's interrupt status; unmasking it cannot break a
-        // critical section because none uses UART0's interrupt state.
-        unsafe { NVIC::unmask(Irq::Uart0Rx) };
+        board.uart0.init(baud, true);
+        board.uart1.init(baud, true);
+        for irq in [Irq::Uart0Rx, Irq::Uart1Rx] {
+            NVIC::unpend(irq);
+            // SAFETY: the handler of these lines (`DefaultHandler` below) only
+            // clears the UART's interrupt status; unmasking them cannot break a
+            // critical section because none uses the UARTs' interrupt state.
+            unsafe { NVIC::unmask(irq) };
+        }
         Some(board)
     }
 }
@@ -303,10 +351,16 @@ pub fn exit() -> ! {
 
 #[exception]
 unsafe fn DefaultHandler(irqn: i16) {
+    // The receive interrupts only wake the idle loop; the main loop reads the
+    // bytes. Clear the latched status so the line drops.
     if irqn == Irq::Uart0Rx as i16 {
-        // The receive interrupt only wakes the idle loop; the main loop
-        // reads the byte. Clear the latched status so the line drops.
-        Regs { base: UART0_BASE }.write(reg::INTSTATUS, reg::INTSTATUS_ALL);
+        let regs = Regs { base: UART0_BASE };
+        regs.write(reg::INTSTATUS, reg::INTSTATUS_ALL);
+        if RX0_RING.load(Ordering::Relaxed) {
+            rx0_fill(&regs);
+        }
+    } else if irqn == Irq::Uart1Rx as i16 {
+        Regs { base: UART1_BASE }.write(reg::INTSTATUS, reg::INTSTATUS_ALL);
     }
 }
 
@@ -351,4 +405,246 @@ impl core::fmt::Write for PanicWriter {
         }
         Ok(())
     }
+}
+
+/// Milliseconds since boot, counted by SysTick.
+static MILLIS: AtomicU32 = AtomicU32::new(0);
+
+#[exception]
+fn SysTick() {
+    MILLIS.fetch_add(1, Ordering::Relaxed);
+}
+
+/// Starts SysTick on the core clock with a 1 ms period and its interrupt.
+pub fn start_systick(mut syst: SYST) {
+    syst.set_clock_source(SystClkSource::Core);
+    syst.set_reload(TICKS_PER_MS - 1);
+    syst.clear_current();
+    syst.enable_counter();
+    syst.enable_interrupt();
+}
+
+/// Milliseconds since boot (wraps after 49 days).
+pub fn now_ms() -> u32 {
+    MILLIS.load(Ordering::Relaxed)
+}
+
+/// SysTick ticks (25 MHz core clock) since boot: the millisecond count and
+/// the counter within the millisecond. Under `qemu-system-arm -icount
+/// shift=0` one instruction takes 1 ns of virtual time, so one tick is 40
+/// instructions. Call with interrupts enabled (the millisecond count must
+/// follow the counter's wrap).
+pub fn ticks() -> u64 {
+    loop {
+        let ms = now_ms();
+        let current = SYST::get_current();
+        if now_ms() == ms {
+            let within = (TICKS_PER_MS - 1).saturating_sub(current);
+            return u64::from(ms) * u64::from(TICKS_PER_MS) + u64::from(within);
+        }
+    }
+}
+
+/// Register offsets of the CMSDK APB watchdog (ARM DDI 0479, 4.5).
+mod wdog {
+    /// Reload value; writing it restarts the count.
+    pub const LOAD: usize = 0x00;
+    /// Control: bit 0 interrupt (and counter) enable, bit 1 reset enable.
+    pub const CTRL: usize = 0x08;
+    /// Write anything: clears the interrupt and reloads the counter.
+    pub const INTCLR: usize = 0x0C;
+    /// Write the key to unlock the other registers, anything else to lock.
+    pub const LOCK: usize = 0xC00;
+    /// The unlock key.
+    pub const KEY: u32 = 0x1ACC_E551;
+    /// CTRL: counter and interrupt on, reset on the second time-out.
+    pub const CTRL_INTEN_RESEN: u32 = 0b11;
+}
+
+/// The CMSDK watchdog: counts down at 25 MHz; the first time-out raises the
+/// NMI (which reports and resets), a second one resets the system.
+pub struct Watchdog {
+    regs: Regs,
+}
+
+impl Watchdog {
+    /// Starts the watchdog with a time-out of `timeout_ms`.
+    pub fn start(timeout_ms: u32) -> Watchdog {
+        let regs = Regs {
+            base: WATCHDOG_BASE,
+        };
+        regs.write(wdog::LOCK, wdog::KEY);
+        regs.write(wdog::LOAD, timeout_ms.saturating_mul(TICKS_PER_MS));
+        regs.write(wdog::CTRL, wdog::CTRL_INTEN_RESEN);
+        regs.write(wdog::LOCK, 0);
+        Watchdog { regs }
+    }
+
+    /// Restarts the count.
+    pub fn feed(&mut self) {
+        self.regs.write(wdog::LOCK, wdog::KEY);
+        self.regs.write(wdog::INTCLR, 1);
+        self.regs.write(wdog::LOCK, 0);
+    }
+}
+
+// SAFETY (cortex-m-rt's requirement for an NMI handler): it takes no lock
+// and shares no state with the interrupted code; it only writes the UARTs
+// and resets.
+#[exception]
+unsafe fn NonMaskableInt() {
+    // Only the watchdog drives the NMI on this board.
+    report(format_args!("watchdog: main loop stalled"));
+    exit()
+}
+
+/// The byte painted over the free stack at boot.
+const PAINT: u32 = 0xC0DE_5AFE;
+
+extern "C" {
+    /// Start of the heap = end of the static data (cortex-m-rt's `link.x`).
+    static mut __sheap: u32;
+    /// Initial stack pointer: the top of RAM (cortex-m-rt's `link.x`).
+    static mut _stack_start: u32;
+}
+
+fn stack_bounds() -> (usize, usize) {
+    // Only the addresses of the linker symbols are taken, never their values.
+    let bottom = core::ptr::addr_of!(__sheap) as usize;
+    let top = core::ptr::addr_of!(_stack_start) as usize;
+    (bottom, top)
+}
+
+/// The stack reservation: from the end of the static data to the top of RAM,
+/// in bytes.
+pub fn stack_size() -> usize {
+    let (bottom, top) = stack_bounds();
+    top.saturating_sub(bottom)
+}
+
+/// Paints the free stack (below the current frame, minus a margin) so that
+/// [`stack_used`] can find the deepest point reached. Call first thing in
+/// `main`.
+#[inline(never)]
+pub fn paint_stack() {
+    let (bottom, _) = stack_bounds();
+    // Leave the frames above us (and this function's) alone.
+    let sp = cortex_m::register::msp::read() as usize;
+    let end = sp.saturating_sub(64) & !3;
+    let mut p = (bottom + 3) & !3;
+    while p < end {
+        // SAFETY: `p` is word-aligned and lies between the end of the static
+        // data and the stack pointer minus a margin: RAM that no live object
+        // occupies (the stack grows down and is above `end`).
+        unsafe { core::ptr::write_volatile(p as *mut u32, PAINT) };
+        p += 4;
+    }
+}
+
+/// The most stack ever used since [`paint_stack`], in bytes: the distance
+/// from the top of RAM to the lowest word no longer painted.
+pub fn stack_used() -> usize {
+    let (bottom, top) = stack_bounds();
+    let mut p = (bottom + 3) & !3;
+    while p < top {
+        // SAFETY: word-aligned reads of RAM inside the stack reservation.
+        let word = unsafe { core::ptr::read_volatile(p as *const u32) };
+        if word != PAINT {
+            break;
+        }
+        p += 4;
+    }
+    top.saturating_sub(p)
+}
+
+/// Capacity of UART0's receive ring (a power of two).
+const RX0_CAP: usize = 256;
+/// Whether the UART0 interrupt moves received bytes into the ring (the
+/// bridge) or only wakes the core (the decoder binary reads the UART).
+static RX0_RING: AtomicBool = AtomicBool::new(false);
+/// UART0's receive ring: the interrupt handler writes `RX0_HEAD`, the main
+/// loop `RX0_TAIL` (single producer, single consumer, no lock needed).
+static RX0: [AtomicU8; RX0_CAP] = [const { AtomicU8::new(0) }; RX0_CAP];
+static RX0_HEAD: AtomicUsize = AtomicUsize::new(0);
+static RX0_TAIL: AtomicUsize = AtomicUsize::new(0);
+/// Bytes lost: the ring was full, or the UART reported an overrun.
+static RX0_LOST: AtomicU32 = AtomicU32::new(0);
+
+/// Moves every byte UART0 holds into the ring (from its interrupt).
+fn rx0_fill(regs: &Regs) {
+    loop {
+        let state = regs.read(reg::STATE);
+        if state & reg::STATE_RX_OVERRUN != 0 {
+            regs.write(reg::STATE, reg::STATE_RX_OVERRUN);
+            RX0_LOST.fetch_add(1, Ordering::Relaxed);
+        }
+        if state & reg::STATE_RX_FULL == 0 {
+            return;
+        }
+        // Truncation intended: the byte is in DATA bits 7:0.
+        let byte = (regs.read(reg::DATA) & 0xFF) as u8;
+        let head = RX0_HEAD.load(Ordering::Relaxed);
+        let tail = RX0_TAIL.load(Ordering::Acquire);
+        if head.wrapping_sub(tail) >= RX0_CAP {
+            RX0_LOST.fetch_add(1, Ordering::Relaxed);
+            continue;
+        }
+        if let Some(slot) = RX0.get(head % RX0_CAP) {
+            slot.store(byte, Ordering::Relaxed);
+        }
+        RX0_HEAD.store(head.wrapping_add(1), Ordering::Release);
+    }
+}
+
+/// From now on UART0's interrupt fills a receive ring, read with
+/// [`rx0_read`] (the bridge: bytes arrive in bursts while the main loop
+/// works, as with a DMA ring on a real MCU).
+pub fn rx0_use_ring() {
+    RX0_RING.store(true, Ordering::Release);
+}
+
+/// Takes up to `buf.len()` bytes from UART0's receive ring.
+pub fn rx0_read(buf: &mut [u8]) -> usize {
+    let head = RX0_HEAD.load(Ordering::Acquire);
+    let mut tail = RX0_TAIL.load(Ordering::Relaxed);
+    let mut n = 0;
+    for slot in buf.iter_mut() {
+        if tail == head {
+            break;
+        }
+        *slot = RX0
+            .get(tail % RX0_CAP)
+            .map_or(0, |b| b.load(Ordering::Relaxed));
+        tail = tail.wrapping_add(1);
+        n += 1;
+    }
+    RX0_TAIL.store(tail, Ordering::Release);
+    n
+}
+
+/// Whether UART0's receive ring holds bytes.
+pub fn rx0_pending() -> bool {
+    RX0_HEAD.load(Ordering::Acquire) != RX0_TAIL.load(Ordering::Relaxed)
+}
+
+/// Bytes lost on UART0 so far (ring full or UART overrun).
+pub fn rx0_lost() -> u32 {
+    RX0_LOST.load(Ordering::Relaxed)
+}
+
+/// SysTick ticks spent in `work`, with interrupts masked so that no handler
+/// is counted (the work must take less than 1 ms: one counter wrap at most).
+pub fn measure<R>(work: impl FnOnce() -> R) -> (R, u32) {
+    cortex_m::interrupt::free(|_| {
+        let start = SYST::get_current();
+        let out = work();
+        let end = SYST::get_current();
+        let ticks = if SCB::is_pendst_pending() {
+            // The counter wrapped (counts down from TICKS_PER_MS - 1).
+            start + TICKS_PER_MS - end
+        } else {
+            start.saturating_sub(end)
+        };
+        (out, ticks)
+    })
 }

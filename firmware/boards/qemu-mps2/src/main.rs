@@ -1,122 +1,219 @@
-//! scip2can firmware for QEMU's `mps2-an386` machine.
+//! scip2can firmware for QEMU's `mps2-an386` machine: the bridge.
 //!
-//! UART0 is the sensor port, UART1 the output port. This first version
-//! feeds the SCIP stream arriving on UART0 to the `scip` streaming decoder
-//! and prints one summary line per response (and one per error) on UART1.
-//! A byte 0x04 (EOT, never part of SCIP) on UART0 ends the program (see
-//! README.md).
+//! - **UART0** is the sensor: its bytes go to [`bridge::engine::Bridge::on_uart`], the
+//!   session's commands are written back to it. `SetBitRate` only sets `BAUDDIV`:
+//!   QEMU's UART has no bit rate (and the session sends no `SS` by default).
+//! - **UART1** is the CAN port, speaking SLCAN like a USB-CAN adapter (`can_port`):
+//!   closed until `O`; the bridge's frames go out as `t`/`d`/`b` lines while it is open;
+//!   frames written to it go to [`bridge::engine::Bridge::on_can_frame`] (control
+//!   frames); `F` answers the status flags.
+//! - Time is SysTick's millisecond count. The session starts at boot. The CMSDK watchdog
+//!   is fed every millisecond; a stalled loop raises the NMI, which reports and resets.
+//!
+//! Everything else is the core's: this file binds peripherals and moves bytes and frames.
 
 #![no_std]
 #![no_main]
 #![deny(unsafe_code)]
 
+mod can_port;
+mod config;
 mod hw;
-mod summary;
+mod meter;
 
-use core::sync::atomic::{AtomicU32, Ordering};
+use bridge::engine::Bridge;
+use bridge::session::Action;
+use can_port::{CanPort, Input};
+use cortex_m_rt::entry;
+use embedded_io::Write;
+use slcan::StatusFlags;
 
-use cortex_m::peripheral::syst::SystClkSource;
-use cortex_m_rt::{entry, exception};
-use embedded_io::{Read, Write};
-
-/// Bit rate of both UARTs (ignored by QEMU, kept realistic).
-const BAUD: u32 = 115_200;
-
-/// The byte that ends the program when it arrives on the sensor port.
-const EOT: u8 = 0x04;
-
-/// Milliseconds since boot, counted by SysTick.
-static MILLIS: AtomicU32 = AtomicU32::new(0);
-
-#[exception]
-fn SysTick() {
-    MILLIS.fetch_add(1, Ordering::Relaxed);
+/// Milliseconds since boot as the core wants them: SysTick's 32-bit count extended.
+struct Clock {
+    last: u32,
+    high: u64,
 }
 
-/// Milliseconds since boot (wraps after 49 days).
-fn now_ms() -> u32 {
-    MILLIS.load(Ordering::Relaxed)
+impl Clock {
+    fn now(&mut self) -> u64 {
+        let ms = hw::now_ms();
+        if ms < self.last {
+            self.high += 1 << 32;
+        }
+        self.last = ms;
+        self.high | u64::from(ms)
+    }
+}
+
+/// Counters whose growth raises SLCAN status flags.
+#[derive(Default, PartialEq)]
+struct Seen {
+    tx_lost: u32,
+    rx_lost: u32,
 }
 
 #[entry]
 fn main() -> ! {
-    let Some(mut cp) = cortex_m::Peripherals::take() else {
+    hw::paint_stack();
+    let Some(cp) = cortex_m::Peripherals::take() else {
         hw::exit()
     };
-    cp.SYST.set_clock_source(SystClkSource::Core);
-    cp.SYST.set_reload(hw::SYSCLK_HZ / 1000 - 1);
-    cp.SYST.clear_current();
-    cp.SYST.enable_counter();
-    cp.SYST.enable_interrupt();
-
+    hw::start_systick(cp.SYST);
     let Some(hw::Board {
-        mut sensor,
-        mut output,
-    }) = hw::Board::take(BAUD)
+        uart0: mut sensor,
+        uart1: mut can,
+    }) = hw::Board::take(config::BAUD)
     else {
         hw::exit()
     };
+    hw::rx0_use_ring();
+    let mut watchdog = hw::Watchdog::start(config::WATCHDOG_MS);
 
-    // The banner goes to both ports: UART1 is the output port, and UART0 is
-    // what `-nographic` alone shows on stdio.
-    for port in [&mut output, &mut sensor] {
-        let _ = write!(port, "{BANNER}\r\n");
-    }
+    let Some(Ok(mut bridge)) = config::bridge().map(Bridge::<{ config::QUEUE }>::new) else {
+        hw::exit()
+    };
+    let ids = bridge.config().ids;
+    bridge.set_bus_state(can_wire::BusState::ErrorActive);
+    let mut port = CanPort::new(config::SLCAN_VERSION, config::SLCAN_SERIAL);
+    let mut meter = meter::Meter::default();
+    let mut clock = Clock { last: 0, high: 0 };
+    let mut seen = Seen::default();
+    let mut last_ms = hw::now_ms();
+    let (mut load_start, mut sleep_ticks) = (hw::ticks(), 0u64);
+    bridge.start(clock.now());
 
-    let mut decoder = scip::Decoder::new();
-    let mut summary = summary::Summariser::new();
-    let mut overruns: u32 = 0;
-    let mut buf = [0u8; 64];
+    let mut chunk = [0u8; 64];
     loop {
-        let n = match sensor.read(&mut buf) {
-            Ok(n) => n,
-            Err(hw::UartError::Overrun) => {
-                // A lost byte shows up as a bad line in the decoder too.
-                overruns = overruns.wrapping_add(1);
-                continue;
-            }
-        };
-        let chunk = buf.get(..n).unwrap_or_default();
-        let (data, eot) = match chunk.iter().position(|&b| b == EOT) {
-            Some(i) => (chunk.get(..i).unwrap_or_default(), true),
-            None => (chunk, false),
-        };
-        let mut rest = data;
-        while !rest.is_empty() {
-            let (used, ev) = decoder.feed(rest);
-            if let Some(ev) = ev {
-                summary.event(&ev, &mut output);
-            }
-            // `feed` consumes at least one byte of non-empty input; the
-            // guard keeps the loop bounded whatever it returns.
-            match rest.get(used..) {
-                Some(r) if used > 0 => rest = r,
-                _ => break,
+        let now = clock.now();
+        let ms = hw::now_ms();
+        if ms != last_ms {
+            last_ms = ms;
+            watchdog.feed();
+            seen = raise_flags(&bridge, &mut port, seen);
+            let elapsed = hw::ticks().saturating_sub(load_start);
+            if elapsed >= u64::from(hw::TICKS_PER_MS) * 1000 {
+                let busy = elapsed.saturating_sub(sleep_ticks);
+                bridge.set_cpu_load(u16::try_from(busy * 1000 / elapsed).unwrap_or(1000));
+                (load_start, sleep_ticks) = (hw::ticks(), 0);
             }
         }
-        if eot {
-            if let Some(ev) = decoder.finish() {
-                summary.event(&ev, &mut output);
+
+        // Sensor bytes into the core.
+        let n = hw::rx0_read(&mut chunk);
+        if n > 0 {
+            let read_at = hw::ticks();
+            let sent_before = bridge.stats().scans_sent;
+            let data = chunk.get(..n).unwrap_or_default();
+            let ((), ticks) = hw::measure(|| bridge.on_uart(data, now));
+            meter.uart(n, read_at, ticks, sent_before, bridge.stats());
+        }
+
+        // The session's commands to the sensor.
+        while let Some(action) = bridge.poll(now) {
+            match action {
+                Action::Send(request) => {
+                    let mut line = [0u8; scip::REQUEST_MAX];
+                    if let Ok(len) = request.encode(&mut line) {
+                        let _ = sensor.write_all(line.get(..len).unwrap_or_default());
+                    }
+                }
+                Action::SetBitRate(rate) => sensor.set_baud(rate),
             }
-            let st = decoder.stats();
-            let _ = write!(
-                output,
-                "end bytes={} responses={} errors={} resyncs={} overruns={} uptime_ms={}\r\n",
-                st.bytes,
-                st.responses,
-                st.errors,
-                st.resyncs,
-                overruns,
-                now_ms()
-            );
-            let _ = output.flush();
-            hw::exit();
+        }
+
+        // Control frames from the bus (the SLCAN host).
+        match port.receive(&mut can) {
+            Some(Input::Frame(frame)) => {
+                bridge.on_can_frame(&frame, now);
+            }
+            Some(Input::Diagnostics) => diagnostics(&mut port, &mut can, &bridge, &meter),
+            None => {}
+        }
+
+        // The bridge's frames onto the bus.
+        port.flush(&mut can);
+        while port.has_room() {
+            let Some(frame) = bridge.pop_frame() else {
+                break;
+            };
+            let kind = can_port::kind(&ids, frame.id());
+            let ((), ticks) = hw::measure(|| port.send(&frame, ms));
+            meter.frame(kind, hw::ticks(), ticks, bridge.stats());
+            port.flush(&mut can);
+        }
+
+        let output_moves = port.has_output() && !can.tx_full();
+        let frames_wait = bridge.queued() > 0 && port.has_room();
+        let idle = !(hw::rx0_pending() || can.rx_pending() || output_moves || frames_wait);
+        if idle {
+            let before = hw::ticks();
+            hw::sleep_until(|| hw::rx0_pending() || can.rx_pending() || hw::now_ms() != last_ms);
+            sleep_ticks += hw::ticks().saturating_sub(before);
         }
     }
 }
 
-const BANNER: &str = concat!(
-    "scip2can-qemu ",
-    env!("CARGO_PKG_VERSION"),
-    " mps2-an386: UART0=sensor UART1=output, EOT on UART0 exits"
-);
+/// Raises SLCAN's "transmit FIFO full" when the bridge lost frames or whole scans to a
+/// full queue, "data overrun" when sensor bytes were lost.
+fn raise_flags(bridge: &Bridge<{ config::QUEUE }>, port: &mut CanPort, seen: Seen) -> Seen {
+    let now = Seen {
+        tx_lost: bridge
+            .health()
+            .tx_overflows
+            .wrapping_add(bridge.stats().queue_overflows)
+            .wrapping_add(bridge.governor().stats().dropped_queue),
+        rx_lost: hw::rx0_lost(),
+    };
+    if now.tx_lost != seen.tx_lost {
+        port.raise(StatusFlags::TX_FIFO_FULL);
+    }
+    if now.rx_lost != seen.rx_lost {
+        port.raise(StatusFlags::DATA_OVERRUN);
+    }
+    now
+}
+
+/// The `?` line: firmware, stack high-water mark, and the work counters of `meter`.
+fn diagnostics(
+    port: &mut CanPort,
+    can: &mut hw::Uart,
+    bridge: &Bridge<{ config::QUEUE }>,
+    meter: &meter::Meter,
+) {
+    // The line is longer than one frame line: let the ring empty first.
+    while port.has_output() {
+        port.flush(can);
+    }
+    let s = bridge.stats();
+    let g = bridge.governor().stats();
+    let closed_drops = port.closed_drops;
+    port.text(format_args!(
+        "?fw={} stack={} stack_size={} bytes={} core_ticks={} calls={} max_call_ticks={} \
+         slcan_ticks={} frames={} scans_in={} scans_sent={} scans_aborted={} \
+         dropped_budget={} dropped_queue={} lat_n={} lat_sum={} lat_max={} early={} late={} \
+         rx_lost={} closed_drops={} cpu_permille={} ms={}",
+        env!("CARGO_PKG_VERSION"),
+        hw::stack_used(),
+        hw::stack_size(),
+        meter.bytes,
+        meter.core_ticks,
+        meter.calls,
+        meter.max_call_ticks,
+        meter.slcan_ticks,
+        meter.frames,
+        s.scans_in,
+        s.scans_sent,
+        s.scans_aborted,
+        g.dropped_budget,
+        g.dropped_queue,
+        meter.latency_n,
+        meter.latency_sum,
+        meter.latency_max,
+        meter.early,
+        meter.late,
+        hw::rx0_lost(),
+        closed_drops,
+        bridge.health().cpu_permille,
+        hw::now_ms(),
+    ));
+}

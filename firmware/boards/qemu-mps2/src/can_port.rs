@@ -1,0 +1,174 @@
+//! The CAN port: UART1 speaking SLCAN, as a USB-CAN adapter on the bridge's bus would.
+//!
+//! What the host sends is split into lines and handed to [`slcan::Adapter`]; the frames
+//! it asks to transmit come back to the caller (they are the bus traffic the bridge
+//! receives: control frames). The bridge's frames are written as SLCAN lines while the
+//! channel is open, and dropped (counted) while it is closed: they went on the bus, the
+//! adapter just was not listening. Output goes through a small ring so that the main
+//! loop never waits for UART1.
+//!
+//! One extension: a line starting with `?` asks for the board's diagnostics (stack
+//! high-water mark, work counters; see `main.rs`), answered as one `?...` line. SLCAN
+//! clients never send it.
+
+use core::fmt::Write as _;
+
+use can_wire::Frame;
+use embedded_can::Id;
+use heapless::Deque;
+use slcan::line::Line;
+use slcan::{Adapter, FrameKind, LineBuffer, Outcome, StatusFlags, LINE_MAX};
+
+use crate::hw::{Uart, UartError};
+
+/// Capacity of the output ring, bytes: a few lines.
+const OUT_CAP: usize = 512;
+
+/// What arrived on the port.
+pub enum Input {
+    /// A frame the host put on the bus.
+    Frame(Frame),
+    /// The `?` diagnostics request.
+    Diagnostics,
+}
+
+/// The SLCAN port.
+pub struct CanPort {
+    lines: LineBuffer,
+    adapter: Adapter,
+    out: Deque<u8, OUT_CAP>,
+    /// Bridge frames dropped while the channel was closed.
+    pub closed_drops: u32,
+    /// Bytes lost on UART1's receive side.
+    pub rx_overruns: u32,
+}
+
+impl CanPort {
+    /// A closed port.
+    pub fn new(version: [u8; 4], serial: [u8; 4]) -> Self {
+        Self {
+            lines: LineBuffer::new(),
+            adapter: Adapter::new(version, serial, true),
+            out: Deque::new(),
+            closed_drops: 0,
+            rx_overruns: 0,
+        }
+    }
+
+    /// Latches SLCAN status flags for the next `F`.
+    pub fn raise(&mut self, flags: StatusFlags) {
+        self.adapter.raise(flags);
+    }
+
+    /// Whether there is room for one more line of output.
+    pub fn has_room(&self) -> bool {
+        OUT_CAP - self.out.len() >= LINE_MAX
+    }
+
+    /// Whether output is waiting for the UART.
+    pub fn has_output(&self) -> bool {
+        !self.out.is_empty()
+    }
+
+    /// Reads what the host sent, up to the end of one line, and answers it. Returns what
+    /// the line asked for beyond an answer. Reads nothing while the output ring has no
+    /// room for an answer (the host waits; QEMU holds its bytes back).
+    pub fn receive(&mut self, uart: &mut Uart) -> Option<Input> {
+        while self.has_room() {
+            let byte = match uart.try_read() {
+                Ok(Some(b)) => b,
+                Ok(None) => return None,
+                Err(UartError::Overrun) => {
+                    self.rx_overruns = self.rx_overruns.wrapping_add(1);
+                    self.adapter.raise(StatusFlags::DATA_OVERRUN);
+                    continue;
+                }
+            };
+            let (_, line) = self.lines.feed(&[byte]);
+            let Some(line) = line else { continue };
+            if let Line::Text([b'?', ..]) = line {
+                return Some(Input::Diagnostics);
+            }
+            let outcome = self.adapter.line(line);
+            self.reply(&outcome.reply());
+            if let Outcome::Transmit(frame, _) = outcome {
+                if frame.kind() == FrameKind::Remote {
+                    // The protocol has no remote frames; nobody answers them.
+                    return None;
+                }
+                let fd = frame.kind().is_fd();
+                return Frame::new(frame.id(), frame.data(), fd)
+                    .ok()
+                    .map(Input::Frame);
+            }
+        }
+        None
+    }
+
+    fn reply(&mut self, reply: &slcan::Reply) {
+        let mut buf = [0u8; LINE_MAX];
+        if let Ok(n) = reply.emit(&mut buf) {
+            self.push(buf.get(..n).unwrap_or_default());
+        }
+    }
+
+    fn push(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            if self.out.push_back(b).is_err() {
+                break;
+            }
+        }
+    }
+
+    /// Queues one bridge frame as an SLCAN line (if open; else counts it as dropped).
+    /// The caller checks [`CanPort::has_room`] first.
+    pub fn send(&mut self, frame: &Frame, now_ms: u32) {
+        let kind = if frame.is_fd() {
+            FrameKind::FdBrs
+        } else {
+            FrameKind::Data
+        };
+        let Ok(line) = slcan::Frame::new(frame.id(), kind, frame.data()) else {
+            return;
+        };
+        let mut buf = [0u8; LINE_MAX];
+        match self.adapter.received(&line, now_ms, &mut buf) {
+            Some(n) => self.push(buf.get(..n).unwrap_or_default()),
+            None => self.closed_drops = self.closed_drops.wrapping_add(1),
+        }
+    }
+
+    /// Queues a text line (diagnostics), CR added.
+    pub fn text(&mut self, args: core::fmt::Arguments<'_>) {
+        struct Ring<'a>(&'a mut Deque<u8, OUT_CAP>);
+        impl core::fmt::Write for Ring<'_> {
+            fn write_str(&mut self, s: &str) -> core::fmt::Result {
+                for &b in s.as_bytes() {
+                    self.0.push_back(b).map_err(|_| core::fmt::Error)?;
+                }
+                Ok(())
+            }
+        }
+        let mut ring = Ring(&mut self.out);
+        let _ = ring.write_fmt(args);
+        let _ = ring.0.push_back(slcan::CR);
+    }
+
+    /// Moves queued output into UART1 while it takes bytes; returns the bytes moved.
+    pub fn flush(&mut self, uart: &mut Uart) -> usize {
+        let mut n = 0;
+        while let Some(&b) = self.out.front() {
+            if !uart.try_write(b) {
+                break;
+            }
+            self.out.pop_front();
+            n += 1;
+        }
+        n
+    }
+}
+
+/// The identifier's kind in the bridge's window, for the board's bookkeeping.
+pub fn kind(ids: &can_wire::NodeIds, id: Id) -> Option<can_wire::Kind> {
+    ids.window().classify(id).map(|(_, k)| k)
+}
