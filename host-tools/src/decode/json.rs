@@ -34,25 +34,32 @@ fn seconds(time_us: u64) -> f64 {
 }
 
 fn completeness(c: &Completeness, obj: &mut Map<String, Value>) {
-    let name = match *c {
-        Completeness::Intact => "intact",
+    let (name, details): (&str, Vec<(&str, Value)>) = match *c {
+        Completeness::Intact => ("intact", vec![]),
         Completeness::Incomplete {
             missing_points,
             trailer_missing,
-        } => {
-            obj.insert("missing_points".into(), missing_points.into());
-            obj.insert("trailer_missing".into(), trailer_missing.into());
-            "incomplete"
-        }
-        Completeness::CrcMismatch => "crc_mismatch",
-        Completeness::Corrupt => "corrupt",
-        Completeness::Aborted { reason, detail } => {
-            obj.insert("abort_reason".into(), format!("{reason:?}").into());
-            obj.insert("abort_detail".into(), detail.into());
-            "aborted"
-        }
+        } => (
+            "incomplete",
+            vec![
+                ("missing_points", missing_points.into()),
+                ("trailer_missing", trailer_missing.into()),
+            ],
+        ),
+        Completeness::CrcMismatch => ("crc_mismatch", vec![]),
+        Completeness::Corrupt => ("corrupt", vec![]),
+        Completeness::Aborted { reason, detail } => (
+            "aborted",
+            vec![
+                ("abort_reason", format!("{reason:?}").into()),
+                ("abort_detail", detail.into()),
+            ],
+        ),
     };
     obj.insert("completeness".into(), name.into());
+    for (k, v) in details {
+        obj.insert(k.into(), v);
+    }
 }
 
 /// A scan as a JSON object.
@@ -283,4 +290,115 @@ pub fn summary_text(dec: &LogDecoder) -> String {
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use can_wire::{DistanceEncoding, Encoding, Grouping, IntensityEncoding, Point, ScanHeader};
+
+    fn sample() -> DecodedScan {
+        let p = |distance, intensity| {
+            Some(Point {
+                distance,
+                intensity: Some(intensity),
+            })
+        };
+        DecodedScan {
+            node: 2,
+            time_us: 1_500_000,
+            header: ScanHeader {
+                seq: 7,
+                timestamp_ms: 1234,
+                point_count: 4,
+                encoding: Encoding {
+                    distance: DistanceEncoding::D12,
+                    intensity: IntensityEncoding::I8,
+                    unit_exp: 1,
+                },
+                time_synced: false,
+                grouping: Grouping::Single,
+                step_increment: 2,
+                first_step: -1,
+                ares: 4,
+            },
+            completeness: Completeness::Incomplete {
+                missing_points: 1,
+                trailer_missing: true,
+            },
+            flags: None,
+            points: vec![
+                p(Distance::Mm(1000), 256),
+                p(Distance::Invalid, 0),
+                None,
+                p(Distance::OutOfRange, 512),
+            ],
+        }
+    }
+
+    #[test]
+    fn scan_json_golden() {
+        let text = serde_json::to_string(&scan(&sample())).unwrap();
+        assert_eq!(
+            text,
+            concat!(
+                r#"{"type":"scan","node":2,"seq":7,"time":1.5,"timestamp":1234,"#,
+                r#""completeness":"incomplete","missing_points":1,"trailer_missing":true,"#,
+                r#""flags":null,"point_count":4,"received":3,"first_step":-1,"#,
+                r#""step_increment":2,"ares":4,"first_angle_rad":-1.5707963705062866,"#,
+                r#""angle_increment_rad":3.141592653589793,"grouping":"Single","#,
+                r#""encoding":"D12+I8","unit_mm":2,"time_synced":false,"#,
+                r#""distances":[1000,null,null,null],"out_of_range":[3],"missing":[2],"#,
+                r#""intensities":[256,0,null,512]}"#
+            )
+        );
+    }
+
+    #[test]
+    fn csv_rows_golden() {
+        let mut out = Vec::new();
+        write_csv_header(&mut out).unwrap();
+        write_csv(&mut out, &sample()).unwrap();
+        assert_eq!(
+            String::from_utf8(out).unwrap(),
+            "seq,index,angle_rad,distance_mm,intensity,valid\n\
+             7,0,-1.570796,1000,256,1\n\
+             7,1,1.570796,,0,0\n\
+             7,2,4.712389,,,0\n\
+             7,3,7.853982,,512,0\n"
+        );
+    }
+
+    #[test]
+    fn status_and_answer_json() {
+        let st = Status::SensorSteps {
+            ares: 1440,
+            amin: 0,
+            amax: 1080,
+        };
+        let v = item(&Item::Status {
+            node: 1,
+            time_us: 20,
+            status: st,
+        });
+        assert_eq!(
+            v.to_string(),
+            r#"{"type":"status","node":1,"time":0.00002,"page":"sensor_steps","ares":1440,"amin":0,"amax":1080}"#
+        );
+        let a = can_wire::Answer {
+            opcode: 0x20,
+            token: 9,
+            outcome: can_wire::Outcome::OutOfRange,
+            detail: 2,
+        };
+        let v = item(&Item::Answer {
+            node: 0,
+            time_us: 0,
+            answer: a,
+        });
+        assert_eq!(
+            v.to_string(),
+            r#"{"type":"answer","node":0,"time":0.0,"opcode":32,"token":9,"outcome":"OutOfRange","detail":2}"#
+        );
+    }
 }
