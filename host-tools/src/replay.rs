@@ -69,6 +69,9 @@ pub struct Replayed {
     pub stream_ns: u64,
     /// The sensor's scan rate, when known (PP `SCAN`, or the simulator's).
     pub scan_hz: Option<f64>,
+    /// The decimation the governor chose when the stream started (`sim:` runs with
+    /// automatic decimation).
+    pub plan: Option<bridge::governor::Plan>,
 }
 
 /// The bridge and the bus, stepped together.
@@ -126,6 +129,7 @@ impl Driver {
             bus: *self.bus.totals(),
             stream_ns,
             scan_hz,
+            plan: self.bridge.plan().copied(),
         }
     }
 }
@@ -184,10 +188,18 @@ impl Uart {
 /// Runs a started bridge against a simulated sensor in 1 ms steps until `scans` scans
 /// have begun and ended (sent, aborted, skipped or dropped), or fails if that takes more
 /// than a minute of simulated time beyond the scans' own. The sensor's bytes reach the
-/// bridge at the configured UART bit rate.
-pub fn replay_sim(sim: &SimOptions, scans: u32, config: BridgeConfig) -> anyhow::Result<Replayed> {
+/// bridge at the configured UART bit rate. With `auto_decimation` the governor chooses
+/// the decimation when the stream starts (`Bridge::set_auto_decimation`); without, the
+/// configured pipeline runs as it is.
+pub fn replay_sim(
+    sim: &SimOptions,
+    scans: u32,
+    config: BridgeConfig,
+    auto_decimation: bool,
+) -> anyhow::Result<Replayed> {
     let mut sensor = sim.build()?;
     let mut driver = Driver::new(config)?;
+    driver.bridge.set_auto_decimation(auto_decimation);
     let mut uart = Uart {
         baud: config.uart_bit_rate,
         credit: 0,
@@ -293,6 +305,16 @@ impl Replayed {
             span as f64 / 1e9,
             percent(b.busy_ns as f64, span as f64)
         );
+        if let Some(p) = &self.plan {
+            let _ = writeln!(
+                s,
+                "governor plan: every {} point(s), every {} scan(s): {} points per scan, {:.2} % average load",
+                p.factor,
+                p.every_nth,
+                p.points,
+                p.load_ppm as f64 / 1e4
+            );
+        }
         let scans = self.scans_out();
         if scans > 0 {
             let per_scan = b.scan_ns as f64 / scans as f64;
@@ -338,7 +360,9 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let config = args.bridge_config()?;
     let mut replayed = if let Some(spec) = args.input.strip_prefix("sim:") {
         let sim = SimOptions::from_spec(spec)?;
-        replay_sim(&sim, args.scans, config)?
+        let p = &args.pipeline;
+        let user_decimation = p.decimate.is_some() || p.every_nth.is_some() || p.max_rate.is_some();
+        replay_sim(&sim, args.scans, config, !user_decimation)?
     } else {
         let mut contents = Vec::new();
         if args.input == "-" {

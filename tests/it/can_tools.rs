@@ -308,10 +308,15 @@ fn a_deleted_frame_is_one_lost_frame_and_an_incomplete_scan() {
 fn the_simulator_streams_through_a_started_session() {
     let sim = SimOptions::from_spec("model=urg04lx,seed=3").expect("spec");
     // The same simulated scans in plain mm and in 12-bit codes of 2 mm.
-    let plain = replay_sim(&sim, 3, config(FrameFormat::Classic, DistanceEncoding::D16));
+    let plain = replay_sim(
+        &sim,
+        3,
+        config(FrameFormat::Classic, DistanceEncoding::D16),
+        true,
+    );
     let mut packed = config(FrameFormat::Classic, DistanceEncoding::D12);
     packed.encoding.unit_exp = 1;
-    let packed = replay_sim(&sim, 3, packed).expect("sim");
+    let packed = replay_sim(&sim, 3, packed, true).expect("sim");
     assert_eq!(packed.stats.scans_in, 3);
     let (plain_items, _) = decode(&log_text(&plain.expect("sim"), false));
     let (items, dec) = decode(&log_text(&packed, false));
@@ -340,9 +345,41 @@ fn the_simulator_streams_through_a_started_session() {
 }
 
 #[test]
+fn the_governor_decimates_a_utm30lx_to_fit_half_a_classic_bus() {
+    let sim = SimOptions::from_spec("model=utm30lx,seed=5").expect("spec");
+    let mut c = config(FrameFormat::Classic, DistanceEncoding::D16);
+    c.uart_bit_rate = 12_000_000;
+    c.budget.share_permille = 500;
+    // 1081 points at 40 Hz need 196 % of the bus; every 5th point is the finest
+    // decimation that fits 50 %.
+    let r = replay_sim(&sim, 4, c, true).expect("sim");
+    let plan = r.plan.expect("a plan");
+    assert_eq!((plan.factor, plan.every_nth, plan.points), (5, 1, 217));
+    assert!(plan.load_ppm <= 500_000);
+    let (items, _) = decode(&log_text(&r, false));
+    let got = scans(&items);
+    assert_eq!(got.len(), 4);
+    for s in got {
+        assert_eq!(s.completeness, Completeness::Intact);
+        assert_eq!((s.header.point_count, s.header.step_increment), (217, 5));
+    }
+    // Told to keep every point, the bridge cannot queue a 364-frame scan: each is
+    // dropped whole, none is sent in part.
+    let r = replay_sim(&sim, 4, c, false).expect("sim");
+    assert_eq!((r.stats.scans_sent, r.stats.scans_dropped), (0, 4));
+    assert_eq!(r.scans_out(), 0);
+}
+
+#[test]
 fn plot_writes_a_png_of_the_requested_size() {
     let sim = SimOptions::from_spec("model=utm30lx,seed=2").expect("spec");
-    let r = replay_sim(&sim, 2, config(FrameFormat::FD64, DistanceEncoding::D16)).expect("sim");
+    let r = replay_sim(
+        &sim,
+        2,
+        config(FrameFormat::FD64, DistanceEncoding::D16),
+        true,
+    )
+    .expect("sim");
     let (items, _) = decode(&log_text(&r, true));
     let chosen: Vec<DecodedScan> = scans(&items).into_iter().cloned().collect();
     let path = temp_path("plot.png");
