@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Checks of the board workspace, for people and CI alike:
-#   format, clippy (-D warnings), release build, ELF size, and, with qemu-system-arm,
+#   format, clippy (-D warnings), release build of every board, board-common's host
+#   tests, STM32 sizes against their budget (stm32-sizes.sh), and, with qemu-system-arm,
 #   the QEMU board: it must boot and print its banner, and every sensor recording fed
 #   into its UART0 must give exactly the golden output in qemu-mps2/expected/.
 # BLESS=1 rewrites the golden files. Under CI=true a missing qemu-system-arm or a
@@ -17,9 +18,20 @@ skip_or_fail() {
     echo "skipped: $1"
 }
 
-cargo fmt -p scip2can-qemu -- --check
-cargo clippy --release --all-targets -- -D warnings
-cargo build --release
+cargo fmt --all -- --check
+# One cargo invocation per board binary: features are unified across the packages of
+# one build, and the two STM32 chips are two features of the same embassy-stm32 (which
+# also turns on cortex-m-rt's `device` feature, wrong for the QEMU board).
+for board in scip2can-qemu stm32g474 stm32f446; do
+    cargo clippy --release -p "$board" --all-targets -- -D warnings
+    cargo build --release -p "$board"
+done
+# board-common's unit tests run on the host.
+host=$(rustc -vV | sed -n 's/^host: //p')
+cargo clippy -p board-common --all-targets --target "$host" -- -D warnings
+cargo test -p board-common --target "$host"
+# STM32 flash and RAM against the budget and sizes.txt.
+./stm32-sizes.sh
 
 target_dir=${CARGO_TARGET_DIR:-target}
 elf=$target_dir/thumbv7em-none-eabihf/release/scip2can-qemu-decode

@@ -1,0 +1,166 @@
+//! The bridge settings of the STM32 boards and the timing of their main loop.
+//!
+//! Everything here is a compile-time default; at run time the pipeline, the point
+//! encoding and the frame size change through CAN control frames (handled by the core).
+
+use bridge::engine::{BridgeConfig, BridgeError};
+use bridge::governor::Budget;
+use bridge::pipeline::PipelineConfig;
+use bridge::session::SessionConfig;
+use can_wire::bandwidth::BitRates;
+use can_wire::{Encoding, FrameFormat, IdWindow};
+
+/// Capacity of the CAN transmit queue, in frames.
+///
+/// The governor admits a scan only when the queue, plus what the bus drains while the
+/// scan is still arriving on the UART, can take all of its frames; the UART is far
+/// slower than the bus, so a small queue suffices. What it must absorb is one UART
+/// chunk's burst ([`UART_CHUNK`] bytes ≈ 40 points ≈ 14 classic frames) plus status
+/// pages and control answers, which go ahead of scan frames. 32 frames of 76 bytes
+/// each keep the bridge at about 3.5 KiB.
+pub const QUEUE: usize = 32;
+
+/// The bridge of the STM32 boards.
+pub type Bridge = bridge::engine::Bridge<QUEUE>;
+
+/// The sensor's UART bit rate at power-up: a URG-04LX on RS-232 starts at 19 200 bit/s
+/// (the session restores it after every sensor reset).
+pub const SENSOR_POWER_UP_BIT_RATE: u32 = 19_200;
+
+/// The bit rate the session switches to with `SS` once the sensor is identified:
+/// 250 000 bit/s, the fastest an ordinary RS-232 transceiver (MAX3232 class) is
+/// specified for, and enough for a URG-04LX's full stream (about 23 kB/s).
+pub const SENSOR_BIT_RATE: u32 = 250_000;
+
+/// The bridge's node number in the default identifier window (0x100).
+pub const NODE: u8 = 0;
+
+/// Period of the heartbeat and counter status frames, ms.
+pub const STATUS_PERIOD_MS: u32 = 1000;
+
+/// The bridge's share of the bus, permille: half, leaving the rest to the robot.
+pub const BUS_SHARE_PERMILLE: u16 = 500;
+
+/// Period of the main loop's tick (session timeouts, status, watchdog, bus state), ms.
+pub const TICK_MS: u64 = 5;
+
+/// Bus-off recovery waits this long after entering bus-off, and as long again between
+/// two attempts, ms.
+pub const BUS_OFF_RETRY_MS: u64 = 100;
+
+/// Independent watchdog timeout, ms: the tick feeds it, so it bites when the main loop
+/// stalls for this long (100 ticks).
+pub const WATCHDOG_TIMEOUT_MS: u32 = 500;
+
+/// Window over which the CPU load is averaged, ms.
+pub const LOAD_WINDOW_MS: u64 = 1000;
+
+/// Size of the UART DMA ring buffer, bytes: 20 ms of data at [`SENSOR_BIT_RATE`].
+pub const UART_RING: usize = 512;
+
+/// Bytes taken from the ring buffer per read (the buffer's read wakes at half and full,
+/// and at an idle line).
+pub const UART_CHUNK: usize = 128;
+
+// The ring buffer's read wakes at half full, so a chunk fits in a half; and the ring
+// holds 20 ms at the streaming rate (10 bits per byte).
+const _: () = assert!(UART_CHUNK <= UART_RING / 2);
+const _: () = assert!(UART_RING as u32 >= SENSOR_BIT_RATE / 10 / 50);
+
+/// The CAN bus a board is wired to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CanBus {
+    /// Nominal (and, for CAN FD, data phase) bit rates.
+    pub rates: BitRates,
+    /// Frame format at start-up.
+    pub format: FrameFormat,
+    /// Whether the controller can send CAN FD frames (a control frame may switch to FD).
+    pub fd_capable: bool,
+}
+
+impl CanBus {
+    /// Classic CAN at 1 Mbit/s (bxCAN).
+    pub const CLASSIC_1M: CanBus = CanBus {
+        rates: BitRates::CLASSIC_1M,
+        format: FrameFormat::Classic,
+        fd_capable: false,
+    };
+
+    /// CAN FD, 1 Mbit/s arbitration and 5 Mbit/s data phase, 64-byte frames (FDCAN).
+    pub const FD_1M_5M: CanBus = CanBus {
+        rates: BitRates::FD_1M_5M,
+        format: FrameFormat::FD64,
+        fd_capable: true,
+    };
+}
+
+/// The bridge configuration of a board on `bus`.
+pub fn bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
+    Ok(BridgeConfig {
+        session: SessionConfig {
+            bit_rate: Some(SENSOR_BIT_RATE),
+            initial_bit_rate: SENSOR_POWER_UP_BIT_RATE,
+            ..SessionConfig::default()
+        },
+        pipeline: PipelineConfig::default(),
+        encoding: Encoding::PLAIN_MM,
+        budget: Budget {
+            rates: bus.rates,
+            format: bus.format,
+            extended: false,
+            share_permille: BUS_SHARE_PERMILLE,
+        },
+        ids: node_ids()?,
+        uart_bit_rate: SENSOR_BIT_RATE,
+        status_period_ms: STATUS_PERIOD_MS,
+        fd_capable: bus.fd_capable,
+    })
+}
+
+/// The bridge of a board on `bus`, with [`bridge_config`]; its session is not started.
+pub fn bridge(bus: CanBus) -> Result<Bridge, BridgeError> {
+    Bridge::new(bridge_config(bus)?)
+}
+
+/// The identifiers of this bridge: node [`NODE`] of the default window.
+pub fn node_ids() -> Result<can_wire::NodeIds, BridgeError> {
+    IdWindow::DEFAULT.node(NODE).map_err(BridgeError::Wire)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use can_wire::Kind;
+
+    #[test]
+    fn both_buses_give_a_valid_bridge() {
+        for bus in [CanBus::CLASSIC_1M, CanBus::FD_1M_5M] {
+            let config = bridge_config(bus).expect("config");
+            assert_eq!(config.budget.format, bus.format);
+            assert_eq!(config.fd_capable, bus.fd_capable);
+            assert_eq!(config.session.initial_bit_rate, 19_200);
+            assert_eq!(config.session.bit_rate, Some(250_000));
+            assert!(bridge(bus).is_ok(), "{bus:?}");
+        }
+    }
+
+    #[test]
+    fn sensor_rates_are_scip_rates() {
+        assert!(scip::BIT_RATES.contains(&SENSOR_POWER_UP_BIT_RATE));
+        assert!(scip::BIT_RATES.contains(&SENSOR_BIT_RATE));
+    }
+
+    #[test]
+    fn control_id_is_base_plus_node() {
+        // Default window 0x100, node 0: control 0x100, answers 0x110, status 0x120.
+        let ids = node_ids().expect("node 0");
+        assert_eq!(ids.base(), 0x100);
+        let raw = |k| match ids.id(k) {
+            embedded_can::Id::Standard(s) => u32::from(s.as_raw()),
+            embedded_can::Id::Extended(e) => e.as_raw(),
+        };
+        assert_eq!(raw(Kind::Control), 0x100);
+        assert_eq!(raw(Kind::ControlAnswer), 0x110);
+        assert_eq!(raw(Kind::Status), 0x120);
+    }
+}

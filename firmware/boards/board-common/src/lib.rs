@@ -1,0 +1,33 @@
+//! What the scip2can STM32 board binaries share, so that each board crate only binds its
+//! peripherals.
+//!
+//! - [`config`]: the bridge settings of the boards (queue capacity, sensor bit rates,
+//!   node, status period, bus share) and the timing of the main loop.
+//! - [`shared`]: the bridge shared by the tasks of the one thread-mode executor, and the
+//!   "frames queued" signal that wakes the CAN transmit task.
+//! - [`sensor`]: the main loop: sensor UART in and out, the session's commands and bit
+//!   rate changes, and once per tick the watchdog, the CAN bus state with rate-limited
+//!   bus-off recovery, and the CPU load. A board implements [`sensor::Board`].
+//! - [`recovery`]: the bus-off recovery policy (sans-IO, tested on the host).
+//! - [`load`]: CPU load from the executor's busy time.
+//!
+//! The CAN transmit and receive tasks stay in the board crates: their frame types are the
+//! controller's (FDCAN or bxCAN).
+//!
+//! Host tests: `cargo test -p board-common --target x86_64-unknown-linux-gnu` (from
+//! `firmware/boards`; the folder's default target is the MCU's).
+#![cfg_attr(not(test), no_std)]
+#![deny(unsafe_code)]
+#![deny(missing_docs)]
+
+#[macro_use]
+mod fmt;
+
+pub mod config;
+pub mod load;
+pub mod recovery;
+pub mod sensor;
+pub mod shared;
+
+pub use config::Bridge;
+pub use shared::Shared;

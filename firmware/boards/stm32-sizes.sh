@@ -1,0 +1,80 @@
+#!/usr/bin/env bash
+# Flash and static RAM of the STM32 board binaries, measured from their release ELFs
+# (build them first: check.sh does) and compared with sizes.txt:
+#   flash = .vector_table + .text + .rodata + .data   (the image written to flash)
+#   ram   = .data + .bss + .uninit + 8192             (statics + the stack reservation)
+# Fails when a binary is over the bridge's budget (flash 96 KiB, RAM 24 KiB; the
+# linker enforces the same through board-common/budget.x) or grew by more than 10 %
+# over sizes.txt. BLESS=1 rewrites sizes.txt. Under CI=true a missing llvm-size fails.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+flash_budget=$((96 * 1024))
+ram_budget=$((24 * 1024))
+stack_reserve=8192 # _scip2can_stack_reserve in board-common/budget.x
+binaries="scip2can-stm32g474 scip2can-stm32f446"
+target_dir=${CARGO_TARGET_DIR:-target}
+release=$target_dir/thumbv7em-none-eabihf/release
+
+size_tool=$(command -v llvm-size || command -v rust-size || true)
+if [ -z "$size_tool" ]; then
+    # The llvm-tools rustup component ships one.
+    rustup component add llvm-tools > /dev/null 2>&1 || true
+    candidate=$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin/llvm-size
+    [ -x "$candidate" ] && size_tool=$candidate
+fi
+if [ -z "$size_tool" ]; then
+    if [ "${CI:-false}" = true ]; then
+        echo "FAIL: no llvm-size (rustup component add llvm-tools)" >&2
+        exit 1
+    fi
+    echo "skipped: STM32 sizes (no llvm-size; rustup component add llvm-tools)"
+    exit 0
+fi
+
+# "name flash ram text data bss" for one ELF (llvm-size -A: section, size, address).
+measure() {
+    "$size_tool" -A "$release/$1" | awk -v name="$1" -v reserve="$stack_reserve" '
+        $1 == ".vector_table" || $1 == ".text" || $1 == ".rodata" { text += $2 }
+        $1 == ".data" { data += $2 }
+        $1 == ".bss" || $1 == ".uninit" { bss += $2 }
+        END { printf "%-20s %7d %7d %7d %7d %7d\n", name, text + data, data + bss + reserve, text, data, bss }'
+}
+
+header="# Flash and static RAM of the STM32 board binaries (release), bytes, from the ELF:
+#   flash = .vector_table + .text + .rodata + .data;  ram = .data + .bss + .uninit + 8192 (stack)
+# Budget: flash <= $flash_budget, ram <= $ram_budget. Reproduce: ./check.sh (or build, then
+# ./stm32-sizes.sh); BLESS=1 rewrites this file.
+# binary               flash     ram    text    data     bss"
+
+measured=$(for b in $binaries; do measure "$b"; done)
+echo "$header"
+echo "$measured"
+
+failed=0
+while read -r name flash ram _; do
+    if [ "$flash" -gt "$flash_budget" ] || [ "$ram" -gt "$ram_budget" ]; then
+        echo "FAIL: $name is over budget (flash $flash > $flash_budget or ram $ram > $ram_budget)" >&2
+        failed=1
+    fi
+    recorded=$(awk -v n="$name" '$1 == n { print $2, $3 }' sizes.txt 2> /dev/null || true)
+    if [ -z "$recorded" ]; then
+        echo "note: $name not in sizes.txt"
+        continue
+    fi
+    read -r old_flash old_ram <<< "$recorded"
+    if [ "$flash" != "$old_flash" ] || [ "$ram" != "$old_ram" ]; then
+        echo "note: $name was flash $old_flash ram $old_ram in sizes.txt"
+    fi
+    if [ "${BLESS:-0}" != 1 ] &&
+        { [ $((flash * 10)) -gt $((old_flash * 11)) ] || [ $((ram * 10)) -gt $((old_ram * 11)) ]; }; then
+        echo "FAIL: $name grew by more than 10 % over sizes.txt (BLESS=1 to accept)" >&2
+        failed=1
+    fi
+done <<< "$measured"
+
+if [ "${BLESS:-0}" = 1 ]; then
+    printf '%s\n%s\n' "$header" "$measured" > sizes.txt
+    echo "blessed sizes.txt"
+fi
+exit "$failed"

@@ -1,0 +1,181 @@
+//! FDCAN1: set-up, the transmit and receive tasks, and the bus supervision the main loop
+//! needs (error state, error count, explicit bus-off recovery).
+//!
+//! **Transmit order.** The controller's three transmit buffers run as a FIFO
+//! (`TXBC.TFQM = 0`, [`TxBufferMode::Fifo`]), not as the priority queue embassy
+//! configures by default. In queue mode the FDCAN sends the pending buffer with the
+//! lowest identifier first, and among equal identifiers the lowest buffer index, not the
+//! oldest request: the data frames of one scan (all on the same identifier) could leave
+//! out of order, and a new scan's header (lower identifier) could overtake the previous
+//! scan's trailer. In FIFO mode frames leave in the order they are written, which is the
+//! bridge's queue order (control answers and status first, then each scan's header, data
+//! and trailer). Priority against other nodes is still settled by arbitration on the bus.
+//!
+//! **Bus-off.** Embassy's interrupt handler would clear `CCCR.INIT` as soon as the
+//! controller enters bus-off (its automatic recovery); that is switched off, so after
+//! bus-off the controller stays in `INIT` until [`Supervisor::recover`] clears it, which
+//! the main loop does at most once per 100 ms (`board_common::recovery`).
+//!
+//! **Errors.** `ECR.CEL` counts the protocol errors that raised an error counter and
+//! clears on read; the main loop adds it to the bridge's bus error count every tick. The
+//! receive task ignores the driver's error results (they come from the same events, as
+//! last-error codes, and would be counted twice).
+//!
+//! Register access that embassy does not offer (`CCCR.INIT`, `ECR.CEL`, `TDCR`) goes
+//! through `embassy_stm32::pac` (the `unstable-pac` feature).
+
+use board_common::config::CanBus;
+use board_common::sensor::now_ms;
+use board_common::Shared;
+use can_wire::BusState;
+use embassy_stm32::can::config::{GlobalFilter, TxBufferMode};
+use embassy_stm32::can::enums::BusErrorMode;
+use embassy_stm32::can::filter::{Action, FilterType, StandardFilter, StandardFilterSlot};
+use embassy_stm32::can::frame::{FdFrame, Header};
+use embassy_stm32::can::{
+    CanConfigurator, CanRx, CanTx, IT0InterruptHandler, IT1InterruptHandler, Properties, RxPin,
+    TxPin,
+};
+use embassy_stm32::interrupt::typelevel::{Binding, FDCAN1_IT0, FDCAN1_IT1};
+use embassy_stm32::pac;
+use embassy_stm32::peripherals::FDCAN1;
+use embassy_stm32::Peri;
+use embedded_can::Id;
+
+/// Transmitter delay compensation offset, in minimum time quanta: the data phase's
+/// sample point (prescaler 2 × 6 time quanta of segment 1, from embassy's timing for
+/// 5 Mbit/s on an 80 MHz kernel clock). Needed above about 1 Mbit/s, where the
+/// transceiver's loop delay is a large part of a bit.
+const TDC_OFFSET: u8 = 12;
+
+/// Sets up FDCAN1 on `rx`/`tx` for `bus` and starts it: FIFO transmit order, no automatic
+/// bus-off recovery, only this bridge's control frames accepted (`control_id`, into
+/// receive FIFO 0).
+pub fn start(
+    peri: Peri<'static, FDCAN1>,
+    rx: Peri<'static, impl RxPin<FDCAN1>>,
+    tx: Peri<'static, impl TxPin<FDCAN1>>,
+    irqs: impl Binding<FDCAN1_IT0, IT0InterruptHandler<FDCAN1>>
+        + Binding<FDCAN1_IT1, IT1InterruptHandler<FDCAN1>>
+        + 'static,
+    bus: CanBus,
+    control_id: Id,
+) -> (CanTx<'static>, CanRx<'static>, Supervisor) {
+    let mut can = CanConfigurator::new(peri, rx, tx, irqs);
+    can.set_bitrate(bus.rates.nominal);
+    if bus.fd_capable {
+        can.set_fd_data_bitrate(bus.rates.data, true);
+        // The controller is in configuration mode (INIT and CCE set) until `start`.
+        pac::FDCAN1.tdcr().write(|w| {
+            w.set_tdco(TDC_OFFSET);
+            w.set_tdcf(0);
+        });
+    }
+    let config = can
+        .config()
+        .set_tx_buffer_mode(TxBufferMode::Fifo)
+        .set_automatic_bus_off_recovery(false)
+        .set_global_filter(GlobalFilter::reject_all());
+    can.set_config(config);
+    match control_id {
+        Id::Standard(id) => can.properties().set_standard_filter(
+            StandardFilterSlot::_0,
+            StandardFilter {
+                filter: FilterType::DedicatedSingle(id),
+                action: Action::StoreInFifo0,
+            },
+        ),
+        Id::Extended(id) => can.properties().set_extended_filter(
+            embassy_stm32::can::filter::ExtendedFilterSlot::_0,
+            embassy_stm32::can::filter::ExtendedFilter {
+                filter: FilterType::DedicatedSingle(id),
+                action: Action::StoreInFifo0,
+            },
+        ),
+    }
+    let (tx, rx, properties) = can.into_normal_mode().split();
+    (tx, rx, Supervisor { properties })
+}
+
+/// The FDCAN frame for a bridge frame: CAN FD frames switch to the data bit rate.
+fn to_fdcan(frame: &can_wire::Frame) -> Option<FdFrame> {
+    let data = frame.data();
+    let len = u8::try_from(data.len()).ok()?;
+    let header = if frame.is_fd() {
+        Header::new_fd(frame.id(), len, false, true)
+    } else {
+        Header::new(frame.id(), len, false)
+    };
+    FdFrame::new(header, data).ok()
+}
+
+/// The bridge frame for a received FDCAN frame (remote frames are refused by the
+/// filter; a malformed one gives `None`).
+fn from_fdcan(frame: &FdFrame) -> Option<can_wire::Frame> {
+    let header = frame.header();
+    if header.rtr() {
+        return None;
+    }
+    can_wire::Frame::new(*header.id(), frame.data(), header.fdcan()).ok()
+}
+
+/// Moves the bridge's frames into the transmit FIFO, in order. Waits (without blocking
+/// anything else) while the FIFO is full, e.g. during bus-off.
+#[embassy_executor::task]
+pub async fn tx_task(shared: &'static Shared, mut tx: CanTx<'static>) {
+    loop {
+        let frame = shared.next_frame().await;
+        match to_fdcan(&frame) {
+            // In FIFO mode nothing is ever displaced, so the result is always `None`.
+            Some(f) => {
+                let _ = tx.write_fd(&f).await;
+            }
+            None => defmt::warn!("frame not representable on FDCAN: {}", frame.data().len()),
+        }
+    }
+}
+
+/// Hands received control frames to the bridge; their answers are queued at once.
+#[embassy_executor::task]
+pub async fn rx_task(shared: &'static Shared, mut rx: CanRx<'static>) {
+    loop {
+        // Errors are counted from ECR.CEL by the main loop (see the module docs).
+        let Ok(envelope) = rx.read_fd().await else {
+            continue;
+        };
+        if let Some(frame) = from_fdcan(&envelope.frame) {
+            let now = now_ms();
+            if shared.with(|b| b.on_can_frame(&frame, now)) {
+                shared.notify_frames();
+            }
+        }
+    }
+}
+
+/// The bus supervision the main loop uses.
+pub struct Supervisor {
+    properties: Properties,
+}
+
+impl Supervisor {
+    /// The controller's error state (`PSR.BO`, `PSR.EP`).
+    pub fn state(&self) -> BusState {
+        match self.properties.bus_error_mode() {
+            BusErrorMode::ErrorActive => BusState::ErrorActive,
+            BusErrorMode::ErrorPassive => BusState::ErrorPassive,
+            BusErrorMode::BusOff => BusState::BusOff,
+        }
+    }
+
+    /// Protocol errors since the last call (`ECR.CEL`, cleared by the read; it saturates
+    /// at 255 between two reads, 5 ms apart).
+    pub fn take_errors(&mut self) -> u32 {
+        u32::from(pac::FDCAN1.ecr().read().cel())
+    }
+
+    /// Starts bus-off recovery: clearing `CCCR.INIT` makes the controller wait for 129
+    /// occurrences of 11 recessive bits, then take part in bus traffic again.
+    pub fn recover(&mut self) {
+        pac::FDCAN1.cccr().modify(|w| w.set_init(false));
+    }
+}
