@@ -141,6 +141,27 @@ fn every_recorded_scan_arrives_exactly_as_sent() {
 }
 
 #[test]
+fn a_replayed_scan_carries_the_geometry_of_the_recorded_pp() {
+    let Some(dir) = recordings_or_skip("replay geometry") else {
+        return;
+    };
+    let bytes = std::fs::read(dir.join("hokuyoaist_example_urg_04lx.rx.scip")).expect("read");
+    let frames = replay(&bytes, config(FrameFormat::Classic, D16_I16));
+    let mut dec: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
+    let mut headers = Vec::new();
+    for f in &frames {
+        if let Ok(Some(CanEvent::Scan { scan, .. })) = dec.push_frame(f) {
+            headers.push(*scan.header());
+        }
+    }
+    assert_eq!(headers.len(), 1);
+    // PP of the recording: AMIN 44 is the first step, AFRT 384 the front, ARES 1024.
+    let h = headers[0];
+    assert_eq!((h.first_step, h.step_increment, h.ares), (44 - 384, 1, 1024));
+    assert_eq!(h.point_count, 682);
+}
+
+#[test]
 fn losing_any_single_frame_costs_only_its_points_and_is_reported() {
     let Some(dir) = recordings_or_skip("frame loss") else {
         return;

@@ -75,7 +75,8 @@ fn adapter(listener: TcpListener, trigger: usize, control: Frame, done: mpsc::Se
     let mut injected = false;
     let mut buf = [0u8; 4096];
     let deadline = Instant::now() + Duration::from_secs(20);
-    while Instant::now() < deadline {
+    // The bridge closes the socket when its run ends: a failed write ends the adapter.
+    'run: while Instant::now() < deadline {
         let n = match sock.read(&mut buf) {
             Ok(0) => break,
             Ok(n) => n,
@@ -93,7 +94,9 @@ fn adapter(listener: TcpListener, trigger: usize, control: Frame, done: mpsc::Se
                 }
                 let mut out = [0u8; slcan::LINE_MAX];
                 let m = outcome.reply().emit(&mut out).unwrap();
-                sock.write_all(&out[..m]).unwrap();
+                if sock.write_all(&out[..m]).is_err() {
+                    break 'run;
+                }
             }
         }
         if !injected && sent.len() >= trigger {
@@ -102,7 +105,9 @@ fn adapter(listener: TcpListener, trigger: usize, control: Frame, done: mpsc::Se
                 slcan::Frame::new(control.id(), slcan::FrameKind::Data, control.data()).unwrap();
             let mut out = [0u8; slcan::LINE_MAX];
             let m = adapter.received(&f, 0, &mut out).expect("channel open");
-            sock.write_all(&out[..m]).unwrap();
+            if sock.write_all(&out[..m]).is_err() {
+                break 'run;
+            }
         }
     }
     done.send(sent).unwrap();

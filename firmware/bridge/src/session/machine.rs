@@ -136,6 +136,11 @@ pub struct Session {
     current_is_pending: bool,
     /// The response being decoded is a frame of our stream.
     current_is_frame: bool,
+    /// The response being decoded is a PP answer (ours or not): its fields are
+    /// collected and kept when it ends intact, so that a listening session (a replay)
+    /// learns the geometry too.
+    current_is_pp: bool,
+    pp: SensorParams,
     current_status: Option<Status>,
     last_rx: u64,
     backoff_ms: u32,
@@ -160,6 +165,8 @@ impl Session {
             notice: None,
             current_is_pending: false,
             current_is_frame: false,
+            current_is_pp: false,
+            pp: SensorParams::default(),
             current_status: None,
             last_rx: 0,
             backoff_ms: config.backoff_min_ms,
@@ -279,6 +286,9 @@ impl Session {
                     request.map(|r| r.command),
                     Some(Command::Scan(s)) if same_scan(&s, &self.config.scan)
                 );
+                self.current_is_pp =
+                    matches!(request.map(|r| r.command), Some(Command::Parameters));
+                self.pp = SensorParams::default();
                 None
             }
             Event::Status(status) => {
@@ -286,8 +296,8 @@ impl Session {
                 None
             }
             Event::Field(field) => {
-                if self.current_is_pending && self.state == State::Parameters {
-                    self.params.apply(field.name, field.value);
+                if self.current_is_pp {
+                    self.pp.apply(field.name, field.value);
                 }
                 None
             }
@@ -309,10 +319,14 @@ impl Session {
             }
             Event::End(summary) => {
                 self.last_rx = now;
+                if core::mem::take(&mut self.current_is_pp) && summary.status == Status::OK {
+                    self.params = self.pp;
+                }
                 self.on_response(summary, now)
             }
             Event::Error(_) => {
                 self.last_rx = now;
+                self.current_is_pp = false;
                 if self.current_is_frame && !self.current_is_pending {
                     self.stats.damaged_frames += 1;
                 } else if self.current_is_pending && self.pending.is_some() {
