@@ -5,6 +5,7 @@
 
 pub mod candump;
 pub mod decode;
+pub mod emulate;
 pub mod live;
 pub mod parse;
 pub mod plot;

@@ -44,6 +44,9 @@ enum Cmd {
     /// Run the bridge live: a sensor (default: the simulator) to a CAN port (default: a
     /// candump log on standard output), until Ctrl-C or --seconds.
     Bridge(scip2can_host::live::BridgeArgs),
+    /// The simulator, the real firmware in QEMU (mps2-an386) and the decoder, wired:
+    /// scans arriving, rates, bus load, error counters, once a second.
+    Emulate(scip2can_host::emulate::EmulateArgs),
 }
 
 fn main() -> ExitCode {
@@ -67,6 +70,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Decode(args) => scip2can_host::decode::run(args),
         Cmd::Plot(args) => scip2can_host::plot::run(args),
         Cmd::Bridge(args) => scip2can_host::live::run(args),
+        Cmd::Emulate(args) => scip2can_host::emulate::run(args),
         Cmd::Parse { file } => {
             let out = BufWriter::new(io::stdout().lock());
             if file.as_os_str() == "-" {

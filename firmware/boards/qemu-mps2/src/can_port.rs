@@ -65,6 +65,12 @@ impl CanPort {
         OUT_CAP - self.out.len() >= LINE_MAX
     }
 
+    /// Whether there is room for one more frame line while keeping room for the answer
+    /// to a command (so frames never starve the host's commands).
+    pub fn has_room_for_frame(&self) -> bool {
+        OUT_CAP - self.out.len() >= 2 * LINE_MAX
+    }
+
     /// Whether output is waiting for the UART.
     pub fn has_output(&self) -> bool {
         !self.out.is_empty()

@@ -132,7 +132,7 @@ fn main() -> ! {
 
         // The bridge's frames onto the bus.
         port.flush(&mut can);
-        while port.has_room() {
+        while port.has_room_for_frame() {
             let Some(frame) = bridge.pop_frame() else {
                 break;
             };
@@ -143,7 +143,7 @@ fn main() -> ! {
         }
 
         let output_moves = port.has_output() && !can.tx_full();
-        let frames_wait = bridge.queued() > 0 && port.has_room();
+        let frames_wait = bridge.queued() > 0 && port.has_room_for_frame();
         let idle = !(hw::rx0_pending() || can.rx_pending() || output_moves || frames_wait);
         if idle {
             let before = hw::ticks();
