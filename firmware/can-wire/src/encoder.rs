@@ -71,6 +71,10 @@ struct InProgress {
     buffered: u16,
     buf: [u8; MAX_LEN],
     bit: usize,
+    /// Points per data frame, bits per distance and per intensity: fixed for the scan.
+    capacity: u16,
+    distance_bits: u32,
+    intensity_bits: u32,
 }
 
 /// Turns a scan, point by point, into frames (see the crate docs for an example).
@@ -136,6 +140,11 @@ impl ScanEncoder {
             buffered: 0,
             buf: [0; MAX_LEN],
             bit: DATA_HEADER_LEN * 8,
+            capacity: u16::try_from(header.encoding.capacity(self.format.max_len()))
+                .unwrap_or(u16::MAX)
+                .max(1),
+            distance_bits: header.encoding.distance.bits(),
+            intensity_bits: header.encoding.intensity.bits(),
         });
         Ok(frames)
     }
@@ -147,10 +156,6 @@ impl ScanEncoder {
         distance: Distance,
         intensity: u16,
     ) -> Result<Option<Frame>, Error> {
-        let capacity = {
-            let s = self.scan.as_ref().ok_or(Error::NoScan)?;
-            s.header.encoding.capacity(self.format.max_len())
-        };
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         if s.pushed >= s.header.point_count {
             return Err(Error::TooManyPoints);
@@ -159,16 +164,19 @@ impl ScanEncoder {
         let dc = enc.encode_distance(distance);
         let ic = enc.intensity.encode(intensity);
         let mut w = BitWriter::new(&mut s.buf, s.bit);
-        w.write(dc, enc.distance.bits());
-        w.write(ic, enc.intensity.bits());
+        w.write(dc, s.distance_bits);
+        if s.intensity_bits > 0 {
+            w.write(ic, s.intensity_bits);
+        }
         s.bit = w.position();
+        let capacity = s.capacity;
         s.crc.point(dc, enc.intensity.is_present().then_some(ic));
         if enc.is_valid_code(dc) {
             s.valid += 1;
         }
         s.pushed += 1;
         s.buffered += 1;
-        if usize::from(s.buffered) >= capacity || s.pushed == s.header.point_count {
+        if s.buffered >= capacity || s.pushed == s.header.point_count {
             self.flush().map(Some)
         } else {
             Ok(None)

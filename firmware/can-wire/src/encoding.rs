@@ -192,9 +192,10 @@ impl Encoding {
             Distance::OutOfRange => max,
             Distance::Mm(mm) => {
                 let e = (self.unit_exp & 0xF) as u32;
-                let half = (1u64 << e) >> 1;
-                let q = (mm as u64 + half) >> e;
-                if q >= max as u64 {
+                let half = (1u32 << e) >> 1;
+                // Saturating: a range near u32::MAX is out of range in any unit.
+                let q = mm.saturating_add(half) >> e;
+                if q >= max as u32 {
                     max
                 } else if q == 0 {
                     1
@@ -239,15 +240,20 @@ impl<'a> BitWriter<'a> {
 
     /// Write the low `bits` bits of `value`; bits beyond the buffer are dropped (the
     /// callers size buffers so that this does not happen).
+    /// At most 16 bits per call: the field lands in at most 3 bytes, written whole.
     pub(crate) fn write(&mut self, value: u16, bits: u32) {
-        for i in 0..bits {
-            if (value >> i) & 1 == 1 {
-                if let Some(b) = self.buf.get_mut(self.bit / 8) {
-                    *b |= 1 << (self.bit % 8);
+        let bits = bits.min(16);
+        let field = u32::from(value) & ((1u32 << bits) - 1);
+        let word = field << (self.bit % 8);
+        let first = self.bit / 8;
+        for (k, byte) in word.to_le_bytes().into_iter().take(3).enumerate() {
+            if byte != 0 {
+                if let Some(b) = self.buf.get_mut(first + k) {
+                    *b |= byte;
                 }
             }
-            self.bit += 1;
         }
+        self.bit += bits as usize;
     }
 }
 
@@ -262,16 +268,15 @@ impl<'a> BitReader<'a> {
         BitReader { buf, bit: 0 }
     }
 
+    /// At most 16 bits per call, gathered from the (at most 3) bytes the field spans.
     pub(crate) fn read(&mut self, bits: u32) -> u16 {
-        let mut v = 0u16;
-        for i in 0..bits {
-            let b = self.buf.get(self.bit / 8).copied().unwrap_or(0);
-            if (b >> (self.bit % 8)) & 1 == 1 {
-                v |= 1u16.checked_shl(i).unwrap_or(0);
-            }
-            self.bit += 1;
-        }
-        v
+        let bits = bits.min(16);
+        let first = self.bit / 8;
+        let shift = self.bit % 8;
+        let byte = |k: usize| u32::from(self.buf.get(first + k).copied().unwrap_or(0));
+        let word = byte(0) | (byte(1) << 8) | (byte(2) << 16);
+        self.bit += bits as usize;
+        ((word >> shift) & ((1u32 << bits) - 1)) as u16
     }
 
     /// Skip `bits` bits.
