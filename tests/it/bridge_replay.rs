@@ -157,7 +157,10 @@ fn a_replayed_scan_carries_the_geometry_of_the_recorded_pp() {
     assert_eq!(headers.len(), 1);
     // PP of the recording: AMIN 44 is the first step, AFRT 384 the front, ARES 1024.
     let h = headers[0];
-    assert_eq!((h.first_step, h.step_increment, h.ares), (44 - 384, 1, 1024));
+    assert_eq!(
+        (h.first_step, h.step_increment, h.ares),
+        (44 - 384, 1, 1024)
+    );
     assert_eq!(h.point_count, 682);
 }
 
