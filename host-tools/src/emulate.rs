@@ -76,8 +76,9 @@ pub fn build_firmware() -> anyhow::Result<PathBuf> {
     Ok(default_firmware())
 }
 
-/// The ELF to run: `path` if given (it must exist), else the default one, built first
-/// when missing.
+/// The ELF to run: `path` if given (it must exist), else the board workspace's release
+/// build, brought up to date first (cargo does nothing when it is; a stale ELF of an
+/// older checkout is never run).
 pub fn firmware(path: Option<&Path>) -> anyhow::Result<PathBuf> {
     match path {
         Some(p) if p.exists() => Ok(p.to_owned()),
@@ -85,11 +86,7 @@ pub fn firmware(path: Option<&Path>) -> anyhow::Result<PathBuf> {
             "firmware {} not found; build it with {BUILD_COMMAND}",
             p.display()
         ),
-        None if default_firmware().exists() => Ok(default_firmware()),
-        None => {
-            eprintln!("scip2can emulate: building the firmware: {BUILD_COMMAND}");
-            build_firmware()
-        }
+        None => build_firmware(),
     }
 }
 
