@@ -437,10 +437,14 @@ pub fn now_ms() -> u32 {
 pub fn ticks() -> u64 {
     loop {
         let ms = now_ms();
+        let pending = SCB::is_pendst_pending();
         let current = SYST::get_current();
-        if now_ms() == ms {
+        if now_ms() == ms && SCB::is_pendst_pending() == pending {
+            // QEMU takes a pending interrupt only at the end of a translated block:
+            // a wrap whose interrupt is still pending has not been counted yet.
+            let ms = u64::from(ms) + u64::from(pending);
             let within = (TICKS_PER_MS - 1).saturating_sub(current);
-            return u64::from(ms) * u64::from(TICKS_PER_MS) + u64::from(within);
+            return ms * u64::from(TICKS_PER_MS) + u64::from(within);
         }
     }
 }
@@ -633,17 +637,19 @@ pub fn rx0_lost() -> u32 {
 }
 
 /// SysTick ticks spent in `work`, with interrupts masked so that no handler
-/// is counted (the work must take less than 1 ms: one counter wrap at most).
+/// is counted. The work must take less than 1 ms: the counter counts down, so
+/// an end value above the start value means one wrap. (The pending bit cannot
+/// tell: under QEMU the counter reads as wrapped before the interrupt is
+/// pended at the end of a translated block.)
 pub fn measure<R>(work: impl FnOnce() -> R) -> (R, u32) {
     cortex_m::interrupt::free(|_| {
         let start = SYST::get_current();
         let out = work();
         let end = SYST::get_current();
-        let ticks = if SCB::is_pendst_pending() {
-            // The counter wrapped (counts down from TICKS_PER_MS - 1).
+        let ticks = if end > start {
             start + TICKS_PER_MS - end
         } else {
-            start.saturating_sub(end)
+            start - end
         };
         (out, ticks)
     })
