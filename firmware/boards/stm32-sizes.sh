@@ -1,27 +1,34 @@
 #!/usr/bin/env bash
-# Flash and static RAM of the STM32 board binaries, measured from their release ELFs
-# (build them first: check.sh does) and compared with sizes.txt:
+# Flash, static RAM and worst-case stack of the STM32 board binaries, measured from
+# their release ELFs (build them first: check.sh does) and compared with sizes.txt:
 #   flash = .vector_table + .text + .rodata + .data   (the image written to flash)
-#   ram   = .data + .bss + .uninit + 8192             (statics + the stack reservation)
+#   ram   = .data + .bss + .uninit + 13312            (statics + the stack reservation)
+#   stack = stack-usage.py's worst case (boot included), and once the tasks run
 # Fails when a binary is over the bridge's budget (flash 96 KiB, RAM 24 KiB; the
-# linker enforces the same through board-common/budget.x) or grew by more than 10 %
-# over sizes.txt. BLESS=1 rewrites sizes.txt. Under CI=true a missing llvm-size fails.
+# linker enforces the same through board-common/budget.x), when the worst-case stack
+# exceeds the reservation, or when flash or RAM grew by more than 10 % over sizes.txt.
+# BLESS=1 rewrites sizes.txt. Under CI=true a missing llvm-size or llvm-objdump fails.
 set -euo pipefail
 cd "$(dirname "$0")"
 
 flash_budget=$((96 * 1024))
 ram_budget=$((24 * 1024))
-stack_reserve=8192 # _scip2can_stack_reserve in board-common/budget.x
+stack_reserve=13312 # _scip2can_stack_reserve in board-common/budget.x
 binaries="scip2can-stm32g474 scip2can-stm32f446"
 target_dir=${CARGO_TARGET_DIR:-target}
 release=$target_dir/thumbv7em-none-eabihf/release
 
 size_tool=$(command -v llvm-size || command -v rust-size || true)
+objdump_tool=$(command -v llvm-objdump || command -v rust-objdump || true)
 if [ -z "$size_tool" ]; then
     # The llvm-tools rustup component ships one.
     rustup component add llvm-tools > /dev/null 2>&1 || true
     candidate=$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin/llvm-size
     [ -x "$candidate" ] && size_tool=$candidate
+fi
+if [ -n "$size_tool" ] && [ -z "$objdump_tool" ]; then
+    # stack-usage.py finds the component's llvm-objdump itself when it is not on PATH.
+    rustup component add llvm-tools > /dev/null 2>&1 || true
 fi
 if [ -z "$size_tool" ]; then
     if [ "${CI:-false}" = true ]; then
@@ -32,29 +39,45 @@ if [ -z "$size_tool" ]; then
     exit 0
 fi
 
-# "name flash ram text data bss" for one ELF (llvm-size -A: section, size, address).
+# "name flash ram text data bss stack stack_run" for one ELF (llvm-size -A: section,
+# size, address; stack-usage.py's last line is "STACK <bytes>").
 measure() {
-    "$size_tool" -A "$release/$1" | awk -v name="$1" -v reserve="$stack_reserve" '
+    local stack run
+    stack=$(python3 stack-usage.py "$release/$1" --boot '(^|[^a-z])setup' > "$tmp/$1.stack" &&
+        sed -n 's/^STACK //p' "$tmp/$1.stack")
+    run=$(sed -n 's/^after start-up.* = \([0-9]*\) bytes$/\1/p' "$tmp/$1.stack")
+    "$size_tool" -A "$release/$1" | awk -v name="$1" -v reserve="$stack_reserve" \
+        -v stack="$stack" -v run="$run" '
         $1 == ".vector_table" || $1 == ".text" || $1 == ".rodata" { text += $2 }
         $1 == ".data" { data += $2 }
         $1 == ".bss" || $1 == ".uninit" { bss += $2 }
-        END { printf "%-20s %7d %7d %7d %7d %7d\n", name, text + data, data + bss + reserve, text, data, bss }'
+        END { printf "%-20s %7d %7d %7d %7d %7d %7d %7d\n", name, text + data,
+              data + bss + reserve, text, data, bss, stack, run }'
 }
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
 
-header="# Flash and static RAM of the STM32 board binaries (release), bytes, from the ELF:
-#   flash = .vector_table + .text + .rodata + .data;  ram = .data + .bss + .uninit + 8192 (stack)
+header="# Flash, static RAM and worst-case stack of the STM32 board binaries (release), bytes,
+# from the ELF: flash = .vector_table + .text + .rodata + .data;
+# ram = .data + .bss + .uninit + $stack_reserve (the stack reservation of board-common/budget.x);
+# stack = stack-usage.py's bound at boot (must fit the reservation), run = once the tasks run.
 # Budget: flash <= $flash_budget, ram <= $ram_budget. Reproduce: ./check.sh (or build, then
 # ./stm32-sizes.sh); BLESS=1 rewrites this file.
-# binary               flash     ram    text    data     bss"
+# binary               flash     ram    text    data     bss   stack     run"
 
 measured=$(for b in $binaries; do measure "$b"; done)
 echo "$header"
 echo "$measured"
 
 failed=0
-while read -r name flash ram _; do
+while read -r name flash ram _ _ _ stack _; do
     if [ "$flash" -gt "$flash_budget" ] || [ "$ram" -gt "$ram_budget" ]; then
         echo "FAIL: $name is over budget (flash $flash > $flash_budget or ram $ram > $ram_budget)" >&2
+        failed=1
+    fi
+    if [ -z "$stack" ] || [ "$stack" -gt "$stack_reserve" ]; then
+        echo "FAIL: $name worst-case stack '$stack' exceeds the $stack_reserve-byte reservation" >&2
+        sed 's/^/    /' "$tmp/$name.stack" >&2
         failed=1
     fi
     recorded=$(awk -v n="$name" '$1 == n { print $2, $3 }' sizes.txt 2> /dev/null || true)
