@@ -21,8 +21,12 @@
 //! receive task ignores the driver's error results (they come from the same events, as
 //! last-error codes, and would be counted twice).
 //!
-//! Register access that embassy does not offer (`CCCR.INIT`, `ECR.CEL`, `TDCR`) goes
-//! through `embassy_stm32::pac` (the `unstable-pac` feature).
+//! **CAN FD data phase.** 5 Mbit/s needs transmitter delay compensation, which embassy
+//! does not configure: `TDCR.TDCO` and `DBTP.TDC` are written right after start-up
+//! ([`enable_delay_compensation`]).
+//!
+//! Register access that embassy does not offer (`CCCR.INIT`, `ECR.CEL`, `TDCR`,
+//! `DBTP.TDC`) goes through `embassy_stm32::pac` (the `unstable-pac` feature).
 
 use board_common::config::CanBus;
 use board_common::sensor::now_ms;
@@ -42,11 +46,17 @@ use embassy_stm32::peripherals::FDCAN1;
 use embassy_stm32::Peri;
 use embedded_can::Id;
 
-/// Transmitter delay compensation offset, in minimum time quanta: the data phase's
-/// sample point (prescaler 2 × 6 time quanta of segment 1, from embassy's timing for
-/// 5 Mbit/s on an 80 MHz kernel clock). Needed above about 1 Mbit/s, where the
+/// Transmitter delay compensation offset, in minimum time quanta (kernel clock periods,
+/// 12.5 ns): the secondary sample point sits this far behind the measured transmitter
+/// loop delay, at the data phase's own sample point (CiA 601-3). Embassy's timing for
+/// 5 Mbit/s on an 80 MHz kernel clock is prescaler 2 × (1 + 6 + 1) time quanta, sample
+/// point after 1 + 6 of them: 2 × 7 = 14. Needed above about 1 Mbit/s, where the
 /// transceiver's loop delay is a large part of a bit.
-const TDC_OFFSET: u8 = 12;
+const TDC_OFFSET: u8 = 14;
+
+/// Reads of `CCCR` to wait for `INIT` to take effect (a few kernel clock cycles; the bound
+/// only keeps a faulty controller from hanging the boot).
+const INIT_ACK_READS: u32 = 10_000;
 
 /// Sets up FDCAN1 on `rx`/`tx` for `bus` and starts it: FIFO transmit order, no automatic
 /// bus-off recovery, only this bridge's control frames accepted (`control_id`, into
@@ -64,12 +74,8 @@ pub fn start(
     let mut can = CanConfigurator::new(peri, rx, tx, irqs);
     can.set_bitrate(bus.rates.nominal);
     if bus.fd_capable {
+        // Also selects FD frames with bit rate switching; the flag is not written (below).
         can.set_fd_data_bitrate(bus.rates.data, true);
-        // The controller is in configuration mode (INIT and CCE set) until `start`.
-        pac::FDCAN1.tdcr().write(|w| {
-            w.set_tdco(TDC_OFFSET);
-            w.set_tdcf(0);
-        });
     }
     let config = can
         .config()
@@ -93,8 +99,36 @@ pub fn start(
             },
         ),
     }
-    let (tx, rx, properties) = can.into_normal_mode().split();
+    let can = can.into_normal_mode();
+    if bus.fd_capable {
+        enable_delay_compensation();
+    }
+    let (tx, rx, properties) = can.split();
     (tx, rx, Supervisor { properties })
+}
+
+/// Sets `TDCR.TDCO` and `DBTP.TDC`. Embassy 0.6 takes a delay-compensation flag but
+/// never writes either (and rewrites `DBTP` when it starts the controller), so they are
+/// set here, in a short stay in configuration mode right after start-up, before any
+/// frame is queued (both registers are writable only with `INIT` and `CCE` set).
+fn enable_delay_compensation() {
+    let regs = pac::FDCAN1;
+    regs.cccr().modify(|w| w.set_init(true));
+    for _ in 0..INIT_ACK_READS {
+        if regs.cccr().read().init() {
+            break;
+        }
+    }
+    regs.cccr().modify(|w| w.set_cce(true));
+    regs.tdcr().write(|w| {
+        w.set_tdco(TDC_OFFSET);
+        w.set_tdcf(0);
+    });
+    regs.dbtp().modify(|w| w.set_tdc(true));
+    // As embassy leaves configuration mode: CCE first, then INIT; the controller then
+    // synchronises to the bus again (11 recessive bits).
+    regs.cccr().modify(|w| w.set_cce(false));
+    regs.cccr().modify(|w| w.set_init(false));
 }
 
 /// The FDCAN frame for a bridge frame: CAN FD frames switch to the data bit rate.
