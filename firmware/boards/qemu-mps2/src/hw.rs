@@ -631,6 +631,13 @@ pub fn rx0_pending() -> bool {
     RX0_HEAD.load(Ordering::Acquire) != RX0_TAIL.load(Ordering::Relaxed)
 }
 
+/// Bytes waiting in UART0's receive ring.
+pub fn rx0_len() -> usize {
+    RX0_HEAD
+        .load(Ordering::Acquire)
+        .wrapping_sub(RX0_TAIL.load(Ordering::Relaxed))
+}
+
 /// Bytes lost on UART0 so far (ring full or UART overrun).
 pub fn rx0_lost() -> u32 {
     RX0_LOST.load(Ordering::Relaxed)

@@ -83,6 +83,7 @@ fn main() -> ! {
     bridge.start(clock.now());
 
     let mut chunk = [0u8; 64];
+    let mut last_uart_ms = last_ms;
     loop {
         let now = clock.now();
         let ms = hw::now_ms();
@@ -98,8 +99,15 @@ fn main() -> ! {
             }
         }
 
-        // Sensor bytes into the core.
-        let n = hw::rx0_read(&mut chunk);
+        // Sensor bytes into the core, a chunk at a time (like a DMA half-buffer), or
+        // whatever arrived by the next millisecond tick, so a scan's end is never held.
+        let tick = ms != last_uart_ms;
+        let n = if hw::rx0_len() >= chunk.len() || tick {
+            last_uart_ms = ms;
+            hw::rx0_read(&mut chunk)
+        } else {
+            0
+        };
         if n > 0 {
             let read_at = hw::ticks();
             let sent_before = bridge.stats().scans_sent;
@@ -144,10 +152,11 @@ fn main() -> ! {
 
         let output_moves = port.has_output() && !can.tx_full();
         let frames_wait = bridge.queued() > 0 && port.has_room_for_frame();
-        let idle = !(hw::rx0_pending() || can.rx_pending() || output_moves || frames_wait);
+        let full_chunk = || hw::rx0_len() >= chunk.len();
+        let idle = !(full_chunk() || can.rx_pending() || output_moves || frames_wait);
         if idle {
             let before = hw::ticks();
-            hw::sleep_until(|| hw::rx0_pending() || can.rx_pending() || hw::now_ms() != last_ms);
+            hw::sleep_until(|| full_chunk() || can.rx_pending() || hw::now_ms() != last_ms);
             sleep_ticks += hw::ticks().saturating_sub(before);
         }
     }
