@@ -14,8 +14,9 @@
 //! The CAN transmit and receive tasks stay in the board crates: their frame types are the
 //! controller's (FDCAN or bxCAN).
 //!
-//! Host tests: `cargo test -p board-common --target x86_64-unknown-linux-gnu` (from
-//! `firmware/boards`; the folder's default target is the MCU's).
+//! Host tests (unit tests, and `tests/main_loop.rs`: the main loop on a simulated board
+//! with embassy-time's std driver): `cargo test -p board-common --target
+//! x86_64-unknown-linux-gnu` from `firmware/boards` (whose default target is the MCU's).
 #![cfg_attr(not(test), no_std)]
 #![deny(unsafe_code)]
 #![deny(missing_docs)]

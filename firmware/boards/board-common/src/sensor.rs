@@ -7,24 +7,35 @@
 //! Ticker  ──▶│ tick  → watchdog, bus, load│              → SetBitRate: UART rate
 //!            └────────────────────────────┘──▶ notify the CAN transmit task
 //! ```
-//! The UART's DMA ring buffer keeps receiving while the loop writes a command or works
-//! on a chunk, and reading it is cancel-safe, so nothing the sensor sends is lost to
-//! the `select`. The CAN side never blocks this loop: frames wait in the bridge's queue
-//! until the transmit task takes them.
+//! Before the session starts, `reset_sensor_bit_rate` brings back a sensor left at the
+//! streaming rate by an earlier run. The UART's DMA ring buffer keeps receiving while
+//! the loop writes a command or works on a chunk, and reading it is cancel-safe, so
+//! nothing the sensor sends is lost to the `select`. The CAN side never blocks this
+//! loop: frames wait in the bridge's queue until the transmit task takes them.
 
 use bridge::session::Action;
 use can_wire::BusState;
 use embassy_futures::select::{select, Either};
-use embassy_time::{Duration, Instant, Ticker};
+use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_io_async::{Read, Write};
 
-use crate::config::{BUS_OFF_RETRY_MS, LOAD_WINDOW_MS, TICK_MS, UART_CHUNK};
+use crate::config::{
+    BUS_OFF_RETRY_MS, LOAD_WINDOW_MS, SENSOR_BIT_RATE, SENSOR_POWER_UP_BIT_RATE, TICK_MS,
+    UART_CHUNK,
+};
 use crate::load;
 use crate::recovery::BusOff;
 use crate::shared::Shared;
 
 /// Session actions carried out per pass of the loop (the session yields one or two).
 const MAX_ACTIONS: usize = 4;
+
+/// What [`reset_sensor_bit_rate`] sends at the streaming rate: stop a stream, then reset
+/// the sensor, which puts its bit rate back to the power-up rate.
+const RATE_RESET: &[u8] = b"QT\nRS\n";
+
+/// Time the sensor gets to answer and reset before the session starts, ms.
+const RATE_RESET_WAIT_MS: u64 = 100;
 
 /// What the main loop needs from a board.
 pub trait Board {
@@ -72,6 +83,8 @@ pub struct LoopStats {
 /// Runs the bridge on `board` forever: starts the sensor session, then serves the UART
 /// and the tick.
 pub async fn run<B: Board>(shared: &Shared, board: &mut B) -> ! {
+    reset_sensor_bit_rate(board).await;
+
     let mut chunk = [0u8; UART_CHUNK];
     let mut ticker = Ticker::every(Duration::from_millis(TICK_MS));
     let mut bus = BusOff::new(BUS_OFF_RETRY_MS);
@@ -110,6 +123,28 @@ pub async fn run<B: Board>(shared: &Shared, board: &mut B) -> ! {
         }
         drive_session(shared, board, now, &mut stats).await;
         shared.notify_frames();
+    }
+}
+
+/// Brings a sensor that still runs at the streaming rate back to its power-up rate.
+///
+/// The session starts at the power-up rate and raises it with `SS`. When the MCU alone
+/// restarts (the watchdog, a flash, a brown-out the sensor rode through), the sensor is
+/// still at the raised rate and would not understand the session. So before the session
+/// starts, `QT` and `RS` go out at the streaming rate: a sensor at that rate stops and
+/// resets to its power-up rate; a sensor already at the power-up rate sees a few garbled
+/// bytes and at worst answers an unknown command, which the decoder skips. Its answers,
+/// if any, reach the bridge before the session starts and change nothing.
+async fn reset_sensor_bit_rate<B: Board>(board: &mut B) {
+    if SENSOR_BIT_RATE == SENSOR_POWER_UP_BIT_RATE || !board.set_sensor_bit_rate(SENSOR_BIT_RATE) {
+        return;
+    }
+    let (_, tx) = board.sensor();
+    let sent = tx.write_all(RATE_RESET).await.is_ok() && tx.flush().await.is_ok();
+    Timer::after(Duration::from_millis(RATE_RESET_WAIT_MS)).await;
+    let restored = board.set_sensor_bit_rate(SENSOR_POWER_UP_BIT_RATE);
+    if !sent || !restored {
+        warn!("sensor bit rate reset incomplete");
     }
 }
 

@@ -23,7 +23,7 @@
 //!
 //! **CAN FD data phase.** 5 Mbit/s needs transmitter delay compensation, which embassy
 //! does not configure: `TDCR.TDCO` and `DBTP.TDC` are written right after start-up
-//! ([`enable_delay_compensation`]).
+//! (`enable_delay_compensation`).
 //!
 //! Register access that embassy does not offer (`CCCR.INIT`, `ECR.CEL`, `TDCR`,
 //! `DBTP.TDC`) goes through `embassy_stm32::pac` (the `unstable-pac` feature).

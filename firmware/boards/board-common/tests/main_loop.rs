@@ -1,0 +1,230 @@
+//! The main loop (`sensor::run`) on a simulated board, in real time (embassy-time's std
+//! driver): what it writes to the sensor and at which bit rate, the frames a sensor
+//! stream produces, the watchdog, and bus-off recovery with its rate limit.
+
+use std::cell::RefCell;
+use std::collections::VecDeque;
+use std::convert::Infallible;
+use std::rc::Rc;
+
+use board_common::config::{self, CanBus};
+use board_common::sensor::{self, Board};
+use board_common::Shared;
+use can_wire::{BusState, Kind};
+use embassy_futures::select::{select, Either};
+use embassy_time::{Duration, Instant, Timer};
+
+/// What happened on the simulated sensor UART, in order.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Uart {
+    Rate(u32),
+    Write(Vec<u8>),
+}
+
+struct Rx {
+    chunks: VecDeque<Vec<u8>>,
+}
+
+impl embedded_io_async::ErrorType for Rx {
+    type Error = Infallible;
+}
+
+impl embedded_io_async::Read for Rx {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        match self.chunks.pop_front() {
+            Some(chunk) => {
+                let n = chunk.len().min(buf.len());
+                buf[..n].copy_from_slice(&chunk[..n]);
+                if n < chunk.len() {
+                    self.chunks.push_front(chunk[n..].to_vec());
+                }
+                Ok(n)
+            }
+            // The sensor has nothing more to say.
+            None => core::future::pending().await,
+        }
+    }
+}
+
+struct Tx {
+    log: Rc<RefCell<Vec<Uart>>>,
+}
+
+impl embedded_io_async::ErrorType for Tx {
+    type Error = Infallible;
+}
+
+impl embedded_io_async::Write for Tx {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        self.log.borrow_mut().push(Uart::Write(buf.to_vec()));
+        Ok(buf.len())
+    }
+
+    async fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}
+
+struct SimBoard {
+    rx: Rx,
+    tx: Tx,
+    log: Rc<RefCell<Vec<Uart>>>,
+    start: Instant,
+    /// The controller is bus-off from this many ms after the start on.
+    bus_off_from_ms: Option<u64>,
+    recoveries_ms: Vec<u64>,
+    feeds: u32,
+    errors_to_report: u32,
+}
+
+impl SimBoard {
+    fn new(stream: &[u8], bus_off_from_ms: Option<u64>) -> Self {
+        let log = Rc::new(RefCell::new(Vec::new()));
+        Self {
+            rx: Rx {
+                chunks: stream.chunks(100).map(<[u8]>::to_vec).collect(),
+            },
+            tx: Tx { log: log.clone() },
+            log,
+            start: Instant::now(),
+            bus_off_from_ms,
+            recoveries_ms: Vec::new(),
+            feeds: 0,
+            errors_to_report: 3,
+        }
+    }
+
+    fn elapsed_ms(&self) -> u64 {
+        self.start.elapsed().as_millis()
+    }
+}
+
+impl Board for SimBoard {
+    type Rx = Rx;
+    type Tx = Tx;
+
+    fn sensor(&mut self) -> (&mut Rx, &mut Tx) {
+        (&mut self.rx, &mut self.tx)
+    }
+
+    fn set_sensor_bit_rate(&mut self, bit_rate: u32) -> bool {
+        self.log.borrow_mut().push(Uart::Rate(bit_rate));
+        true
+    }
+
+    fn bus_state(&mut self) -> BusState {
+        match self.bus_off_from_ms {
+            Some(t) if self.elapsed_ms() >= t => BusState::BusOff,
+            _ => BusState::ErrorActive,
+        }
+    }
+
+    fn take_bus_errors(&mut self) -> u32 {
+        std::mem::take(&mut self.errors_to_report)
+    }
+
+    fn recover_bus(&mut self) {
+        let t = self.elapsed_ms();
+        self.recoveries_ms.push(t);
+    }
+
+    fn feed_watchdog(&mut self) {
+        self.feeds += 1;
+    }
+}
+
+/// Runs the main loop on `board` for `ms` milliseconds of real time.
+fn run_for(shared: &Shared, board: &mut SimBoard, ms: u64) {
+    let outcome = embassy_futures::block_on(select(
+        sensor::run(shared, board),
+        Timer::after(Duration::from_millis(ms)),
+    ));
+    assert!(matches!(outcome, Either::Second(())));
+}
+
+/// One stream response (`MD`, status 99) of `n` steps at 1000 + i mm.
+fn scan_response(n: u16) -> Vec<u8> {
+    use scip::{Command, Request, ResponseWriter, ScanMode, ScanRequest};
+    let mut out = Vec::new();
+    let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+    let mut s = ScanRequest::distance(ScanMode::Continuous, 0, n - 1);
+    s.count = 0;
+    w.echo(&Request::new(Command::Scan(s)));
+    w.status(*b"99");
+    w.timestamp(42);
+    for i in 0..u32::from(n) {
+        w.step(1000 + i, 0);
+    }
+    w.end();
+    let _ = w.into_inner();
+    out
+}
+
+fn drain(shared: &Shared) -> Vec<can_wire::Frame> {
+    std::iter::from_fn(|| shared.with(|b| b.pop_frame())).collect()
+}
+
+#[test]
+fn boot_resets_the_sensor_rate_then_the_session_probes_at_the_power_up_rate() {
+    let shared = Shared::new(config::bridge(CanBus::CLASSIC_1M).expect("bridge"));
+    let mut board = SimBoard::new(&[], None);
+    run_for(&shared, &mut board, 150);
+    let log = board.log.borrow().clone();
+    // QT and RS at the streaming rate, back to the power-up rate, then the session's
+    // first command (it probes with QT) at the power-up rate.
+    assert_eq!(
+        log.get(..4),
+        Some(
+            &[
+                Uart::Rate(250_000),
+                Uart::Write(b"QT\nRS\n".to_vec()),
+                Uart::Rate(19_200),
+                Uart::Write(b"QT\n".to_vec()),
+            ][..]
+        ),
+        "{log:?}"
+    );
+    // Fed on every 5 ms tick once the 100 ms of the rate reset are over: at most 10 in
+    // the remaining 50 ms (fewer if the host is slow).
+    assert!((1..=10).contains(&board.feeds), "{} feeds", board.feeds);
+}
+
+#[test]
+fn a_sensor_scan_becomes_frames_in_order_behind_the_status_pages() {
+    let shared = Shared::new(config::bridge(CanBus::CLASSIC_1M).expect("bridge"));
+    let mut board = SimBoard::new(&scan_response(40), None);
+    run_for(&shared, &mut board, 200);
+    let ids = config::node_ids().expect("ids");
+    let kinds: Vec<Kind> = drain(&shared)
+        .iter()
+        .map(|f| ids.window().classify(f.id()).expect("ours").1)
+        .collect();
+    // Heartbeat, sensor and bus counters first (the first poll), then the scan:
+    // 40 points at 3 per classic frame.
+    let mut expected = vec![Kind::Status; 3];
+    expected.extend([Kind::HeaderA, Kind::HeaderB]);
+    expected.extend(std::iter::repeat_n(Kind::Data, 14));
+    expected.push(Kind::Trailer);
+    assert_eq!(kinds, expected);
+    assert_eq!(shared.with(|b| b.stats().scans_sent), 1);
+    // The board's error count reached the bridge.
+    assert_eq!(shared.with(|b| b.health().bus_errors), 3);
+}
+
+#[test]
+fn bus_off_is_recovered_after_100_ms_and_at_most_every_100_ms() {
+    let shared = Shared::new(config::bridge(CanBus::FD_1M_5M).expect("bridge"));
+    // The rate reset takes the first 100 ms; the bus goes off at 150 ms.
+    let mut board = SimBoard::new(&[], Some(150));
+    run_for(&shared, &mut board, 520);
+    let r = &board.recoveries_ms;
+    // Off seen at the first tick at or after 150 ms; attempts 100 ms after that, and
+    // then every 100 ms while it stays off: 250, 350, 450, each a tick late at most on
+    // an idle host (allow more on a busy one, never earlier).
+    assert!(!r.is_empty() && (250..=300).contains(&r[0]), "{r:?}");
+    assert!(r.windows(2).all(|w| w[1] - w[0] >= 100), "{r:?}");
+    assert!(r.len() <= 3, "{r:?}");
+    let health = shared.with(|b| *b.health());
+    assert_eq!(health.bus_state, u8::from(BusState::BusOff));
+    assert_eq!(health.bus_off_events, 1);
+}
