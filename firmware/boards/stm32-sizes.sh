@@ -43,8 +43,11 @@ fi
 # size, address; stack-usage.py's last line is "STACK <bytes>").
 measure() {
     local stack run
-    stack=$(python3 stack-usage.py "$release/$1" --boot '(^|[^a-z])setup' > "$tmp/$1.stack" &&
-        sed -n 's/^STACK //p' "$tmp/$1.stack")
+    if ! python3 stack-usage.py "$release/$1" --boot '(^|[^a-z])setup' > "$tmp/$1.stack"; then
+        echo "FAIL: stack-usage.py on $1" >&2
+        exit 1
+    fi
+    stack=$(sed -n 's/^STACK //p' "$tmp/$1.stack")
     run=$(sed -n 's/^after start-up.* = \([0-9]*\) bytes$/\1/p' "$tmp/$1.stack")
     "$size_tool" -A "$release/$1" | awk -v name="$1" -v reserve="$stack_reserve" \
         -v stack="$stack" -v run="$run" '
