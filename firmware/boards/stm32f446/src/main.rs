@@ -156,6 +156,11 @@ fn setup() -> Setup {
     // CAN: CAN1, RX PA11, TX PA12 (morpho CN10 pins 14 and 12), to a CAN transceiver.
     let can = bxcan::configure(p.CAN1, p.PA11, p.PA12, Irqs, BUS, control_id);
 
+    // The watchdog stops while a debugger halts the core (otherwise every breakpoint
+    // resets the MCU after 500 ms); it runs normally under `probe-rs run`.
+    embassy_stm32::pac::DBGMCU
+        .apb1fzr()
+        .modify(|w| w.set_iwdg(true));
     let mut watchdog = IndependentWatchdog::new(p.IWDG, config::WATCHDOG_TIMEOUT_MS * 1000);
     watchdog.unleash();
 

@@ -152,6 +152,11 @@ fn setup() -> Setup {
     let (can_tx, can_rx, supervisor) =
         fdcan::start(p.FDCAN1, p.PA11, p.PA12, Irqs, BUS, control_id);
 
+    // The watchdog stops while a debugger halts the core (otherwise every breakpoint
+    // resets the MCU after 500 ms); it runs normally under `probe-rs run`.
+    embassy_stm32::pac::DBGMCU
+        .apb1lfzr()
+        .modify(|w| w.set_iwdg(true));
     let mut watchdog = IndependentWatchdog::new(p.IWDG, config::WATCHDOG_TIMEOUT_MS * 1000);
     watchdog.unleash();
 
