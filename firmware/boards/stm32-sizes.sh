@@ -2,7 +2,7 @@
 # Flash, static RAM and worst-case stack of the STM32 board binaries, measured from
 # their release ELFs (build them first: check.sh does) and compared with sizes.txt:
 #   flash = .vector_table + .text + .rodata + .data   (the image written to flash)
-#   ram   = .data + .bss + .uninit + 13312            (statics + the stack reservation)
+#   ram   = .data + .bss + .uninit + 14336            (statics + the stack reservation)
 #   stack = stack-usage.py's worst case (boot included), and once the tasks run
 # Fails when a binary is over the bridge's budget (flash 96 KiB, RAM 24 KiB; the
 # linker enforces the same through board-common/budget.x), when the worst-case stack
@@ -13,7 +13,7 @@ cd "$(dirname "$0")"
 
 flash_budget=$((96 * 1024))
 ram_budget=$((24 * 1024))
-stack_reserve=13312 # _scip2can_stack_reserve in board-common/budget.x
+stack_reserve=14336 # _scip2can_stack_reserve in board-common/budget.x
 binaries="scip2can-stm32g474 scip2can-stm32f446"
 target_dir=${CARGO_TARGET_DIR:-target}
 release=$target_dir/thumbv7em-none-eabihf/release
