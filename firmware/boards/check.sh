@@ -26,11 +26,11 @@ for board in scip2can-qemu stm32g474 stm32f446; do
     cargo clippy --release -p "$board" --all-targets -- -D warnings
     cargo build --release -p "$board"
 done
-# board-common's unit tests run on the host.
+# board-common's tests (unit tests, and the main loop on a simulated board) run on the host.
 host=$(rustc -vV | sed -n 's/^host: //p')
 cargo clippy -p board-common --all-targets --target "$host" -- -D warnings
 cargo test -p board-common --target "$host"
-# STM32 flash and RAM against the budget and sizes.txt.
+# STM32 flash, RAM and stack bound against the budget and sizes.txt.
 ./stm32-sizes.sh
 
 target_dir=${CARGO_TARGET_DIR:-target}
