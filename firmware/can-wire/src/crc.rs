@@ -34,6 +34,14 @@ impl ScanCrc {
         }
     }
 
+    /// Add the codes of several points laid out as the CRC takes them: per point its
+    /// distance code as u16 little-endian, then its intensity code the same way if the
+    /// channel is present. The same as calling [`ScanCrc::point`] for each point, at a
+    /// fraction of the cost (one table pass, no call per point).
+    pub fn codes(&mut self, le_codes: &[u8]) {
+        self.digest.update(le_codes);
+    }
+
     /// Finish with the trailer's bytes 0..6.
     pub fn finish(self, trailer_head: &[u8]) -> u16 {
         let mut d = self.digest;
@@ -52,5 +60,16 @@ mod tests {
         let mut c = ScanCrc::new(b"1", b"2");
         c.point(u16::from_le_bytes(*b"34"), Some(u16::from_le_bytes(*b"56")));
         assert_eq!(c.finish(b"789"), 0x29B1);
+    }
+
+    #[test]
+    fn codes_are_points() {
+        let mut one = ScanCrc::new(&[1, 2], &[3]);
+        let mut all = one.clone();
+        for (d, i) in [(0xABC, 0x12), (0, 0xFFFF), (0xFFF, 0)] {
+            one.point(d, Some(i));
+        }
+        all.codes(&[0xBC, 0x0A, 0x12, 0x00, 0, 0, 0xFF, 0xFF, 0xFF, 0x0F, 0, 0]);
+        assert_eq!(one.finish(&[9]), all.finish(&[9]));
     }
 }

@@ -4,7 +4,7 @@
 use crate::abort::{Abort, AbortReason};
 use crate::crc::ScanCrc;
 use crate::data::{data_frame_len, DataHeader, DATA_HEADER_LEN};
-use crate::encoding::{BitWriter, Distance};
+use crate::encoding::{Distance, DistanceCoder, Packer};
 use crate::frame::{is_valid_len, Frame, CLASSIC_LEN, MAX_LEN};
 use crate::header::{put, ScanHeader};
 use crate::id::{Kind, NodeIds};
@@ -67,15 +67,34 @@ struct InProgress {
     sent: u16,
     /// Valid distance codes pushed so far.
     valid: u16,
-    /// Points in `buf`.
+    /// Points in `packer`.
     buffered: u16,
-    buf: [u8; MAX_LEN],
-    bit: usize,
-    /// Points per data frame, bits per distance and per intensity: fixed for the scan.
+    /// The data frame being filled (its header bytes are written at flush).
+    packer: Packer,
+    /// The buffered points' codes as the CRC takes them (u16 LE each), unless the packed
+    /// bytes are those very bytes (`codes_are_packed`).
+    codes: [u8; CODES_LEN],
+    codes_len: usize,
+    /// Fixed for the scan: points per data frame, the distance coding, bits per distance
+    /// and per intensity, whether the two codes go in one put (at most 24 bits
+    /// together), CRC bytes per point, and whether the packed stream is already the
+    /// CRC's input (16-bit codes).
     capacity: u16,
+    coder: DistanceCoder,
+    /// `16 - intensity bits`, 16 without the channel (the code is then 0).
+    intensity_shift: u32,
     distance_bits: u32,
     intensity_bits: u32,
+    one_put: bool,
+    /// Bytes per point when a point is whole bytes (16, 24 or 32 bits), else 0.
+    whole_bytes: usize,
+    code_bytes: usize,
+    codes_are_packed: bool,
 }
+
+/// Room for the CRC input of a full 64-byte data frame in any encoding (D12 + I8: 24
+/// points of 4 bytes), plus the 2 bytes a word store may reach past it.
+const CODES_LEN: usize = 24 * 4 + 2;
 
 /// Turns a scan, point by point, into frames (see the crate docs for an example).
 #[derive(Debug, Clone)]
@@ -131,6 +150,9 @@ impl ScanEncoder {
             self.frame(Kind::HeaderA, &a)?,
             self.frame(Kind::HeaderB, &b)?,
         ];
+        let enc = header.encoding;
+        let distance_bits = enc.distance.bits();
+        let intensity_bits = enc.intensity.bits();
         self.scan = Some(InProgress {
             header: *header,
             crc: ScanCrc::new(&a, &b),
@@ -138,19 +160,31 @@ impl ScanEncoder {
             sent: 0,
             valid: 0,
             buffered: 0,
-            buf: [0; MAX_LEN],
-            bit: DATA_HEADER_LEN * 8,
-            capacity: u16::try_from(header.encoding.capacity(self.format.max_len()))
+            packer: Packer::new(DATA_HEADER_LEN),
+            codes: [0; CODES_LEN],
+            codes_len: 0,
+            capacity: u16::try_from(enc.capacity(self.format.max_len()))
                 .unwrap_or(u16::MAX)
                 .max(1),
-            distance_bits: header.encoding.distance.bits(),
-            intensity_bits: header.encoding.intensity.bits(),
+            coder: enc.distance_coder(),
+            intensity_shift: 16 - intensity_bits,
+            distance_bits,
+            intensity_bits,
+            one_put: distance_bits + intensity_bits <= 24,
+            whole_bytes: if (distance_bits + intensity_bits) % 8 == 0 {
+                ((distance_bits + intensity_bits) / 8) as usize
+            } else {
+                0
+            },
+            code_bytes: if enc.intensity.is_present() { 4 } else { 2 },
+            codes_are_packed: distance_bits == 16 && matches!(intensity_bits, 0 | 16),
         });
         Ok(frames)
     }
 
     /// Add the next point. Returns a data frame when one is full or the point was the
     /// scan's last.
+    #[inline]
     pub fn push_point(
         &mut self,
         distance: Distance,
@@ -160,45 +194,72 @@ impl ScanEncoder {
         if s.pushed >= s.header.point_count {
             return Err(Error::TooManyPoints);
         }
-        let enc = s.header.encoding;
-        let dc = enc.encode_distance(distance);
-        let ic = enc.intensity.encode(intensity);
-        let mut w = BitWriter::new(&mut s.buf, s.bit);
-        w.write(dc, s.distance_bits);
-        if s.intensity_bits > 0 {
-            w.write(ic, s.intensity_bits);
+        let dc = s.coder.code(distance);
+        let dc32 = u32::from(dc);
+        let ic32 = u32::from(intensity) >> s.intensity_shift;
+        if s.whole_bytes != 0 {
+            s.packer
+                .put_bytes(dc32 | ic32 << s.distance_bits, s.whole_bytes);
+        } else if s.one_put {
+            s.packer.put(
+                dc32 | ic32 << s.distance_bits,
+                s.distance_bits + s.intensity_bits,
+            );
+        } else {
+            s.packer.put(dc32, s.distance_bits);
+            s.packer.put(ic32, s.intensity_bits);
         }
-        s.bit = w.position();
-        let capacity = s.capacity;
-        s.crc.point(dc, enc.intensity.is_present().then_some(ic));
-        if enc.is_valid_code(dc) {
-            s.valid += 1;
+        if !s.codes_are_packed {
+            let end = s.codes_len.wrapping_add(4);
+            if let Some(word) = s.codes.get_mut(s.codes_len..end) {
+                word.copy_from_slice(&(dc32 | ic32 << 16).to_le_bytes());
+                s.codes_len = s.codes_len.wrapping_add(s.code_bytes);
+            }
         }
+        s.valid += u16::from(s.coder.is_valid(dc));
         s.pushed += 1;
         s.buffered += 1;
-        if s.buffered >= capacity || s.pushed == s.header.point_count {
+        if s.buffered >= s.capacity || s.pushed == s.header.point_count {
             self.flush().map(Some)
         } else {
             Ok(None)
         }
     }
 
-    /// Turn the buffered points into a data frame.
+    /// Turn the buffered points into a data frame, and their codes into the CRC.
+    #[inline(never)]
     fn flush(&mut self) -> Result<Frame, Error> {
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         let len = data_frame_len(&s.header.encoding, usize::from(s.buffered))
             .ok_or(Error::FrameTooLong)?;
+        if s.codes_are_packed {
+            let end = usize::from(s.buffered)
+                .saturating_mul(s.code_bytes)
+                .saturating_add(DATA_HEADER_LEN);
+            s.crc.codes(
+                s.packer
+                    .bytes_mut()
+                    .get(DATA_HEADER_LEN..end)
+                    .unwrap_or(&[]),
+            );
+        } else {
+            s.crc.codes(s.codes.get(..s.codes_len).unwrap_or(&[]));
+            s.codes_len = 0;
+        }
         let dh = DataHeader {
             first_index: s.sent,
             seq_low: (s.header.seq & 0xF) as u8,
         };
-        put(&mut s.buf, 0..DATA_HEADER_LEN, &dh.emit());
-        let data = s.buf;
+        put(s.packer.bytes_mut(), 0..DATA_HEADER_LEN, &dh.emit());
         s.sent += s.buffered;
         s.buffered = 0;
-        s.buf = [0; MAX_LEN];
-        s.bit = DATA_HEADER_LEN * 8;
-        self.frame(Kind::Data, data.get(..len).ok_or(Error::FrameTooLong)?)
+        let frame = Frame::new(
+            self.ids.id(Kind::Data),
+            s.packer.bytes_mut().get(..len).ok_or(Error::FrameTooLong)?,
+            self.format.is_fd(),
+        );
+        s.packer.clear(DATA_HEADER_LEN);
+        frame
     }
 
     /// End the scan: returns the last data frame if points are still buffered (only when

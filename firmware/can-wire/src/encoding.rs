@@ -186,23 +186,16 @@ impl Encoding {
     /// The code of a distance (SPEC section 4: round half up, ranges never become 0,
     /// too long ranges become the out-of-range code).
     pub const fn encode_distance(&self, d: Distance) -> u16 {
-        let max = self.distance.max_code();
-        match d {
-            Distance::Invalid => 0,
-            Distance::OutOfRange => max,
-            Distance::Mm(mm) => {
-                let e = (self.unit_exp & 0xF) as u32;
-                let half = (1u32 << e) >> 1;
-                // Saturating: a range near u32::MAX is out of range in any unit.
-                let q = mm.saturating_add(half) >> e;
-                if q >= max as u32 {
-                    max
-                } else if q == 0 {
-                    1
-                } else {
-                    q as u16
-                }
-            }
+        self.distance_coder().code(d)
+    }
+
+    /// The distance coding with its constants worked out once (for a whole scan).
+    pub(crate) const fn distance_coder(&self) -> DistanceCoder {
+        let e = (self.unit_exp & 0xF) as u32;
+        DistanceCoder {
+            max: self.distance.max_code() as u32,
+            half: (1u32 << e) >> 1,
+            exp: e,
         }
     }
 
@@ -223,37 +216,121 @@ impl Encoding {
     }
 }
 
-/// Writes fields LSB-first into a byte slice (which must start zeroed).
-pub(crate) struct BitWriter<'a> {
-    buf: &'a mut [u8],
-    bit: usize,
+/// [`Encoding::encode_distance`] with its per-encoding constants computed once.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct DistanceCoder {
+    /// The out-of-range code.
+    max: u32,
+    /// Half a unit in mm, rounded down (rounds half up).
+    half: u32,
+    /// log2 of the unit in mm.
+    exp: u32,
 }
 
-impl<'a> BitWriter<'a> {
-    pub(crate) fn new(buf: &'a mut [u8], bit: usize) -> Self {
-        BitWriter { buf, bit }
-    }
-
-    pub(crate) fn position(&self) -> usize {
-        self.bit
-    }
-
-    /// Write the low `bits` bits of `value`; bits beyond the buffer are dropped (the
-    /// callers size buffers so that this does not happen).
-    /// At most 16 bits per call: the field lands in at most 3 bytes, written whole.
-    pub(crate) fn write(&mut self, value: u16, bits: u32) {
-        let bits = bits.min(16);
-        let field = u32::from(value) & ((1u32 << bits) - 1);
-        let word = field << (self.bit % 8);
-        let first = self.bit / 8;
-        for (k, byte) in word.to_le_bytes().into_iter().take(3).enumerate() {
-            if byte != 0 {
-                if let Some(b) = self.buf.get_mut(first + k) {
-                    *b |= byte;
+impl DistanceCoder {
+    /// The code of a distance.
+    #[inline(always)]
+    pub(crate) const fn code(&self, d: Distance) -> u16 {
+        let code = match d {
+            Distance::Invalid => 0,
+            Distance::OutOfRange => self.max,
+            Distance::Mm(mm) => {
+                // Saturating: a range near u32::MAX is out of range in any unit.
+                let q = mm.saturating_add(self.half) >> self.exp;
+                if q >= self.max {
+                    self.max
+                } else if q == 0 {
+                    1
+                } else {
+                    q
                 }
             }
+        };
+        code as u16
+    }
+
+    /// Whether a code is a range (neither invalid nor out of range).
+    #[inline(always)]
+    pub(crate) const fn is_valid(&self, code: u16) -> bool {
+        code != 0 && (code as u32) < self.max
+    }
+}
+
+/// Packs fields LSB-first into a data frame, a 32-bit word at a time.
+///
+/// The bits that do not yet fill a byte wait in `acc`; every `put` stores `acc` whole at
+/// the current byte (4 bytes, the ones past the field being zero), so the buffer always
+/// holds every bit put so far, then moves on by the bytes the field completed. Constant
+/// work per field, no loop and one bounds check.
+#[derive(Debug, Clone)]
+pub(crate) struct Packer {
+    buf: [u8; PACKER_LEN],
+    /// Byte the next store begins at.
+    pos: usize,
+    /// Bits put but not yet in a whole byte (`nbits` of them, fewer than 8).
+    acc: u32,
+    nbits: u32,
+}
+
+/// A whole CAN FD payload and the 3 bytes a word store may reach past it.
+const PACKER_LEN: usize = crate::frame::MAX_LEN + 3;
+
+impl Packer {
+    /// An empty packer whose first field goes at byte `start`.
+    pub(crate) const fn new(start: usize) -> Self {
+        Packer {
+            buf: [0; PACKER_LEN],
+            pos: start,
+            acc: 0,
+            nbits: 0,
         }
-        self.bit += bits as usize;
+    }
+
+    /// Bits put so far, counted from byte 0.
+    #[cfg(test)]
+    pub(crate) fn position(&self) -> usize {
+        self.pos * 8 + self.nbits as usize
+    }
+
+    /// Put a field of `bits` bits (at most 24: with the at most 7 bits waiting, they fit
+    /// the 32-bit word); `value` must be below `2^bits` (the callers' codes are). Bits
+    /// beyond the buffer are dropped (the callers size frames so that this does not
+    /// happen).
+    #[inline(always)]
+    pub(crate) fn put(&mut self, value: u32, bits: u32) {
+        self.acc |= value << self.nbits;
+        self.nbits = self.nbits.wrapping_add(bits);
+        self.store(self.acc);
+        let whole = self.nbits / 8;
+        self.pos = self.pos.wrapping_add(whole as usize);
+        // At most 31 bits were waiting: the shift is at most 24.
+        self.acc = self.acc.wrapping_shr(whole * 8);
+        self.nbits %= 8;
+    }
+
+    /// Put a field of `bytes * 8` bits (1 to 4 bytes) when no bits are waiting (every
+    /// field so far filled whole bytes): a plain store.
+    #[inline(always)]
+    pub(crate) fn put_bytes(&mut self, value: u32, bytes: usize) {
+        self.store(value);
+        self.pos = self.pos.wrapping_add(bytes);
+    }
+
+    #[inline(always)]
+    fn store(&mut self, word: u32) {
+        if let Some(dst) = self.buf.get_mut(self.pos..self.pos.wrapping_add(4)) {
+            dst.copy_from_slice(&word.to_le_bytes());
+        }
+    }
+
+    /// The buffer (a data frame's bytes up to `len`, zero past what was put).
+    pub(crate) fn bytes_mut(&mut self) -> &mut [u8] {
+        &mut self.buf
+    }
+
+    /// Empties the packer; the next field goes at byte `start`.
+    pub(crate) fn clear(&mut self, start: usize) {
+        *self = Packer::new(start);
     }
 }
 
@@ -373,12 +450,12 @@ mod tests {
 
     #[test]
     fn bit_packing() {
-        let mut buf = [0u8; 3];
-        let mut w = BitWriter::new(&mut buf, 0);
-        w.write(0xABC, 12);
-        w.write(0x123, 12);
+        let mut w = Packer::new(0);
+        w.put(0xABC, 12);
+        w.put(0x123, 12);
         assert_eq!(w.position(), 24);
-        assert_eq!(buf, [0xBC, 0x3A, 0x12]);
+        let buf = [0xBC, 0x3A, 0x12];
+        assert_eq!(&w.bytes_mut()[..4], &[0xBC, 0x3A, 0x12, 0]);
         let mut r = BitReader::new(&buf);
         assert_eq!(r.read(12), 0xABC);
         assert!(!r.rest_is_zero());
@@ -392,5 +469,38 @@ mod tests {
         let mut r = BitReader::new(&pad);
         r.read(4);
         assert!(r.rest_is_zero());
+    }
+
+    proptest::proptest! {
+        /// Whatever the field widths, the packer's bytes read back as the fields put
+        /// (the reader gathers bit by bit from at most 3 bytes), with zeros after them.
+        #[test]
+        fn packer_round_trip(fields in proptest::collection::vec((proptest::num::u32::ANY, 1u32..=24), 0..20)) {
+            let mut w = Packer::new(2);
+            let mut total = 16;
+            for &(v, bits) in &fields {
+                if total + bits as usize > crate::frame::MAX_LEN * 8 {
+                    break;
+                }
+                w.put(v & ((1u32 << bits) - 1), bits);
+                total += bits as usize;
+            }
+            proptest::prop_assert_eq!(w.position(), total);
+            let bytes = w.bytes_mut().to_vec();
+            let mut r = BitReader::new(&bytes);
+            r.skip(16);
+            let mut read = 16;
+            for &(v, bits) in &fields {
+                if read + bits as usize > total {
+                    break;
+                }
+                let lo = r.read(bits.min(16)) as u32;
+                let hi = if bits > 16 { r.read(bits - 16) as u32 } else { 0 };
+                proptest::prop_assert_eq!(lo | hi << 16, v & ((1u32 << bits) - 1));
+                read += bits as usize;
+            }
+            proptest::prop_assert!(r.rest_is_zero());
+            proptest::prop_assert_eq!(&bytes[..2], &[0, 0]);
+        }
     }
 }
