@@ -342,29 +342,31 @@ impl<const Q: usize> Core<Q> {
             (Event::Timestamp(t), Phase::Framed(s)) => self.begin_scan(s, *t, now),
             (Event::Data(line), Phase::Active(s)) => {
                 let cluster = u32::from(s.cluster.max(1));
+                let start = u32::from(s.start);
                 let has_aux = line.data.aux_width() > 0;
-                for r in line.readings.iter().filter(|r| r.echo == 0) {
-                    let step = u32::from(s.start) + u32::from(r.index) * cluster;
-                    let range = line.range(r);
-                    let point = RawPoint {
+                let width = line.data.distance_width();
+                let limits = line.limits;
+                let points = line.readings.iter().filter(|r| r.echo == 0).map(|r| {
+                    let step = start + u32::from(r.index) * cluster;
+                    RawPoint {
                         step: u16::try_from(step).unwrap_or(u16::MAX),
                         distance: r.distance,
                         intensity: has_aux.then_some(r.aux),
-                        valid: matches!(range, Range::Mm(_)),
-                    };
-                    let Self {
-                        pipeline,
-                        encoder,
-                        queue,
-                        overflow,
-                        filtered,
-                        stats,
-                        ..
-                    } = self;
-                    pipeline.push(point, &mut |p: Point| {
-                        emit_point(p, encoder, queue, overflow, filtered, stats)
-                    });
-                }
+                        valid: matches!(limits.classify(r.distance, width), Range::Mm(_)),
+                    }
+                });
+                let Self {
+                    pipeline,
+                    encoder,
+                    queue,
+                    overflow,
+                    filtered,
+                    stats,
+                    ..
+                } = self;
+                pipeline.push_iter(points, &mut |p: Point| {
+                    emit_point(p, encoder, queue, overflow, filtered, stats)
+                });
             }
             (Event::End(_), Phase::Active(_)) => self.finish_scan(),
             (Event::Error(e), Phase::Active(_)) => {

@@ -191,6 +191,18 @@ impl fmt::Display for ConfigError {
 impl std::error::Error for ConfigError {}
 
 impl PipelineConfig {
+    /// Whether every per-point stage is off (no region, range window, intensity
+    /// threshold, speckle, median, nor a decimation factor above 1): points then go
+    /// straight from input to output.
+    pub(crate) fn is_passthrough(&self) -> bool {
+        self.roi.is_none()
+            && self.range_window.is_none()
+            && self.min_intensity.is_none()
+            && self.speckle.is_none()
+            && self.median.is_none()
+            && self.decimation.is_none_or(|d| d.factor <= 1)
+    }
+
     /// Checks every parameter; the pipeline only ever runs validated settings.
     pub fn validate(&self) -> Result<(), ConfigError> {
         if let Some(roi) = self.roi {

@@ -75,7 +75,10 @@
 //! points, announced by `begin_scan`; any scan gives at most that many. Measured with
 //! callgrind (x86-64, release, a 1081-point scan fed 21 points at a time): about 84
 //! instructions per point with every stage off and about 450 with every stage on
-//! (median of 5, mean of 3); `benches/pipeline.rs` times the same cases.
+//! (median of 5, mean of 3); `benches/pipeline.rs` times the same cases. With every
+//! stage off, `push_batch` and `push_iter` skip the stages altogether (a sequence check
+//! and the sink call per point, the counters added once per call); the bridge engine
+//! feeds each data line that way (BENCHMARKS.md, "Bridge core").
 
 // No panics on any input: the input paths may not index, unwrap or overflow.
 #![cfg_attr(
@@ -250,9 +253,58 @@ impl Pipeline {
     /// Feeds several consecutive points (e.g. one data line's worth); the same as pushing
     /// them one by one.
     pub fn push_batch<S: PointSink + ?Sized>(&mut self, points: &[RawPoint], sink: &mut S) {
-        for p in points {
-            self.push(*p, sink);
+        self.push_iter(points.iter().copied(), sink);
+    }
+
+    /// Feeds consecutive points from an iterator (e.g. built from a data line's readings
+    /// without a copy); the same as pushing them one by one. With every stage off (no
+    /// region, filter or decimation) the points take a direct path: a sequence check and
+    /// the sink call, the counters added once per call.
+    pub fn push_iter<I, S>(&mut self, points: I, sink: &mut S)
+    where
+        I: IntoIterator<Item = RawPoint>,
+        S: PointSink + ?Sized,
+    {
+        if !self.config.is_passthrough() {
+            for p in points {
+                self.push(p, sink);
+            }
+            return;
         }
+        let Open::Active(scan) = &mut self.open else {
+            for _ in points {
+                bump(&mut self.stats.points_in);
+                bump(&mut self.stats.points_ignored);
+            }
+            return;
+        };
+        // Counted here, added to the saturating counters once.
+        let (mut pushed, mut out_of_sequence, mut emitted, mut invalid) =
+            (0usize, 0usize, 0usize, 0usize);
+        for point in points {
+            pushed = pushed.saturating_add(1);
+            let step = u32::from(point.step);
+            if scan.broken || step != scan.next_step || step > scan.last_point_step {
+                scan.broken = true;
+                out_of_sequence = out_of_sequence.saturating_add(1);
+                continue;
+            }
+            scan.next_step = scan.next_step.saturating_add(scan.cluster);
+            emitted = emitted.saturating_add(1);
+            invalid = invalid.saturating_add(usize::from(!point.valid));
+            sink.point(Point {
+                step: point.step,
+                range_mm: point.valid.then_some(point.distance),
+                intensity: point.intensity,
+            });
+        }
+        scan.emitted = scan.emitted.saturating_add(emitted);
+        let st = &mut self.stats;
+        add(&mut st.points_in, pushed);
+        add(&mut st.sequence_errors, out_of_sequence);
+        add(&mut st.invalid_error_code, invalid);
+        add(&mut st.points_out, emitted);
+        add(&mut st.points_out_invalid, invalid);
     }
 
     /// Ends the scan. When `intact` and every announced point arrived in sequence, the
@@ -1076,5 +1128,77 @@ mod tests {
             core::mem::size_of::<Pipeline>()
         );
         assert!(core::mem::size_of::<Pipeline>() <= 768);
+    }
+
+    proptest::proptest! {
+        /// The direct path `push_batch` takes when every stage is off gives the same
+        /// points, the same end and the same counters as pushing the points one by one
+        /// through every stage, also for points out of sequence, past the end, or with no
+        /// scan open.
+        #[test]
+        fn passthrough_batches_match_single_pushes(
+            inputs in proptest::collection::vec(
+                (0u16..4, 0u32..3000, proptest::option::of(0u32..70_000), proptest::bool::ANY),
+                0..60,
+            ),
+            cluster in 1u16..4,
+            count in 1u16..40,
+            decimate_by_one in proptest::bool::ANY,
+            open in proptest::bool::ANY,
+            sizes in proptest::collection::vec(1usize..25, 1..5),
+        ) {
+            let config = PipelineConfig {
+                decimation: decimate_by_one.then_some(Decimation {
+                    factor: 1,
+                    mode: DecimationMode::Min,
+                }),
+                ..PipelineConfig::default()
+            };
+            proptest::prop_assert!(config.is_passthrough());
+            let info = ScanInfo {
+                seq: 0,
+                timestamp_ms: 0,
+                first_step: 10,
+                last_step: 10 + (count - 1) * cluster,
+                cluster,
+            };
+            // Mostly in sequence; a skip of 1..3 values now and then.
+            let mut step = 10u16;
+            let points: Vec<RawPoint> = inputs
+                .iter()
+                .map(|&(skip, distance, intensity, valid)| {
+                    if skip == 3 {
+                        step += cluster;
+                    }
+                    let p = RawPoint { step, distance, intensity, valid };
+                    step += cluster;
+                    p
+                })
+                .collect();
+            let run = |batched: bool| {
+                let mut p = Pipeline::new(config).unwrap();
+                if open {
+                    p.begin_scan(info);
+                }
+                let mut out = Vec::new();
+                if batched {
+                    let mut rest = &points[..];
+                    let mut i = 0;
+                    while !rest.is_empty() {
+                        let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
+                        p.push_batch(a, &mut |x| out.push(x));
+                        rest = b;
+                        i += 1;
+                    }
+                } else {
+                    for x in &points {
+                        p.push(*x, &mut |x| out.push(x));
+                    }
+                }
+                let end = p.end_scan(true, &mut |x| out.push(x));
+                (out, end, *p.stats())
+            };
+            proptest::prop_assert_eq!(run(true), run(false));
+        }
     }
 }
