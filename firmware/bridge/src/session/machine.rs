@@ -459,12 +459,7 @@ impl Session {
                     if self.config.bit_rate.is_some() {
                         self.push_action(Action::SetBitRate(self.config.initial_bit_rate));
                     }
-                    self.state = State::Backoff;
-                    self.backoff_until = now + u64::from(self.backoff_ms);
-                    self.backoff_ms = self
-                        .backoff_ms
-                        .saturating_mul(2)
-                        .min(self.config.backoff_max_ms);
+                    self.back_off(now);
                 }
             }
             State::Off | State::Streaming | State::Backoff => {}
@@ -544,15 +539,21 @@ impl Session {
             // The sensor does not even answer QT/RS: wait, then probe from scratch.
             self.pending = None;
             self.retries = 0;
-            self.state = State::Backoff;
-            self.backoff_until = now + u64::from(self.backoff_ms);
-            self.backoff_ms = self
-                .backoff_ms
-                .saturating_mul(2)
-                .min(self.config.backoff_max_ms);
+            self.back_off(now);
             return None;
         }
         self.recover(reason, now)
+    }
+
+    /// Waits the current back-off before probing again; the next one is twice as long
+    /// (up to the maximum).
+    fn back_off(&mut self, now: u64) {
+        self.state = State::Backoff;
+        self.backoff_until = now + u64::from(self.backoff_ms);
+        self.backoff_ms = self
+            .backoff_ms
+            .saturating_mul(2)
+            .min(self.config.backoff_max_ms);
     }
 
     fn recover(&mut self, reason: RecoverReason, now: u64) -> Option<Notice> {
