@@ -80,20 +80,22 @@ impl CentredWindow {
     }
 
     /// Adds the next point; returns the window of the point that became complete, if any.
-    /// Constant work: two writes and a few index computations.
+    /// Constant work: two writes and a few index computations. (Wrapping arithmetic on
+    /// the indices: each stays at most `span <= WINDOW_CAP`, so none ever wraps.)
     pub fn push(&mut self, p: Point) -> Option<Window<'_>> {
-        if let Some(slot) = self.buf.get_mut(self.head) {
+        let head = self.head;
+        if let Some(slot) = self.buf.get_mut(head) {
             *slot = p;
         }
-        if let Some(slot) = self.buf.get_mut(self.head.saturating_add(self.span)) {
+        if let Some(slot) = self.buf.get_mut(head.wrapping_add(self.span)) {
             *slot = p;
         }
-        self.head = self.head.saturating_add(1);
-        if self.head >= self.span {
-            self.head = 0;
+        let next = head.wrapping_add(1);
+        self.head = if next >= self.span { 0 } else { next };
+        if self.len < self.span {
+            self.len = self.len.wrapping_add(1);
         }
-        self.len = self.len.saturating_add(1).min(self.span);
-        self.pending = self.pending.saturating_add(1);
+        self.pending = self.pending.wrapping_add(1);
         if self.pending > self.half {
             self.emit()
         } else {
@@ -109,19 +111,19 @@ impl CentredWindow {
         self.emit()
     }
 
-    /// Emits the oldest pending point; its window runs to the newest point held, which
-    /// is `half` points after it, or fewer at the end of the scan.
+    /// Emits the oldest pending point (there is one); its window runs to the newest
+    /// point held, which is `half` points after it, or fewer at the end of the scan.
     fn emit(&mut self) -> Option<Window<'_>> {
         let centre = self.len.checked_sub(self.pending)?;
-        self.pending = self.pending.saturating_sub(1);
+        self.pending = self.pending.wrapping_sub(1);
         let start = centre.saturating_sub(self.half);
         // The held points, oldest first, end just before `head + span`.
-        let end = self.head.saturating_add(self.span);
-        let first = end.checked_sub(self.len)?.saturating_add(start);
+        let end = self.head.wrapping_add(self.span);
+        let first = end.checked_sub(self.len)?.wrapping_add(start);
         let points = self.buf.get(first..end)?;
         Some(Window {
             points,
-            centre: centre.saturating_sub(start),
+            centre: centre.wrapping_sub(start),
         })
     }
 }
@@ -172,6 +174,20 @@ pub(crate) fn median(w: &Window<'_>) -> Point {
     let Some(own) = c.range_mm else {
         return c;
     };
+    // The common case, a whole window of 3 valid ranges: their median, no sort.
+    if let [Point {
+        range_mm: Some(a), ..
+    }, _, Point {
+        range_mm: Some(b), ..
+    }] = w.points
+    {
+        if w.centre == 1 {
+            return Point {
+                range_mm: Some(own.min(*a).max(own.max(*a).min(*b))),
+                ..c
+            };
+        }
+    }
     let mut vals = [0u32; WINDOW_CAP];
     let mut n = 0usize;
     for r in w.points.iter().filter_map(|p| p.range_mm) {
