@@ -626,11 +626,6 @@ pub fn rx0_read(buf: &mut [u8]) -> usize {
     n
 }
 
-/// Whether UART0's receive ring holds bytes.
-pub fn rx0_pending() -> bool {
-    RX0_HEAD.load(Ordering::Acquire) != RX0_TAIL.load(Ordering::Relaxed)
-}
-
 /// Bytes waiting in UART0's receive ring.
 pub fn rx0_len() -> usize {
     RX0_HEAD
