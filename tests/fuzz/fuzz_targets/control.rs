@@ -12,7 +12,10 @@ fuzz_target!(|data: &[u8]| {
             assert_eq!(Answer::parse(&answer.emit()), Ok(answer));
         }
         Ok(control) => {
-            control.command.validate().expect("a parsed request is valid");
+            control
+                .command
+                .validate()
+                .expect("a parsed request is valid");
             let mut buf = [0u8; 8];
             let n = control.emit(&mut buf).expect("a parsed request emits");
             assert_eq!(Control::parse(&buf[..n]), Ok(control), "round trip");

@@ -59,10 +59,7 @@ impl Checker {
                     }
                 }
             }
-            Event::Status(_)
-            | Event::Field(_)
-            | Event::Timestamp(_)
-            | Event::Payload(_) => {
+            Event::Status(_) | Event::Field(_) | Event::Timestamp(_) | Event::Payload(_) => {
                 assert!(live, "payload event outside a live response");
             }
         }
@@ -117,9 +114,15 @@ fuzz_target!(|data: &[u8]| {
     };
     let whole = run(stream, || usize::MAX);
     let reference = run_with(Decoder::char_by_char(), stream, || usize::MAX);
-    assert_eq!(whole, reference, "fast path differs from the char-by-char reference");
+    assert_eq!(
+        whole, reference,
+        "fast path differs from the char-by-char reference"
+    );
     let bytewise = run(stream, || 1);
-    assert_eq!(whole, bytewise, "byte-by-byte feeding differs from one-shot");
+    assert_eq!(
+        whole, bytewise,
+        "byte-by-byte feeding differs from one-shot"
+    );
     let chunked = if sel < 0x80 {
         // Fixed chunks of 1..=128 bytes.
         let size = usize::from(sel) + 1;
@@ -134,5 +137,8 @@ fuzz_target!(|data: &[u8]| {
             (x % 80) as usize + 1
         })
     };
-    assert_eq!(whole, chunked, "chunked feeding (selector {sel}) differs from one-shot");
+    assert_eq!(
+        whole, chunked,
+        "chunked feeding (selector {sel}) differs from one-shot"
+    );
 });
