@@ -766,16 +766,28 @@ fn emit_point<const Q: usize>(
     let intensity = p
         .intensity
         .map_or(0, |i| u16::try_from(i).unwrap_or(u16::MAX));
-    match encoder.push_point(distance, intensity) {
-        Ok(Some(frame)) => {
-            if Q.saturating_sub(queue.len()) >= 2 {
-                push(queue, frame, stats);
-            } else {
-                *overflow = true;
-                stats.queue_overflows += 1;
-            }
+    // A due data frame is built in a new back slot of the queue, not moved into it.
+    let mut queued = false;
+    let result = encoder.push_point_into(distance, intensity, || {
+        if Q.saturating_sub(queue.len()) >= 2 && queue.push_back(Frame::default()).is_ok() {
+            queued = true;
+            queue.back_mut()
+        } else {
+            None
         }
-        Ok(None) => {}
-        Err(_) => *filtered = true,
+    });
+    match result {
+        Ok(true) if queued => stats.frames += 1,
+        Ok(true) => {
+            *overflow = true;
+            stats.queue_overflows += 1;
+        }
+        Ok(false) => {}
+        Err(_) => {
+            if queued {
+                queue.pop_back();
+            }
+            *filtered = true;
+        }
     }
 }

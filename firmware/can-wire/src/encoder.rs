@@ -190,6 +190,40 @@ impl ScanEncoder {
         distance: Distance,
         intensity: u16,
     ) -> Result<Option<Frame>, Error> {
+        if !self.add(distance, intensity)? {
+            return Ok(None);
+        }
+        let mut frame = Frame::default();
+        self.flush_into(&mut frame)?;
+        Ok(Some(frame))
+    }
+
+    /// Add the next point, like [`ScanEncoder::push_point`], but a due data frame is
+    /// written in place into the frame `slot` returns (typically a queue's new back
+    /// slot), so no frame moves by value: on a 32-bit MCU each move is a 76-byte copy.
+    /// When `slot` returns `None` the frame is built and dropped, and the scan goes on
+    /// as if it had been sent. Returns whether a data frame was due; on an error after
+    /// `slot` was called, the slot's frame is left as it was.
+    #[inline]
+    pub fn push_point_into<'f>(
+        &mut self,
+        distance: Distance,
+        intensity: u16,
+        slot: impl FnOnce() -> Option<&'f mut Frame>,
+    ) -> Result<bool, Error> {
+        if !self.add(distance, intensity)? {
+            return Ok(false);
+        }
+        match slot() {
+            Some(frame) => self.flush_into(frame)?,
+            None => self.flush_into(&mut Frame::default())?,
+        }
+        Ok(true)
+    }
+
+    /// Packs a point; returns whether a data frame is due (full, or the scan's last).
+    #[inline(always)]
+    fn add(&mut self, distance: Distance, intensity: u16) -> Result<bool, Error> {
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         if s.pushed >= s.header.point_count {
             return Err(Error::TooManyPoints);
@@ -219,16 +253,13 @@ impl ScanEncoder {
         s.valid += u16::from(s.coder.is_valid(dc));
         s.pushed += 1;
         s.buffered += 1;
-        if s.buffered >= s.capacity || s.pushed == s.header.point_count {
-            self.flush().map(Some)
-        } else {
-            Ok(None)
-        }
+        Ok(s.buffered >= s.capacity || s.pushed == s.header.point_count)
     }
 
-    /// Turn the buffered points into a data frame, and their codes into the CRC.
+    /// Turn the buffered points into a data frame (written into `out`), and their codes
+    /// into the CRC.
     #[inline(never)]
-    fn flush(&mut self) -> Result<Frame, Error> {
+    fn flush_into(&mut self, out: &mut Frame) -> Result<(), Error> {
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         let len = data_frame_len(&s.header.encoding, usize::from(s.buffered))
             .ok_or(Error::FrameTooLong)?;
@@ -253,13 +284,13 @@ impl ScanEncoder {
         put(s.packer.bytes_mut(), 0..DATA_HEADER_LEN, &dh.emit());
         s.sent += s.buffered;
         s.buffered = 0;
-        let frame = Frame::new(
+        let done = out.set(
             self.ids.id(Kind::Data),
             s.packer.bytes_mut().get(..len).ok_or(Error::FrameTooLong)?,
             self.format.is_fd(),
         );
         s.packer.clear(DATA_HEADER_LEN);
-        frame
+        done
     }
 
     /// End the scan: returns the last data frame if points are still buffered (only when
@@ -268,7 +299,8 @@ impl ScanEncoder {
         let mut out = Emitted::new();
         let buffered = self.scan.as_ref().ok_or(Error::NoScan)?.buffered;
         if buffered > 0 {
-            let f = self.flush()?;
+            let mut f = Frame::default();
+            self.flush_into(&mut f)?;
             out.push(f).map_err(|_| Error::FrameTooLong)?;
         }
         let s = self.scan.take().ok_or(Error::NoScan)?;
@@ -332,6 +364,46 @@ mod tests {
         intensity: IntensityEncoding::None,
         unit_exp: 0,
     };
+
+    #[test]
+    fn in_place_frames_equal_returned_frames_and_a_dropped_one_still_counts() {
+        let ids = IdWindow::DEFAULT.node(2).unwrap();
+        let mut a = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+        let mut b = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+        a.begin(&header(5, D12)).unwrap();
+        b.begin(&header(5, D12)).unwrap();
+        let pts = [
+            Distance::Mm(0xABC),
+            Distance::Invalid,
+            Distance::OutOfRange,
+            Distance::Mm(0x123),
+            Distance::Mm(5000),
+        ];
+        let mut returned = Vec::new();
+        // A stale slot: the frame written into it must not keep old bytes.
+        let mut slot = Frame::new(sid(0x7FF), &[0xEE; 8], false).unwrap();
+        let mut due = Vec::new();
+        for p in pts {
+            returned.extend(a.push_point(p, 0).unwrap());
+            due.push(b.push_point_into(p, 0, || Some(&mut slot)).unwrap());
+        }
+        assert_eq!(due, [false, false, false, true, true]);
+        assert_eq!(slot, returned[1]);
+        assert_eq!(slot.data(), &[0x04, 0x70, 0xFF, 0x0F]);
+        // Dropped frames (no slot) advance the scan the same: same trailer.
+        let mut c = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+        c.begin(&header(5, D12)).unwrap();
+        for p in pts {
+            c.push_point_into(p, 0, || None).unwrap();
+        }
+        let tb = b.finish(TrailerFlags::default()).unwrap();
+        assert_eq!(c.finish(TrailerFlags::default()).unwrap()[0], tb[0]);
+        assert_eq!(a.finish(TrailerFlags::default()).unwrap()[0], tb[0]);
+        assert_eq!(
+            b.push_point_into(Distance::Invalid, 0, || None),
+            Err(Error::NoScan)
+        );
+    }
 
     #[test]
     fn golden_scan_classic() {

@@ -328,9 +328,18 @@ impl Packer {
         &mut self.buf
     }
 
-    /// Empties the packer; the next field goes at byte `start`.
+    /// Empties the packer; the next field goes at byte `start` (at most the current
+    /// position: callers only write below their first field's byte).
     pub(crate) fn clear(&mut self, start: usize) {
-        *self = Packer::new(start);
+        // Stores reach at most 4 bytes from `pos`, so the bytes past those are still
+        // zero: only the written ones are cleared (a classic frame's 12, not 67).
+        let end = self.pos.saturating_add(4).min(PACKER_LEN);
+        if let Some(written) = self.buf.get_mut(..end) {
+            written.fill(0);
+        }
+        self.pos = start;
+        self.acc = 0;
+        self.nbits = 0;
     }
 }
 
@@ -501,6 +510,10 @@ mod tests {
             }
             proptest::prop_assert!(r.rest_is_zero());
             proptest::prop_assert_eq!(&bytes[..2], &[0, 0]);
+            // Clearing only the written bytes leaves the packer as a new one.
+            w.clear(2);
+            proptest::prop_assert_eq!(w.position(), 16);
+            proptest::prop_assert!(w.bytes_mut().iter().all(|&b| b == 0));
         }
     }
 }

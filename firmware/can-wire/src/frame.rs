@@ -33,10 +33,15 @@ pub const fn is_valid_len(len: usize) -> bool {
 }
 
 /// A data frame (no remote frames: the protocol does not use them).
+///
+/// The payload comes first and word-aligned (`repr(C)`): a frame moves by value (out of
+/// the encoder, into and out of queues), and on a 32-bit MCU a payload at an odd offset
+/// (where the default layout put it) is copied byte by byte.
 #[derive(Clone, Copy, PartialEq, Eq)]
+#[repr(C, align(4))]
 pub struct Frame {
-    id: Id,
     data: [u8; MAX_LEN],
+    id: Id,
     len: u8,
     fd: bool,
 }
@@ -66,6 +71,32 @@ impl Frame {
         })
     }
 
+    /// Makes this frame what [`Frame::new`] would return for the same arguments, in
+    /// place (no frame moves by value); on error the frame is left as it was.
+    pub fn set(&mut self, id: Id, data: &[u8], fd: bool) -> Result<(), Error> {
+        let len = data.len();
+        let ok = if fd {
+            is_valid_len(len)
+        } else {
+            len <= CLASSIC_LEN
+        };
+        if !ok {
+            return Err(Error::FrameTooLong);
+        }
+        // The bytes past `len` are zero in every frame: only the old payload's bytes
+        // past the new one are cleared (none when the slot is fresh).
+        if let Some(stale) = self.data.get_mut(len..usize::from(self.len)) {
+            stale.fill(0);
+        }
+        if let Some(head) = self.data.get_mut(..len) {
+            head.copy_from_slice(data);
+        }
+        self.id = id;
+        self.len = len as u8;
+        self.fd = fd;
+        Ok(())
+    }
+
     /// The identifier.
     pub fn id(&self) -> Id {
         self.id
@@ -79,6 +110,18 @@ impl Frame {
     /// Whether this is a CAN FD frame.
     pub fn is_fd(&self) -> bool {
         self.fd
+    }
+}
+
+impl Default for Frame {
+    /// A classic frame with standard id 0 and no data: a slot to [`Frame::set`].
+    fn default() -> Self {
+        Frame {
+            data: [0; MAX_LEN],
+            id: Id::Standard(embedded_can::StandardId::ZERO),
+            len: 0,
+            fd: false,
+        }
     }
 }
 
@@ -129,6 +172,23 @@ mod tests {
 
     fn id() -> Id {
         Id::Standard(StandardId::new(0x150).unwrap())
+    }
+
+    #[test]
+    fn set_in_place_equals_new_and_an_error_changes_nothing() {
+        let mut f = Frame::new(id(), &[9; 12], true).unwrap();
+        f.set(id(), &[1, 2, 3], false).unwrap();
+        assert_eq!(f, Frame::new(id(), &[1, 2, 3], false).unwrap());
+        assert_eq!(f.data(), &[1, 2, 3]);
+        assert!(!f.is_fd());
+        let before = f;
+        assert_eq!(f.set(id(), &[0; 9], false), Err(Error::FrameTooLong));
+        assert_eq!(f.set(id(), &[0; 13], true), Err(Error::FrameTooLong));
+        assert_eq!(f, before);
+        assert_eq!(
+            Frame::default(),
+            Frame::new(Id::Standard(StandardId::ZERO), &[], false).unwrap()
+        );
     }
 
     #[test]
