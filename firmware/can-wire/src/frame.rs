@@ -88,8 +88,17 @@ impl Frame {
         if let Some(stale) = self.data.get_mut(len..usize::from(self.len)) {
             stale.fill(0);
         }
+        // Word by word: `copy_from_slice` of a run-time length is a `memcpy` call that
+        // copies short payloads byte by byte (every FD length is whole words).
         if let Some(head) = self.data.get_mut(..len) {
-            head.copy_from_slice(data);
+            let mut to = head.chunks_exact_mut(4);
+            let mut from = data.chunks_exact(4);
+            for (t, f) in (&mut to).zip(&mut from) {
+                t.copy_from_slice(f);
+            }
+            for (t, f) in to.into_remainder().iter_mut().zip(from.remainder()) {
+                *t = *f;
+            }
         }
         self.id = id;
         self.len = len as u8;

@@ -278,20 +278,22 @@ impl Pipeline {
             }
             return;
         };
-        // Counted here, added to the saturating counters once.
+        // Counted here, added to the saturating counters once. Each count is at most
+        // the number of points this call takes, so a plain add cannot wrap (and costs
+        // one instruction on a 32-bit MCU where a saturating one costs three).
         let (mut pushed, mut out_of_sequence, mut emitted, mut invalid) =
             (0usize, 0usize, 0usize, 0usize);
         for point in points {
-            pushed = pushed.saturating_add(1);
+            pushed = pushed.wrapping_add(1);
             let step = u32::from(point.step);
             if scan.broken || step != scan.next_step || step > scan.last_point_step {
                 scan.broken = true;
-                out_of_sequence = out_of_sequence.saturating_add(1);
+                out_of_sequence = out_of_sequence.wrapping_add(1);
                 continue;
             }
             scan.next_step = scan.next_step.saturating_add(scan.cluster);
-            emitted = emitted.saturating_add(1);
-            invalid = invalid.saturating_add(usize::from(!point.valid));
+            emitted = emitted.wrapping_add(1);
+            invalid = invalid.wrapping_add(usize::from(!point.valid));
             sink.point(Point {
                 step: point.step,
                 range_mm: point.valid.then_some(point.distance),
