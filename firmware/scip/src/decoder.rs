@@ -990,13 +990,65 @@ impl Decoder {
 }
 
 /// The sum char of `bytes` (as [`checksum`]) and whether every byte is a value char
-/// (`0x30..=0x6F`), in one branch-free pass that vectorises.
+/// (`0x30..=0x6F`), in one branch-free pass: bytewise where that vectorises, a 32-bit
+/// word at a time on 32-bit targets (a Cortex-M4 has no vectors for it).
 #[inline]
 fn sum_and_check(bytes: &[u8]) -> (u8, bool) {
-    let (sum, chars) = bytes.iter().fold((0u8, 0u8), |(sum, chars), &c| {
-        (sum.wrapping_add(c), chars | c.wrapping_sub(CHAR_MIN))
-    });
+    #[cfg(target_pointer_width = "32")]
+    {
+        sum_and_check_words(bytes)
+    }
+    #[cfg(not(target_pointer_width = "32"))]
+    {
+        sum_and_check_bytes(bytes)
+    }
+}
+
+/// [`sum_and_check`] a byte at a time.
+#[cfg_attr(target_pointer_width = "32", allow(dead_code))]
+#[inline]
+fn sum_and_check_bytes(bytes: &[u8]) -> (u8, bool) {
+    let (sum, chars) = fold_chars(bytes);
     ((sum & 0x3F) + 0x30, chars < 0x40)
+}
+
+/// The byte sum and the OR of every `c - 0x30` (below `0x40` iff all are value chars).
+#[inline(always)]
+fn fold_chars(bytes: &[u8]) -> (u8, u8) {
+    bytes.iter().fold((0u8, 0u8), |(sum, chars), &c| {
+        (sum.wrapping_add(c), chars | c.wrapping_sub(CHAR_MIN))
+    })
+}
+
+/// [`sum_and_check`] four bytes at a time. The sum goes into two 16-bit lanes (bytes 0
+/// and 2, bytes 1 and 3), kept below `2^12` so no lane carries into the next (only the
+/// sum mod 64 counts). The check tests every byte's top bit after arithmetic that never
+/// carries or borrows across bytes: a value char has its top bit clear, `c + 0x10`
+/// below `0x80` (`c <= 0x6F`) and `(c | 0x80) - 0x30` at least `0x80` (`c >= 0x30`).
+#[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+#[inline]
+fn sum_and_check_words(bytes: &[u8]) -> (u8, bool) {
+    const HIGHS: u32 = 0x8080_8080;
+    const LOWS: u32 = 0x7F7F_7F7F;
+    const EVEN: u32 = 0x00FF_00FF;
+    let mut words = bytes.chunks_exact(4);
+    let (mut lanes, mut bad) = (0u32, 0u32);
+    for word in &mut words {
+        let w = u32::from_le_bytes(word.try_into().unwrap_or([0; 4]));
+        lanes = (lanes & 0x0FFF_0FFF)
+            .wrapping_add(w & EVEN)
+            .wrapping_add((w >> 8) & EVEN);
+        let low = w & LOWS;
+        bad |= w | low.wrapping_add(0x1010_1010) | !(low | HIGHS).wrapping_sub(0x3030_3030);
+    }
+    let (rest_sum, rest_chars) = fold_chars(words.remainder());
+    let sum = (lanes & 0xFFFF)
+        .wrapping_add(lanes >> 16)
+        .wrapping_add(u32::from(rest_sum));
+    (
+        (sum & 0x3F) as u8 + 0x30,
+        bad & HIGHS == 0 && rest_chars < 0x40,
+    )
 }
 
 /// The value of `N` valid value chars (see [`sum_and_check`]), most significant first.
@@ -1057,6 +1109,45 @@ mod tests {
     use super::*;
     use crate::command::ScanMode;
     use crate::response::ResponseWriter;
+
+    #[test]
+    fn word_sum_and_check_equals_the_bytewise_one() {
+        let chars: Vec<u8> = (0x30..=0x6F).collect();
+        let check = |line: &[u8]| {
+            let words = sum_and_check_words(line);
+            assert_eq!(words, sum_and_check_bytes(line), "{line:?}");
+            words
+        };
+        // Every byte value at every position of short lines of value chars.
+        for len in 1..=9 {
+            for pos in 0..len {
+                for b in 0..=255u8 {
+                    let mut line = chars[..len].to_vec();
+                    line[pos] = b;
+                    let (_, valid) = check(&line);
+                    assert_eq!(valid, (0x30..=0x6F).contains(&b));
+                }
+            }
+        }
+        // Pseudo-random lines of value chars, some with one arbitrary byte.
+        let mut x = 0x1234_5678u32;
+        let mut next = || {
+            x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            x >> 8
+        };
+        for _ in 0..20_000 {
+            let len = next() as usize % 200;
+            let mut line: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
+            if len > 0 && next() % 2 == 0 {
+                let at = next() as usize % len;
+                line[at] = next() as u8;
+            }
+            check(&line);
+        }
+        // Long lines of the largest chars: no lane carries into the next.
+        assert_eq!(check(&[0x6F; 1001]), (checksum(&[0x6F; 1001]), true));
+        assert_eq!(check(&[]), (0x30, true));
+    }
 
     const SETS: [DataSet; 5] = [
         DataSet::Distance,
