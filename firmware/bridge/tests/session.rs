@@ -137,8 +137,12 @@ impl Rig {
             match action {
                 Some(Action::Send(req)) => {
                     self.sent.push(req);
-                    let answer = self.sensor.answer(&req);
-                    self.feed(&answer, now);
+                    // A sensor at another bit rate hears nothing the host says.
+                    let link = self.rates.last().copied().unwrap_or(115_200);
+                    if link == self.sensor.baud {
+                        let answer = self.sensor.answer(&req);
+                        self.feed(&answer, now);
+                    }
                 }
                 Some(Action::SetBitRate(r)) => self.rates.push(r),
                 None => return,
@@ -366,4 +370,55 @@ fn refused_parameters_turn_the_session_off() {
     rig.session.stop(10);
     rig.run(10);
     assert_eq!(rig.notices.last(), Some(&Notice::Stopped));
+}
+
+#[test]
+fn a_sensor_left_at_the_raised_rate_is_found_there() {
+    // The MCU reset; the sensor still runs at the 500 000 bit/s an earlier session set.
+    let mut rig = Rig::new(
+        SessionConfig {
+            bit_rate: Some(500_000),
+            ..config()
+        },
+        false,
+    );
+    rig.sensor.baud = 500_000;
+    rig.session.start(0);
+    rig.run(0);
+    rig.run(1001);
+    rig.run(2002);
+    assert!(rig.rates.is_empty());
+    // Silent three times at 115 200: the session tries the raised rate.
+    rig.run(3003);
+    assert_eq!(rig.rates, [500_000]);
+    assert_eq!(rig.session.state(), State::Streaming);
+    // SS to the rate it already runs at is answered 03: no second switch.
+    assert_eq!(rig.rates, [500_000]);
+    assert_eq!(rig.codes()[..4], ["QT", "QT", "QT", "QT"]);
+    assert!(rig
+        .notices
+        .iter()
+        .all(|n| !matches!(n, Notice::Recovering(_))));
+}
+
+#[test]
+fn a_silent_sensor_at_both_rates_is_recovered_at_the_power_up_rate() {
+    let mut rig = Rig::new(
+        SessionConfig {
+            bit_rate: Some(500_000),
+            ..config()
+        },
+        false,
+    );
+    rig.sensor.mute = true;
+    rig.session.start(0);
+    for t in [0, 1001, 2002, 3003, 4004, 5005, 6006] {
+        rig.run(t);
+    }
+    // Three tries at each rate, then back to the power-up rate to recover.
+    assert_eq!(rig.rates, [500_000, 115_200]);
+    assert_eq!(
+        rig.notices.first(),
+        Some(&Notice::Recovering(RecoverReason::Timeout))
+    );
 }

@@ -147,6 +147,8 @@ pub struct Session {
     backoff_until: u64,
     reached_scip2: bool,
     sync_wanted: bool,
+    /// The UART bit rate the session last asked for (the power-up rate at first).
+    link_rate: u32,
     params: SensorParams,
     stats: SessionStats,
 }
@@ -173,6 +175,7 @@ impl Session {
             backoff_until: 0,
             reached_scip2: false,
             sync_wanted: false,
+            link_rate: config.initial_bit_rate,
             params: SensorParams::default(),
             stats: SessionStats::default(),
         })
@@ -411,7 +414,7 @@ impl Session {
             State::BitRate => {
                 if kind == StatusKind::Ok {
                     if let Some(rate) = self.config.bit_rate {
-                        self.push_action(Action::SetBitRate(rate));
+                        self.set_link_rate(rate);
                     }
                 }
                 self.start_stream(now);
@@ -457,7 +460,7 @@ impl Session {
                 } else {
                     // RS puts the sensor's bit rate back to its power-up value.
                     if self.config.bit_rate.is_some() {
-                        self.push_action(Action::SetBitRate(self.config.initial_bit_rate));
+                        self.set_link_rate(self.config.initial_bit_rate);
                     }
                     self.back_off(now);
                 }
@@ -535,6 +538,20 @@ impl Session {
             self.send(self.state, request, now);
             return None;
         }
+        if self.state == State::Probe {
+            if let Some(raised) = self.config.bit_rate {
+                if self.link_rate != raised {
+                    // Silent at the power-up rate: the sensor may still run at the rate an
+                    // earlier session raised it to (the MCU reset, the sensor did not).
+                    self.set_link_rate(raised);
+                    self.retries = 0;
+                    self.stats.retries += 1;
+                    self.send(State::Probe, request, now);
+                    return None;
+                }
+                self.set_link_rate(self.config.initial_bit_rate);
+            }
+        }
         if self.state == State::Resetting {
             // The sensor does not even answer QT/RS: wait, then probe from scratch.
             self.pending = None;
@@ -561,6 +578,12 @@ impl Session {
         self.retries = 0;
         self.send(State::Resetting, Request::new(Command::LaserOff), now);
         Some(Notice::Recovering(reason))
+    }
+
+    /// Asks the caller to switch the UART to `rate`, and remembers it.
+    fn set_link_rate(&mut self, rate: u32) {
+        self.link_rate = rate;
+        self.push_action(Action::SetBitRate(rate));
     }
 
     fn push_action(&mut self, action: Action) {
