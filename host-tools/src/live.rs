@@ -118,14 +118,7 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         }
         while let Some(action) = bridge.poll(now_ms()) {
             match action {
-                Action::Send(request) => {
-                    let mut line = [0u8; scip::REQUEST_MAX];
-                    let len = request
-                        .encode(&mut line)
-                        .map_err(|e| anyhow::anyhow!("encoding {request:?}: {e}"))?;
-                    link.send(line.get(..len).unwrap_or(&[]))
-                        .context("writing to the sensor")?;
-                }
+                Action::Send(request) => send(link.as_mut(), &request)?,
                 Action::SetBitRate(rate) => link
                     .set_bit_rate(rate)
                     .with_context(|| format!("switching the sensor link to {rate} bit/s"))?,
@@ -164,10 +157,8 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
     bridge.stop(now_ms());
     while let Some(action) = bridge.poll(now_ms()) {
         if let Action::Send(request) = action {
-            let mut line = [0u8; scip::REQUEST_MAX];
-            if let Ok(len) = request.encode(&mut line) {
-                let _ = link.send(line.get(..len).unwrap_or(&[]));
-            }
+            // Best effort: the sensor may already be gone.
+            let _ = send(link.as_mut(), &request);
         }
     }
     while let Some(frame) = bridge.pop_frame() {
@@ -181,6 +172,16 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Writes a session command to the sensor.
+fn send(link: &mut dyn link::Link, request: &scip::Request) -> anyhow::Result<()> {
+    let mut line = [0u8; scip::REQUEST_MAX];
+    let len = request
+        .encode(&mut line)
+        .map_err(|e| anyhow::anyhow!("encoding {request:?}: {e}"))?;
+    link.send(line.get(..len).unwrap_or(&[]))
+        .context("writing to the sensor")
 }
 
 /// Counters for the once-a-second line.
