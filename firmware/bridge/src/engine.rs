@@ -22,17 +22,17 @@
 //! the bridge's share assumed.
 
 use can_wire::{
-    AbortReason, Distance, Encoding, Frame, Grouping, NodeIds, ScanEncoder, ScanHeader,
-    TrailerFlags,
+    AbortReason, Distance, Encoding, Frame, FrameSink, Grouping, NodeIds, RunStop, ScanEncoder,
+    ScanHeader, TrailerFlags,
 };
-use heapless::Deque;
-use scip::{Command, Decoder, Event, Range, ScanMode, ScanRequest, Status};
+use scip::{Command, DataLine, Decoder, Event, Range, ScanMode, ScanRequest, Status};
 
 use crate::governor::{Budget, Governor};
 use crate::pipeline::{
     Decimation, DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo, ScanStart,
     TemporalDecimation,
 };
+use crate::queue::FrameQueue;
 use crate::session::{Action, Notice, RecoverReason, Session, SessionConfig, SessionError};
 
 /// Everything the bridge is configured with.
@@ -125,7 +125,7 @@ struct Core<const Q: usize> {
     pipeline: Pipeline,
     encoder: ScanEncoder,
     governor: Governor,
-    queue: Deque<Frame, Q>,
+    queue: FrameQueue<Q>,
     phase: Phase,
     seq: u16,
     overflow: bool,
@@ -164,7 +164,7 @@ impl<const Q: usize> Bridge<Q> {
                 encoder: ScanEncoder::new(config.ids, config.budget.format)
                     .map_err(BridgeError::Wire)?,
                 governor: Governor::new(config.budget),
-                queue: Deque::new(),
+                queue: FrameQueue::new(),
                 phase: Phase::None,
                 seq: 0,
                 overflow: false,
@@ -340,34 +340,7 @@ impl<const Q: usize> Core<Q> {
                 };
             }
             (Event::Timestamp(t), Phase::Framed(s)) => self.begin_scan(s, *t, now),
-            (Event::Data(line), Phase::Active(s)) => {
-                let cluster = u32::from(s.cluster.max(1));
-                let start = u32::from(s.start);
-                let has_aux = line.data.aux_width() > 0;
-                let width = line.data.distance_width();
-                let limits = line.limits;
-                let points = line.readings.iter().filter(|r| r.echo == 0).map(|r| {
-                    let step = start + u32::from(r.index) * cluster;
-                    RawPoint {
-                        step: u16::try_from(step).unwrap_or(u16::MAX),
-                        distance: r.distance,
-                        intensity: has_aux.then_some(r.aux),
-                        valid: matches!(limits.classify(r.distance, width), Range::Mm(_)),
-                    }
-                });
-                let Self {
-                    pipeline,
-                    encoder,
-                    queue,
-                    overflow,
-                    filtered,
-                    stats,
-                    ..
-                } = self;
-                pipeline.push_iter(points, &mut |p: Point| {
-                    emit_point(p, encoder, queue, overflow, filtered, stats)
-                });
-            }
+            (Event::Data(line), Phase::Active(s)) => self.data_line(line, &s),
             (Event::End(_), Phase::Active(_)) => self.finish_scan(),
             (Event::Error(e), Phase::Active(_)) => {
                 let reason = match e.kind {
@@ -382,6 +355,94 @@ impl<const Q: usize> Core<Q> {
         }
     }
 
+    /// One data line of the scan being published. With every pipeline stage off, the
+    /// line's readings go straight to the encoder in one run (the pipeline only counts
+    /// them); otherwise they go through the pipeline point by point.
+    fn data_line(&mut self, line: &DataLine<'_>, s: &ScanRequest) {
+        let cluster = u32::from(s.cluster.max(1));
+        let start = u32::from(s.start);
+        let has_aux = line.data.aux_width() > 0;
+        let width = line.data.distance_width();
+        let step = |index: u16| {
+            let step = start + u32::from(index) * cluster;
+            u16::try_from(step).unwrap_or(u16::MAX)
+        };
+        // Without multi-echo every reading is a first echo, the next step of the scan.
+        let first = line.readings.first().map(|r| step(r.index));
+        if let Some(first) = first.filter(|_| !s.multi_echo) {
+            if self.pipeline.pass_run(first, line.readings.len()) {
+                self.publish_run(line, width, has_aux);
+                return;
+            }
+        }
+        let limits = line.limits;
+        let points = line
+            .readings
+            .iter()
+            .filter(|r| r.echo == 0)
+            .map(|r| RawPoint {
+                step: step(r.index),
+                distance: r.distance,
+                intensity: has_aux.then_some(r.aux),
+                valid: matches!(limits.classify(r.distance, width), Range::Mm(_)),
+            });
+        let Self {
+            pipeline,
+            encoder,
+            queue,
+            overflow,
+            filtered,
+            stats,
+            ..
+        } = self;
+        pipeline.push_iter(points, &mut |p: Point| {
+            emit_point(p, encoder, queue, overflow, filtered, stats)
+        });
+    }
+
+    /// A line's readings, accepted by [`Pipeline::pass_run`], straight into the encoder:
+    /// what [`emit_point`] does for each of them, in one loop.
+    fn publish_run(&mut self, line: &DataLine<'_>, width: u8, has_aux: bool) {
+        let test = line.limits.range_test(width);
+        let invalid = line
+            .readings
+            .iter()
+            .filter(|r| !test.is_range(r.distance))
+            .count();
+        self.pipeline.count_invalid(invalid);
+        if self.overflow {
+            return;
+        }
+        let points = line.readings.iter().map(|r| {
+            let distance = if test.is_range(r.distance) {
+                Distance::Mm(r.distance)
+            } else {
+                Distance::Invalid
+            };
+            let intensity = if has_aux {
+                u16::try_from(r.aux).unwrap_or(u16::MAX)
+            } else {
+                0
+            };
+            (distance, intensity)
+        });
+        let mut slots = DataSlots(&mut self.queue);
+        match self.encoder.push_run(points, &mut slots) {
+            Ok(run) => {
+                self.stats.frames = self.stats.frames.wrapping_add(run.frames);
+                match run.stop {
+                    Some(RunStop::NoSlot) => {
+                        self.overflow = true;
+                        self.stats.queue_overflows += 1;
+                    }
+                    Some(RunStop::TooManyPoints) => self.filtered = true,
+                    None => {}
+                }
+            }
+            Err(_) => self.filtered = true,
+        }
+    }
+
     /// A frame that goes ahead of queued scan frames (control answers, status). It never
     /// takes the last free slot while a scan is open (that one is the trailer's).
     fn push_priority(&mut self, frame: Frame) {
@@ -390,7 +451,7 @@ impl<const Q: usize> Core<Q> {
         } else {
             1
         };
-        if Q.saturating_sub(self.queue.len()) >= reserve && self.queue.push_front(frame).is_ok() {
+        if self.queue.free() >= reserve && self.queue.push_front(frame).is_ok() {
             self.stats.frames += 1;
         } else {
             self.health.tx_overflows = self.health.tx_overflows.saturating_add(1);
@@ -740,7 +801,28 @@ fn carries_scan(s: &ScanRequest, status: Status) -> bool {
     }
 }
 
-fn push<const Q: usize>(queue: &mut Deque<Frame, Q>, f: Frame, stats: &mut BridgeStats) {
+/// The queue as the encoder's [`FrameSink`]: a data frame gets a slot when two are free
+/// (one stays for the scan's trailer or abort).
+struct DataSlots<'a, const Q: usize>(&'a mut FrameQueue<Q>);
+
+impl<const Q: usize> FrameSink for DataSlots<'_, Q> {
+    #[inline]
+    fn data_slot(&mut self) -> Option<&mut Frame> {
+        data_slot(self.0)
+    }
+}
+
+/// A back slot for a data frame, if two are free.
+#[inline]
+fn data_slot<const Q: usize>(queue: &mut FrameQueue<Q>) -> Option<&mut Frame> {
+    if queue.free() >= 2 {
+        queue.push_back_slot()
+    } else {
+        None
+    }
+}
+
+fn push<const Q: usize>(queue: &mut FrameQueue<Q>, f: Frame, stats: &mut BridgeStats) {
     if queue.push_back(f).is_ok() {
         stats.frames += 1;
     }
@@ -751,7 +833,7 @@ fn push<const Q: usize>(queue: &mut Deque<Frame, Q>, f: Frame, stats: &mut Bridg
 fn emit_point<const Q: usize>(
     p: Point,
     encoder: &mut ScanEncoder,
-    queue: &mut Deque<Frame, Q>,
+    queue: &mut FrameQueue<Q>,
     overflow: &mut bool,
     filtered: &mut bool,
     stats: &mut BridgeStats,
@@ -769,12 +851,9 @@ fn emit_point<const Q: usize>(
     // A due data frame is built in a new back slot of the queue, not moved into it.
     let mut queued = false;
     let result = encoder.push_point_into(distance, intensity, || {
-        if Q.saturating_sub(queue.len()) >= 2 && queue.push_back(Frame::default()).is_ok() {
-            queued = true;
-            queue.back_mut()
-        } else {
-            None
-        }
+        let slot = data_slot(queue);
+        queued = slot.is_some();
+        slot
     });
     match result {
         Ok(true) if queued => stats.frames += 1,

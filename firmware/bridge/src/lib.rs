@@ -18,5 +18,6 @@ pub mod control;
 pub mod engine;
 pub mod governor;
 pub mod pipeline;
+pub mod queue;
 pub mod session;
 pub mod status;

@@ -71,30 +71,48 @@ struct InProgress {
     buffered: u16,
     /// The data frame being filled (its header bytes are written at flush).
     packer: Packer,
-    /// The buffered points' codes as the CRC takes them (u16 LE each), unless the packed
-    /// bytes are those very bytes (`codes_are_packed`).
-    codes: [u8; CODES_LEN],
-    codes_len: usize,
     /// Fixed for the scan: points per data frame, the distance coding, bits per distance
-    /// and per intensity, whether the two codes go in one put (at most 24 bits
-    /// together), CRC bytes per point, and whether the packed stream is already the
-    /// CRC's input (16-bit codes).
+    /// and per intensity.
     capacity: u16,
     coder: DistanceCoder,
     /// `16 - intensity bits`, 16 without the channel (the code is then 0).
     intensity_shift: u32,
     distance_bits: u32,
     intensity_bits: u32,
-    one_put: bool,
-    /// Bytes per point when a point is whole bytes (16, 24 or 32 bits), else 0.
-    whole_bytes: usize,
-    code_bytes: usize,
-    codes_are_packed: bool,
+    /// Length of a full data frame (`capacity` points).
+    full_len: usize,
 }
 
-/// Room for the CRC input of a full 64-byte data frame in any encoding (D12 + I8: 24
-/// points of 4 bytes), plus the 2 bytes a word store may reach past it.
-const CODES_LEN: usize = 24 * 4 + 2;
+/// Where [`ScanEncoder::push_run`] puts data frames as they fill: typically a transmit
+/// queue, whose new back slot the frame is written into in place (on a 32-bit MCU a
+/// frame moved by value is a 76-byte copy).
+pub trait FrameSink {
+    /// A slot for the next data frame, or `None` when there is no room for it.
+    fn data_slot(&mut self) -> Option<&mut Frame>;
+}
+
+/// Why [`ScanEncoder::push_run`] stopped before the end of its points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RunStop {
+    /// The sink had no slot for a due data frame: the frame was lost (the scan goes on
+    /// as if it had been sent, like [`ScanEncoder::push_point_into`]).
+    NoSlot,
+    /// More points than the header announced: the point was not taken.
+    TooManyPoints,
+}
+
+/// What [`ScanEncoder::push_run`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Run {
+    /// Points taken.
+    pub points: u32,
+    /// Data frames written into the sink.
+    pub frames: u32,
+    /// Why the run stopped early, if it did.
+    pub stop: Option<RunStop>,
+}
 
 /// Turns a scan, point by point, into frames (see the crate docs for an example).
 #[derive(Debug, Clone)]
@@ -153,6 +171,9 @@ impl ScanEncoder {
         let enc = header.encoding;
         let distance_bits = enc.distance.bits();
         let intensity_bits = enc.intensity.bits();
+        let capacity = u16::try_from(enc.capacity(self.format.max_len()))
+            .unwrap_or(u16::MAX)
+            .max(1);
         self.scan = Some(InProgress {
             header: *header,
             crc: ScanCrc::new(&a, &b),
@@ -161,23 +182,12 @@ impl ScanEncoder {
             valid: 0,
             buffered: 0,
             packer: Packer::new(DATA_HEADER_LEN),
-            codes: [0; CODES_LEN],
-            codes_len: 0,
-            capacity: u16::try_from(enc.capacity(self.format.max_len()))
-                .unwrap_or(u16::MAX)
-                .max(1),
+            capacity,
             coder: enc.distance_coder(),
             intensity_shift: 16 - intensity_bits,
             distance_bits,
             intensity_bits,
-            one_put: distance_bits + intensity_bits <= 24,
-            whole_bytes: if (distance_bits + intensity_bits) % 8 == 0 {
-                ((distance_bits + intensity_bits) / 8) as usize
-            } else {
-                0
-            },
-            code_bytes: if enc.intensity.is_present() { 4 } else { 2 },
-            codes_are_packed: distance_bits == 16 && matches!(intensity_bits, 0 | 16),
+            full_len: data_frame_len(&enc, usize::from(capacity)).ok_or(Error::FrameTooLong)?,
         });
         Ok(frames)
     }
@@ -229,12 +239,13 @@ impl ScanEncoder {
             return Err(Error::TooManyPoints);
         }
         let dc = s.coder.code(distance);
-        let dc32 = u32::from(dc);
-        let ic32 = u32::from(intensity) >> s.intensity_shift;
-        if s.whole_bytes != 0 {
-            s.packer
-                .put_bytes(dc32 | ic32 << s.distance_bits, s.whole_bytes);
-        } else if s.one_put {
+        let ic = (u32::from(intensity) >> s.intensity_shift) as u16;
+        s.crc.code(dc);
+        if s.intensity_bits > 0 {
+            s.crc.code(ic);
+        }
+        let (dc32, ic32) = (u32::from(dc), u32::from(ic));
+        if s.distance_bits + s.intensity_bits <= 24 {
             s.packer.put(
                 dc32 | ic32 << s.distance_bits,
                 s.distance_bits + s.intensity_bits,
@@ -243,54 +254,109 @@ impl ScanEncoder {
             s.packer.put(dc32, s.distance_bits);
             s.packer.put(ic32, s.intensity_bits);
         }
-        if !s.codes_are_packed {
-            let end = s.codes_len.wrapping_add(4);
-            if let Some(word) = s.codes.get_mut(s.codes_len..end) {
-                word.copy_from_slice(&(dc32 | ic32 << 16).to_le_bytes());
-                s.codes_len = s.codes_len.wrapping_add(s.code_bytes);
-            }
-        }
         s.valid += u16::from(s.coder.is_valid(dc));
         s.pushed += 1;
         s.buffered += 1;
         Ok(s.buffered >= s.capacity || s.pushed == s.header.point_count)
     }
 
-    /// Turn the buffered points into a data frame (written into `out`), and their codes
-    /// into the CRC.
+    /// Adds points in order, like [`ScanEncoder::push_point_into`] for each, with every
+    /// due data frame written into a slot of `sink`. The loop is compiled once per
+    /// encoding, so a point costs a few instructions of coding and packing. It stops at
+    /// the first point the scan cannot take, or after the first frame `sink` had no slot
+    /// for.
+    #[inline]
+    pub fn push_run<I, S>(&mut self, points: I, sink: &mut S) -> Result<Run, Error>
+    where
+        I: IntoIterator<Item = (Distance, u16)>,
+        S: FrameSink + ?Sized,
+    {
+        let s = self.scan.as_ref().ok_or(Error::NoScan)?;
+        match (s.distance_bits, s.intensity_bits) {
+            (16, 0) => self.run::<16, 0, _, _>(points, sink),
+            (14, 0) => self.run::<14, 0, _, _>(points, sink),
+            (12, 0) => self.run::<12, 0, _, _>(points, sink),
+            (16, 16) => self.run::<16, 16, _, _>(points, sink),
+            (16, 12) => self.run::<16, 12, _, _>(points, sink),
+            (16, 8) => self.run::<16, 8, _, _>(points, sink),
+            (14, 16) => self.run::<14, 16, _, _>(points, sink),
+            (14, 12) => self.run::<14, 12, _, _>(points, sink),
+            (14, 8) => self.run::<14, 8, _, _>(points, sink),
+            (12, 16) => self.run::<12, 16, _, _>(points, sink),
+            (12, 12) => self.run::<12, 12, _, _>(points, sink),
+            (12, 8) => self.run::<12, 8, _, _>(points, sink),
+            _ => Err(Error::UnknownEncoding(0)),
+        }
+    }
+
+    /// [`ScanEncoder::push_run`] for `DB`-bit distances and `IB`-bit intensities.
+    #[inline(never)]
+    fn run<const DB: u32, const IB: u32, I, S>(
+        &mut self,
+        points: I,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        I: IntoIterator<Item = (Distance, u16)>,
+        S: FrameSink + ?Sized,
+    {
+        let id = self.ids.id(Kind::Data);
+        let fd = self.format.is_fd();
+        let s = self.scan.as_mut().ok_or(Error::NoScan)?;
+        let mut run = Run {
+            points: 0,
+            frames: 0,
+            stop: None,
+        };
+        for (distance, intensity) in points {
+            if s.pushed >= s.header.point_count {
+                run.stop = Some(RunStop::TooManyPoints);
+                break;
+            }
+            let dc = s.coder.code(distance);
+            s.crc.code(dc);
+            let mut word = u32::from(dc);
+            if IB > 0 {
+                let ic = u32::from(intensity) >> (16 - IB);
+                s.crc.code(ic as u16);
+                word |= ic << DB;
+            }
+            if (DB + IB) % 8 == 0 {
+                s.packer.put_bytes(word, ((DB + IB) / 8) as usize);
+            } else if DB + IB <= 24 {
+                s.packer.put(word, DB + IB);
+            } else {
+                s.packer.put(word & ((1 << DB) - 1), DB);
+                s.packer.put(word >> DB, IB);
+            }
+            s.valid += u16::from(s.coder.is_valid(dc));
+            s.pushed += 1;
+            s.buffered += 1;
+            run.points += 1;
+            if s.buffered >= s.capacity || s.pushed == s.header.point_count {
+                match sink.data_slot() {
+                    Some(frame) => {
+                        flush(s, id, fd, frame)?;
+                        run.frames += 1;
+                    }
+                    None => {
+                        flush(s, id, fd, &mut Frame::default())?;
+                        run.stop = Some(RunStop::NoSlot);
+                        break;
+                    }
+                }
+            }
+        }
+        Ok(run)
+    }
+
+    /// Turn the buffered points into a data frame (written into `out`).
     #[inline(never)]
     fn flush_into(&mut self, out: &mut Frame) -> Result<(), Error> {
+        let id = self.ids.id(Kind::Data);
+        let fd = self.format.is_fd();
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
-        let len = data_frame_len(&s.header.encoding, usize::from(s.buffered))
-            .ok_or(Error::FrameTooLong)?;
-        if s.codes_are_packed {
-            let end = usize::from(s.buffered)
-                .saturating_mul(s.code_bytes)
-                .saturating_add(DATA_HEADER_LEN);
-            s.crc.codes(
-                s.packer
-                    .bytes_mut()
-                    .get(DATA_HEADER_LEN..end)
-                    .unwrap_or(&[]),
-            );
-        } else {
-            s.crc.codes(s.codes.get(..s.codes_len).unwrap_or(&[]));
-            s.codes_len = 0;
-        }
-        let dh = DataHeader {
-            first_index: s.sent,
-            seq_low: (s.header.seq & 0xF) as u8,
-        };
-        put(s.packer.bytes_mut(), 0..DATA_HEADER_LEN, &dh.emit());
-        s.sent += s.buffered;
-        s.buffered = 0;
-        let done = out.set(
-            self.ids.id(Kind::Data),
-            s.packer.bytes_mut().get(..len).ok_or(Error::FrameTooLong)?,
-            self.format.is_fd(),
-        );
-        s.packer.clear(DATA_HEADER_LEN);
-        done
+        flush(s, id, fd, out)
     }
 
     /// End the scan: returns the last data frame if points are still buffered (only when
@@ -331,6 +397,30 @@ impl ScanEncoder {
         };
         self.frame(Kind::Abort, &a.emit()?)
     }
+}
+
+/// The buffered points of `s` as a data frame with identifier `id`, written into `out`.
+#[inline]
+fn flush(s: &mut InProgress, id: embedded_can::Id, fd: bool, out: &mut Frame) -> Result<(), Error> {
+    let len = if s.buffered == s.capacity {
+        s.full_len
+    } else {
+        data_frame_len(&s.header.encoding, usize::from(s.buffered)).ok_or(Error::FrameTooLong)?
+    };
+    let dh = DataHeader {
+        first_index: s.sent,
+        seq_low: (s.header.seq & 0xF) as u8,
+    };
+    put(s.packer.bytes_mut(), 0..DATA_HEADER_LEN, &dh.emit());
+    s.sent += s.buffered;
+    s.buffered = 0;
+    let done = out.set(
+        id,
+        s.packer.bytes_mut().get(..len).ok_or(Error::FrameTooLong)?,
+        fd,
+    );
+    s.packer.clear(DATA_HEADER_LEN);
+    done
 }
 
 #[cfg(test)]
@@ -403,6 +493,108 @@ mod tests {
             b.push_point_into(Distance::Invalid, 0, || None),
             Err(Error::NoScan)
         );
+    }
+
+    /// A sink over a vector that has room for `room` frames.
+    struct VecSink {
+        frames: Vec<Frame>,
+        room: usize,
+    }
+
+    impl FrameSink for VecSink {
+        fn data_slot(&mut self) -> Option<&mut Frame> {
+            if self.frames.len() >= self.room {
+                return None;
+            }
+            // A stale slot, as a queue's reused one: nothing of it may remain.
+            self.frames
+                .push(Frame::new(sid(0x7FF), &[0xEE; 64], true).unwrap());
+            self.frames.last_mut()
+        }
+    }
+
+    proptest::proptest! {
+        /// A run gives the frames, trailer and stops of point-by-point pushing, in every
+        /// encoding and frame format, with runs cut anywhere.
+        #[test]
+        fn push_run_equals_push_point(
+            d in 0usize..3,
+            i in 0usize..4,
+            unit_exp in 0u8..3,
+            format in proptest::sample::select(vec![
+                FrameFormat::Classic,
+                FrameFormat::Fd { max_len: 12 },
+                FrameFormat::Fd { max_len: 24 },
+                FrameFormat::FD64,
+            ]),
+            count in 1u16..120,
+            extra in 0usize..3,
+            seed in proptest::collection::vec((0u32..70_000, proptest::prelude::any::<u16>()), 130),
+            cuts in proptest::collection::vec(1usize..40, 1..8),
+            room in 0usize..60,
+        ) {
+            let enc = Encoding {
+                distance: DistanceEncoding::ALL[d],
+                intensity: IntensityEncoding::ALL[i],
+                unit_exp,
+            };
+            let ids = IdWindow::DEFAULT.node(3).unwrap();
+            let points: Vec<(Distance, u16)> = seed
+                .iter()
+                .take(usize::from(count) + extra)
+                .map(|&(mm, int)| {
+                    let d = match mm % 50 {
+                        0 => Distance::Invalid,
+                        1 => Distance::OutOfRange,
+                        _ => Distance::Mm(mm),
+                    };
+                    (d, int)
+                })
+                .collect();
+            // Point by point, with the same room for frames.
+            let mut one = ScanEncoder::new(ids, format).unwrap();
+            one.begin(&header(count, enc)).unwrap();
+            let mut expected = Vec::new();
+            let mut stop = None;
+            for &(d, i) in &points {
+                match one.push_point(d, i) {
+                    Ok(Some(f)) if expected.len() < room => expected.push(f),
+                    Ok(Some(_)) => {
+                        stop = Some(RunStop::NoSlot);
+                        break;
+                    }
+                    Ok(None) => {}
+                    Err(e) => {
+                        proptest::prop_assert_eq!(e, Error::TooManyPoints);
+                        stop = Some(RunStop::TooManyPoints);
+                        break;
+                    }
+                }
+            }
+            // In runs.
+            let mut two = ScanEncoder::new(ids, format).unwrap();
+            two.begin(&header(count, enc)).unwrap();
+            let mut sink = VecSink { frames: Vec::new(), room };
+            let mut rest = &points[..];
+            let mut run_stop = None;
+            let mut frames = 0;
+            for &cut in cuts.iter().cycle() {
+                if rest.is_empty() || run_stop.is_some() {
+                    break;
+                }
+                let (now, later) = rest.split_at(cut.min(rest.len()));
+                let run = two.push_run(now.iter().copied(), &mut sink).unwrap();
+                frames += run.frames;
+                run_stop = run.stop;
+                rest = later;
+            }
+            proptest::prop_assert_eq!(run_stop, stop);
+            proptest::prop_assert_eq!(frames as usize, sink.frames.len());
+            proptest::prop_assert_eq!(&sink.frames, &expected);
+            let t1 = one.finish(TrailerFlags::default()).unwrap();
+            let t2 = two.finish(TrailerFlags::default()).unwrap();
+            proptest::prop_assert_eq!(t1, t2);
+        }
     }
 
     #[test]

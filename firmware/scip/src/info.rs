@@ -193,6 +193,40 @@ impl RangeLimits {
     }
 }
 
+/// The test [`RangeLimits::classify`] makes of whether a value is a range, with its
+/// constants worked out once for one value width: for loops over a line's values.
+/// Exact for every value a SCIP field can hold (below `2^24`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RangeTest {
+    min: u32,
+    /// Values at or above `min` that are still error codes (`u32::MAX` when none).
+    not_a: u32,
+    not_b: u32,
+}
+
+impl RangeTest {
+    /// Whether `distance` is a range (`Range::Mm`).
+    #[inline(always)]
+    pub fn is_range(&self, distance: u32) -> bool {
+        distance >= self.min && distance != self.not_a && distance != self.not_b
+    }
+}
+
+impl RangeLimits {
+    /// [`RangeLimits::classify`]'s range test for values `width` chars wide.
+    pub fn range_test(&self, width: u8) -> RangeTest {
+        RangeTest {
+            min: self.dmin,
+            not_a: if width == 2 { 4095 } else { u32::MAX },
+            not_b: if self.family == ModelFamily::Ethernet {
+                65533
+            } else {
+                u32::MAX
+            },
+        }
+    }
+}
+
 /// The typed PP parameters of a sensor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -301,5 +335,31 @@ mod tests {
             family: ModelFamily::Ethernet,
         };
         assert_eq!(ust.classify(65533, 3), Range::Error(RangeError::NoEcho));
+    }
+
+    #[test]
+    fn range_test_agrees_with_classify() {
+        let families = [
+            ModelFamily::Unknown,
+            ModelFamily::Urg04lx,
+            ModelFamily::Utm,
+            ModelFamily::Ethernet,
+        ];
+        for family in families {
+            for dmin in [0, 20, 23] {
+                let limits = RangeLimits { dmin, family };
+                for width in [2, 3, 4] {
+                    let test = limits.range_test(width);
+                    let values = (0..70_000).chain([(1 << 18) - 1, (1 << 24) - 1]);
+                    for d in values {
+                        assert_eq!(
+                            test.is_range(d),
+                            matches!(limits.classify(d, width), Range::Mm(_)),
+                            "{family:?} dmin {dmin} width {width} value {d}"
+                        );
+                    }
+                }
+            }
+        }
     }
 }

@@ -21,7 +21,7 @@ pub use decoder::{
     DataLine, Decoder, DecoderStats, Event, Field, Reading, Summary, LINE_CAP, MAX_READINGS,
 };
 pub use error::{Error, ErrorKind};
-pub use info::{ModelFamily, Param, Range, RangeError, RangeLimits, SensorParams};
+pub use info::{ModelFamily, Param, Range, RangeError, RangeLimits, RangeTest, SensorParams};
 pub use response::ResponseWriter;
 pub use status::{Status, StatusKind};
 pub use sum::checksum;

@@ -309,6 +309,47 @@ impl Pipeline {
         add(&mut st.points_out_invalid, invalid);
     }
 
+    /// The direct path for a run of `n` consecutive points from `first_step` (each one
+    /// cluster after the last, like one data line's readings), for a caller that can
+    /// publish points faster than a [`PointSink`] call each. When every stage is off
+    /// and the run continues the open scan in sequence, the points are counted as
+    /// [`Pipeline::push_iter`] counts them and `true` is returned: the caller publishes
+    /// them unchanged (a point is valid when its reading is a range) and reports the
+    /// invalid ones with [`Pipeline::count_invalid`]. Otherwise nothing changes and
+    /// `false` is returned: push the points instead.
+    #[inline]
+    pub fn pass_run(&mut self, first_step: u16, n: usize) -> bool {
+        if !self.config.is_passthrough() || n == 0 {
+            return false;
+        }
+        let Open::Active(scan) = &mut self.open else {
+            return false;
+        };
+        let Ok(n32) = u32::try_from(n) else {
+            return false;
+        };
+        let span = n32.saturating_sub(1).saturating_mul(scan.cluster);
+        let first = u32::from(first_step);
+        if scan.broken
+            || first != scan.next_step
+            || first.saturating_add(span) > scan.last_point_step
+        {
+            return false;
+        }
+        scan.next_step = first.saturating_add(span).saturating_add(scan.cluster);
+        scan.emitted = scan.emitted.saturating_add(n);
+        add(&mut self.stats.points_in, n);
+        add(&mut self.stats.points_out, n);
+        true
+    }
+
+    /// Counts `n` points of a [`Pipeline::pass_run`] run that had no range.
+    #[inline]
+    pub fn count_invalid(&mut self, n: usize) {
+        add(&mut self.stats.invalid_error_code, n);
+        add(&mut self.stats.points_out_invalid, n);
+    }
+
     /// Ends the scan. When `intact` and every announced point arrived in sequence, the
     /// points still in the windows are emitted (their windows cut at the scan's end) and
     /// the scan is complete. Otherwise they are dropped and the scan is incomplete.
@@ -1133,8 +1174,9 @@ mod tests {
     }
 
     proptest::proptest! {
-        /// The direct path `push_batch` takes when every stage is off gives the same
-        /// points, the same end and the same counters as pushing the points one by one
+        /// The direct paths when every stage is off (`push_batch`, and `pass_run` for runs
+        /// of consecutive points) give the same points, the same end and the same
+        /// counters as pushing the points one by one
         /// through every stage, also for points out of sequence, past the end, or with no
         /// scan open.
         #[test]
@@ -1177,30 +1219,44 @@ mod tests {
                     p
                 })
                 .collect();
-            let run = |batched: bool| {
+            // 0: one by one; 1: in batches; 2: batches of consecutive points through
+            // `pass_run` (published here as the caller would), the rest pushed.
+            let run = |mode: u8| {
                 let mut p = Pipeline::new(config).unwrap();
                 if open {
                     p.begin_scan(info);
                 }
                 let mut out = Vec::new();
-                if batched {
+                if mode == 0 {
+                    for x in &points {
+                        p.push(*x, &mut |x| out.push(x));
+                    }
+                } else {
                     let mut rest = &points[..];
                     let mut i = 0;
                     while !rest.is_empty() {
                         let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
-                        p.push_batch(a, &mut |x| out.push(x));
+                        let consecutive = a.windows(2).all(|w| w[1].step == w[0].step + cluster);
+                        if mode == 2 && consecutive && p.pass_run(a[0].step, a.len()) {
+                            out.extend(a.iter().map(|x| Point {
+                                step: x.step,
+                                range_mm: x.valid.then_some(x.distance),
+                                intensity: x.intensity,
+                            }));
+                            p.count_invalid(a.iter().filter(|x| !x.valid).count());
+                        } else {
+                            p.push_batch(a, &mut |x| out.push(x));
+                        }
                         rest = b;
                         i += 1;
-                    }
-                } else {
-                    for x in &points {
-                        p.push(*x, &mut |x| out.push(x));
                     }
                 }
                 let end = p.end_scan(true, &mut |x| out.push(x));
                 (out, end, *p.stats())
             };
-            proptest::prop_assert_eq!(run(true), run(false));
+            let one_by_one = run(0);
+            proptest::prop_assert_eq!(&run(1), &one_by_one);
+            proptest::prop_assert_eq!(&run(2), &one_by_one);
         }
     }
 }

@@ -1,0 +1,201 @@
+//! The CAN transmit queue: a ring of `Q` frames whose slots are written in place.
+//!
+//! A `heapless::Deque` takes frames by value, so queueing a data frame built in place
+//! first writes a whole default frame (76 bytes) into the slot and then the frame's own
+//! bytes over it. Here every slot always holds an initialised frame, and
+//! [`FrameQueue::push_back_slot`] hands out the next one as it is: [`Frame::set`] then
+//! writes only the new frame's bytes (and zeroes what an older, longer frame left), so a
+//! classic data frame costs its 8 bytes.
+
+use can_wire::Frame;
+
+/// A double-ended queue of at most `Q` frames.
+#[derive(Debug, Clone)]
+pub struct FrameQueue<const Q: usize> {
+    slots: [Frame; Q],
+    /// Slot of the front frame.
+    head: usize,
+    len: usize,
+}
+
+impl<const Q: usize> Default for FrameQueue<Q> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const Q: usize> FrameQueue<Q> {
+    /// An empty queue.
+    pub fn new() -> Self {
+        Self {
+            slots: [Frame::default(); Q],
+            head: 0,
+            len: 0,
+        }
+    }
+
+    /// Frames queued.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether no frame is queued.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Slots free.
+    pub fn free(&self) -> usize {
+        Q - self.len
+    }
+
+    /// Slot index of position `i` from the front (`i <= Q`).
+    #[inline(always)]
+    fn slot(&self, i: usize) -> usize {
+        let k = self.head + i;
+        if k >= Q {
+            k - Q
+        } else {
+            k
+        }
+    }
+
+    /// A new back slot, counted as queued, holding whatever frame it last held: the
+    /// caller overwrites it (with [`Frame::set`]). `None` when the queue is full.
+    #[inline]
+    pub fn push_back_slot(&mut self) -> Option<&mut Frame> {
+        if self.len >= Q {
+            return None;
+        }
+        let k = self.slot(self.len);
+        self.len += 1;
+        self.slots.get_mut(k)
+    }
+
+    /// Queues a frame at the back; gives it back when the queue is full.
+    pub fn push_back(&mut self, frame: Frame) -> Result<(), Frame> {
+        match self.push_back_slot() {
+            Some(slot) => {
+                *slot = frame;
+                Ok(())
+            }
+            None => Err(frame),
+        }
+    }
+
+    /// Queues a frame at the front (it leaves next); gives it back when the queue is full.
+    pub fn push_front(&mut self, frame: Frame) -> Result<(), Frame> {
+        if self.len >= Q || Q == 0 {
+            return Err(frame);
+        }
+        let k = self.slot(Q - 1);
+        match self.slots.get_mut(k) {
+            Some(slot) => {
+                *slot = frame;
+                self.head = k;
+                self.len += 1;
+                Ok(())
+            }
+            None => Err(frame),
+        }
+    }
+
+    /// Takes the front frame.
+    #[inline]
+    pub fn pop_front(&mut self) -> Option<Frame> {
+        if self.len == 0 {
+            return None;
+        }
+        let frame = self.slots.get(self.head).copied();
+        self.head = self.slot(1);
+        self.len -= 1;
+        frame
+    }
+
+    /// Drops the back frame (one just pushed that turned out not to be wanted).
+    pub fn pop_back(&mut self) {
+        self.len = self.len.saturating_sub(1);
+    }
+
+    /// The frames, front first.
+    pub fn iter(&self) -> impl Iterator<Item = &Frame> + '_ {
+        (0..self.len).filter_map(move |i| self.slots.get(self.slot(i)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use embedded_can::{Id, StandardId};
+    use proptest::prelude::*;
+    use std::collections::VecDeque;
+
+    fn frame(n: u16, len: usize) -> Frame {
+        let id = Id::Standard(StandardId::new(n & 0x7FF).unwrap());
+        Frame::new(id, &[n as u8; 8][..len], false).unwrap()
+    }
+
+    #[test]
+    fn wraps_and_keeps_order_from_both_ends() {
+        let mut q = FrameQueue::<3>::new();
+        assert_eq!(q.pop_front(), None);
+        q.push_back(frame(1, 8)).unwrap();
+        q.push_back(frame(2, 8)).unwrap();
+        q.push_front(frame(0, 8)).unwrap();
+        assert_eq!(q.push_back(frame(9, 8)), Err(frame(9, 8)));
+        assert_eq!(q.push_front(frame(9, 8)), Err(frame(9, 8)));
+        assert!(q.push_back_slot().is_none());
+        assert_eq!(q.pop_front(), Some(frame(0, 8)));
+        let slot = q.push_back_slot().unwrap();
+        // The reused slot still holds the frame popped from it; a shorter frame set over
+        // it keeps no byte of the old one.
+        slot.set(frame(3, 2).id(), &[3, 3], false).unwrap();
+        assert_eq!(
+            q.iter().copied().collect::<Vec<_>>(),
+            [frame(1, 8), frame(2, 8), frame(3, 2)]
+        );
+        q.pop_back();
+        assert_eq!(q.len(), 2);
+        assert_eq!(q.free(), 1);
+    }
+
+    proptest! {
+        /// Any sequence of operations does what a `VecDeque` of capacity `Q` does.
+        #[test]
+        fn behaves_like_a_bounded_vecdeque(ops in proptest::collection::vec((0u8..5, 0u16..0x7FF, 0usize..9), 0..200)) {
+            let mut q = FrameQueue::<5>::new();
+            let mut model: VecDeque<Frame> = VecDeque::new();
+            for (op, n, len) in ops {
+                let f = frame(n, len);
+                match op {
+                    0 => {
+                        let ok = model.len() < 5;
+                        if ok { model.push_back(f) }
+                        prop_assert_eq!(q.push_back(f).is_ok(), ok);
+                    }
+                    1 => {
+                        let ok = model.len() < 5;
+                        if ok { model.push_front(f) }
+                        prop_assert_eq!(q.push_front(f).is_ok(), ok);
+                    }
+                    2 => prop_assert_eq!(q.pop_front(), model.pop_front()),
+                    3 => {
+                        match q.push_back_slot() {
+                            Some(slot) => {
+                                slot.set(f.id(), f.data(), false).unwrap();
+                                model.push_back(f);
+                            }
+                            None => prop_assert_eq!(model.len(), 5),
+                        }
+                    }
+                    _ => {
+                        q.pop_back();
+                        model.pop_back();
+                    }
+                }
+                prop_assert_eq!(q.len(), model.len());
+                prop_assert_eq!(q.iter().copied().collect::<Vec<_>>(), model.iter().copied().collect::<Vec<_>>());
+            }
+        }
+    }
+}
