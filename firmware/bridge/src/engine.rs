@@ -404,20 +404,19 @@ impl<const Q: usize> Core<Q> {
     /// what [`emit_point`] does for each of them, in one loop.
     fn publish_run(&mut self, line: &DataLine<'_>, width: u8, has_aux: bool) {
         let test = line.limits.range_test(width);
-        let invalid = line
-            .readings
-            .iter()
-            .filter(|r| !test.is_range(r.distance))
-            .count();
-        self.pipeline.count_invalid(invalid);
+        let is_invalid = |r: &scip::Reading| !test.is_range(r.distance);
         if self.overflow {
+            let invalid = line.readings.iter().filter(|r| is_invalid(r)).count();
+            self.pipeline.count_invalid(invalid);
             return;
         }
+        let mut invalid = 0usize;
         let points = line.readings.iter().map(|r| {
-            let distance = if test.is_range(r.distance) {
-                Distance::Mm(r.distance)
-            } else {
+            let distance = if is_invalid(r) {
+                invalid += 1;
                 Distance::Invalid
+            } else {
+                Distance::Mm(r.distance)
             };
             let intensity = if has_aux {
                 u16::try_from(r.aux).unwrap_or(u16::MAX)
@@ -427,20 +426,34 @@ impl<const Q: usize> Core<Q> {
             (distance, intensity)
         });
         let mut slots = DataSlots(&mut self.queue);
-        match self.encoder.push_run(points, &mut slots) {
+        let result = self.encoder.push_run(points, &mut slots);
+        // Points the encoder did not draw (it stopped early) are counted too, as the
+        // pipeline emitted them.
+        let drawn = match result {
             Ok(run) => {
                 self.stats.frames = self.stats.frames.wrapping_add(run.frames);
-                match run.stop {
+                let refused = match run.stop {
                     Some(RunStop::NoSlot) => {
                         self.overflow = true;
                         self.stats.queue_overflows += 1;
+                        0
                     }
-                    Some(RunStop::TooManyPoints) => self.filtered = true,
-                    None => {}
-                }
+                    Some(RunStop::TooManyPoints) => {
+                        self.filtered = true;
+                        1
+                    }
+                    None => 0,
+                };
+                usize::try_from(run.points).unwrap_or(usize::MAX) + refused
             }
-            Err(_) => self.filtered = true,
-        }
+            Err(_) => {
+                self.filtered = true;
+                0
+            }
+        };
+        let rest = line.readings.get(drawn..).unwrap_or(&[]);
+        invalid += rest.iter().filter(|r| is_invalid(r)).count();
+        self.pipeline.count_invalid(invalid);
     }
 
     /// A frame that goes ahead of queued scan frames (control answers, status). It never

@@ -98,7 +98,7 @@ pub enum RunStop {
     /// The sink had no slot for a due data frame: the frame was lost (the scan goes on
     /// as if it had been sent, like [`ScanEncoder::push_point_into`]).
     NoSlot,
-    /// More points than the header announced: the point was not taken.
+    /// More points than the header announced: the point drawn last was not taken.
     TooManyPoints,
 }
 
@@ -106,7 +106,8 @@ pub enum RunStop {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Run {
-    /// Points taken.
+    /// Points taken. The run draws exactly these from its iterator, and one more when
+    /// it stops with [`RunStop::TooManyPoints`].
     pub points: u32,
     /// Data frames written into the sink.
     pub frames: u32,
@@ -308,17 +309,21 @@ impl ScanEncoder {
             frames: 0,
             stop: None,
         };
+        // The per-point state lives in locals (registers) and goes back into `s` before
+        // a flush and at the end.
+        let (count, capacity, coder) = (s.header.point_count, s.capacity, s.coder);
+        let (mut crc, mut pushed, mut buffered, mut valid) = (s.crc, s.pushed, s.buffered, s.valid);
         for (distance, intensity) in points {
-            if s.pushed >= s.header.point_count {
+            if pushed >= count {
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
-            let dc = s.coder.code(distance);
-            s.crc.code(dc);
+            let dc = coder.code(distance);
+            crc.code(dc);
             let mut word = u32::from(dc);
             if IB > 0 {
                 let ic = u32::from(intensity) >> (16 - IB);
-                s.crc.code(ic as u16);
+                crc.code(ic as u16);
                 word |= ic << DB;
             }
             if (DB + IB) % 8 == 0 {
@@ -329,24 +334,27 @@ impl ScanEncoder {
                 s.packer.put(word & ((1 << DB) - 1), DB);
                 s.packer.put(word >> DB, IB);
             }
-            s.valid += u16::from(s.coder.is_valid(dc));
-            s.pushed += 1;
-            s.buffered += 1;
+            valid += u16::from(coder.is_valid(dc));
+            pushed += 1;
+            buffered += 1;
             run.points += 1;
-            if s.buffered >= s.capacity || s.pushed == s.header.point_count {
-                match sink.data_slot() {
-                    Some(frame) => {
-                        flush(s, id, fd, frame)?;
-                        run.frames += 1;
-                    }
-                    None => {
-                        flush(s, id, fd, &mut Frame::default())?;
-                        run.stop = Some(RunStop::NoSlot);
-                        break;
-                    }
+            if buffered >= capacity || pushed == count {
+                (s.crc, s.pushed, s.buffered, s.valid) = (crc, pushed, buffered, valid);
+                let slot = sink.data_slot();
+                let lost = slot.is_none();
+                match slot {
+                    Some(frame) => flush(s, id, fd, frame)?,
+                    None => flush(s, id, fd, &mut Frame::default())?,
                 }
+                buffered = 0;
+                if lost {
+                    run.stop = Some(RunStop::NoSlot);
+                    return Ok(run);
+                }
+                run.frames += 1;
             }
         }
+        (s.crc, s.pushed, s.buffered, s.valid) = (crc, pushed, buffered, valid);
         Ok(run)
     }
 
