@@ -410,10 +410,8 @@ impl<const Q: usize> Core<Q> {
             self.pipeline.count_invalid(invalid);
             return;
         }
-        let mut invalid = 0usize;
         let points = line.readings.iter().map(|r| {
             let distance = if is_invalid(r) {
-                invalid += 1;
                 Distance::Invalid
             } else {
                 Distance::Mm(r.distance)
@@ -429,8 +427,10 @@ impl<const Q: usize> Core<Q> {
         let result = self.encoder.push_run(points, &mut slots);
         // Points the encoder did not draw (it stopped early) are counted too, as the
         // pipeline emitted them.
+        let mut invalid = 0;
         let drawn = match result {
             Ok(run) => {
+                invalid = usize::try_from(run.invalid).unwrap_or(usize::MAX);
                 self.stats.frames = self.stats.frames.wrapping_add(run.frames);
                 let refused = match run.stop {
                     Some(RunStop::NoSlot) => {

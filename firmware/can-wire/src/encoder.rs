@@ -109,6 +109,8 @@ pub struct Run {
     /// Points taken. The run draws exactly these from its iterator, and one more when
     /// it stops with [`RunStop::TooManyPoints`].
     pub points: u32,
+    /// Points taken with [`Distance::Invalid`].
+    pub invalid: u32,
     /// Data frames written into the sink.
     pub frames: u32,
     /// Why the run stopped early, if it did.
@@ -306,6 +308,7 @@ impl ScanEncoder {
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         let mut run = Run {
             points: 0,
+            invalid: 0,
             frames: 0,
             stop: None,
         };
@@ -318,7 +321,8 @@ impl ScanEncoder {
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
-            let dc = coder.code(distance);
+            let (dc, is_valid) = coder.code_valid(distance);
+            run.invalid += u32::from(distance == Distance::Invalid);
             crc.code(dc);
             let mut word = u32::from(dc);
             if IB > 0 {
@@ -334,7 +338,7 @@ impl ScanEncoder {
                 s.packer.put(word & ((1 << DB) - 1), DB);
                 s.packer.put(word >> DB, IB);
             }
-            valid += u16::from(coder.is_valid(dc));
+            valid += u16::from(is_valid);
             pushed += 1;
             buffered += 1;
             run.points += 1;
@@ -424,10 +428,10 @@ fn flush(s: &mut InProgress, id: embedded_can::Id, fd: bool, out: &mut Frame) ->
     s.buffered = 0;
     let done = out.set(
         id,
-        s.packer.bytes_mut().get(..len).ok_or(Error::FrameTooLong)?,
+        s.packer.frame_bytes(len).ok_or(Error::FrameTooLong)?,
         fd,
     );
-    s.packer.clear(DATA_HEADER_LEN);
+    s.packer.reset(DATA_HEADER_LEN);
     done
 }
 

@@ -249,6 +249,26 @@ impl DistanceCoder {
         code as u16
     }
 
+    /// The code of a distance and whether it is a range: `(code(d), is_valid(code(d)))`
+    /// with the validity known from the branch taken rather than tested again.
+    #[inline(always)]
+    pub(crate) const fn code_valid(&self, d: Distance) -> (u16, bool) {
+        match d {
+            Distance::Invalid => (0, false),
+            Distance::OutOfRange => (self.max as u16, false),
+            Distance::Mm(mm) => {
+                let q = mm.saturating_add(self.half) >> self.exp;
+                if q >= self.max {
+                    (self.max as u16, false)
+                } else if q == 0 {
+                    (1, true)
+                } else {
+                    (q as u16, true)
+                }
+            }
+        }
+    }
+
     /// Whether a code is a range (neither invalid nor out of range).
     #[inline(always)]
     pub(crate) const fn is_valid(&self, code: u16) -> bool {
@@ -328,15 +348,21 @@ impl Packer {
         &mut self.buf
     }
 
-    /// Empties the packer; the next field goes at byte `start` (at most the current
-    /// position: callers only write below their first field's byte).
-    pub(crate) fn clear(&mut self, start: usize) {
-        // Stores reach at most 4 bytes from `pos`, so the bytes past those are still
-        // zero: only the written ones are cleared (a classic frame's 12, not 67).
-        let end = self.pos.saturating_add(4).min(PACKER_LEN);
-        if let Some(written) = self.buf.get_mut(..end) {
-            written.fill(0);
+    /// The first `len` bytes: what was put, zero past it. A store writes a whole word at
+    /// the current byte, so the bytes up to 4 past it are current; bytes further on may
+    /// be left from a longer, earlier frame and are zeroed here (only the padding of a
+    /// CAN FD frame can reach them).
+    pub(crate) fn frame_bytes(&mut self, len: usize) -> Option<&[u8]> {
+        let first_free = self.pos.wrapping_add(usize::from(self.nbits > 0));
+        if let Some(stale) = self.buf.get_mut(first_free.min(len)..len) {
+            stale.fill(0);
         }
+        self.buf.get(..len)
+    }
+
+    /// Empties the packer without clearing its bytes (see [`Packer::frame_bytes`]); the
+    /// next field goes at byte `start`.
+    pub(crate) fn reset(&mut self, start: usize) {
         self.pos = start;
         self.acc = 0;
         self.nbits = 0;
@@ -510,10 +536,14 @@ mod tests {
             }
             proptest::prop_assert!(r.rest_is_zero());
             proptest::prop_assert_eq!(&bytes[..2], &[0, 0]);
-            // Clearing only the written bytes leaves the packer as a new one.
-            w.clear(2);
-            proptest::prop_assert_eq!(w.position(), 16);
-            proptest::prop_assert!(w.bytes_mut().iter().all(|&b| b == 0));
+            // After a reset, a shorter frame's bytes are its own fields and zeros only.
+            let len = (total / 8 + 1).min(PACKER_LEN);
+            w.reset(2);
+            w.put(1, 1);
+            let short = w.frame_bytes(len).unwrap().to_vec();
+            let mut expect = vec![0u8; len];
+            expect[2] = 1;
+            proptest::prop_assert_eq!(short, expect);
         }
     }
 }

@@ -90,14 +90,16 @@ impl Frame {
         }
         // Word by word: `copy_from_slice` of a run-time length is a `memcpy` call that
         // copies short payloads byte by byte (every FD length is whole words).
-        if let Some(head) = self.data.get_mut(..len) {
-            let mut to = head.chunks_exact_mut(4);
-            let mut from = data.chunks_exact(4);
-            for (t, f) in (&mut to).zip(&mut from) {
-                t.copy_from_slice(f);
-            }
-            for (t, f) in to.into_remainder().iter_mut().zip(from.remainder()) {
-                *t = *f;
+        // A classic data frame (the most frequent) as two words; others with a memcpy.
+        match (
+            self.data.first_chunk_mut::<CLASSIC_LEN>(),
+            <&[u8; CLASSIC_LEN]>::try_from(data),
+        ) {
+            (Some(head), Ok(eight)) => *head = *eight,
+            _ => {
+                if let Some(head) = self.data.get_mut(..len) {
+                    head.copy_from_slice(data);
+                }
             }
         }
         self.id = id;
