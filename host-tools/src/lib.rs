@@ -6,6 +6,7 @@
 pub mod candump;
 pub mod decode;
 pub mod emulate;
+pub mod icount;
 pub mod live;
 pub mod parse;
 pub mod plot;

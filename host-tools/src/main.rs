@@ -47,6 +47,10 @@ enum Cmd {
     /// The simulator, the real firmware in QEMU (mps2-an386) and the decoder, wired:
     /// scans arriving, rates, bus load, error counters, once a second.
     Emulate(scip2can_host::emulate::EmulateArgs),
+    /// Instructions per UART byte of the bridge core on the emulated Cortex-M4: a
+    /// deterministic stream through the real firmware in QEMU (`-icount shift=0`),
+    /// its CAN frames checked against the same core on the host.
+    Icount(scip2can_host::icount::IcountArgs),
 }
 
 fn main() -> ExitCode {
@@ -71,6 +75,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Plot(args) => scip2can_host::plot::run(args),
         Cmd::Bridge(args) => scip2can_host::live::run(args),
         Cmd::Emulate(args) => scip2can_host::emulate::run(args),
+        Cmd::Icount(args) => scip2can_host::icount::run(args),
         Cmd::Parse { file } => {
             let out = BufWriter::new(io::stdout().lock());
             if file.as_os_str() == "-" {
