@@ -404,13 +404,13 @@ impl<const Q: usize> Core<Q> {
     /// what [`emit_point`] does for each of them, in one loop.
     fn publish_run(&mut self, line: &DataLine<'_>, width: u8, has_aux: bool) {
         let test = line.limits.range_test(width);
-        let is_invalid = |r: &scip::Reading| !test.is_range(r.distance);
+        let is_invalid = move |r: &scip::Reading| !test.is_range(r.distance);
         if self.overflow {
             let invalid = line.readings.iter().filter(|r| is_invalid(r)).count();
             self.pipeline.count_invalid(invalid);
             return;
         }
-        let points = line.readings.iter().map(|r| {
+        let points = line.readings.iter().map(move |r| {
             let distance = if is_invalid(r) {
                 Distance::Invalid
             } else {

@@ -272,6 +272,7 @@ impl ScanEncoder {
     pub fn push_run<I, S>(&mut self, points: I, sink: &mut S) -> Result<Run, Error>
     where
         I: IntoIterator<Item = (Distance, u16)>,
+        I::IntoIter: ExactSizeIterator,
         S: FrameSink + ?Sized,
     {
         let s = self.scan.as_ref().ok_or(Error::NoScan)?;
@@ -301,6 +302,7 @@ impl ScanEncoder {
     ) -> Result<Run, Error>
     where
         I: IntoIterator<Item = (Distance, u16)>,
+        I::IntoIter: ExactSizeIterator,
         S: FrameSink + ?Sized,
     {
         let id = self.ids.id(Kind::Data);
@@ -312,45 +314,81 @@ impl ScanEncoder {
             frames: 0,
             stop: None,
         };
-        // The per-point state lives in locals (registers) and goes back into `s` before
-        // a flush and at the end.
+        // Frame by frame: the points that fit before the next frame is due go through a
+        // loop with nothing to check, its state in locals (registers); the counts go back
+        // into `s` before a flush and at the end.
         let (count, capacity, coder) = (s.header.point_count, s.capacity, s.coder);
-        let (mut crc, mut pushed, mut buffered, mut valid) = (s.crc, s.pushed, s.buffered, s.valid);
-        for (distance, intensity) in points {
-            if pushed >= count {
+        let (mut crc, mut valid) = (s.crc, s.valid);
+        let mut points = points.into_iter();
+        loop {
+            let left = points.len();
+            if left == 0 {
+                break;
+            }
+            if s.pushed >= count {
+                // Drawn, not taken.
+                let _ = points.next();
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
-            let (dc, is_valid) = coder.code_valid(distance);
-            run.invalid += u32::from(distance == Distance::Invalid);
-            crc.code(dc);
-            let mut word = u32::from(dc);
-            if IB > 0 {
-                let ic = u32::from(intensity) >> (16 - IB);
-                crc.code(ic as u16);
-                word |= ic << DB;
-            }
+            // Points until a frame is due: the frame is full or the scan's last point is in.
+            let room = capacity
+                .saturating_sub(s.buffered)
+                .min(count.saturating_sub(s.pushed));
+            let k = usize::from(room).min(left);
+            let mut invalid = 0u32;
+            let mut code = |distance: Distance, intensity: u16| {
+                let (dc, is_valid) = coder.code_valid(distance);
+                invalid += u32::from(distance == Distance::Invalid);
+                valid += u16::from(is_valid);
+                crc.code(dc);
+                let mut word = u32::from(dc);
+                if IB > 0 {
+                    let ic = u32::from(intensity) >> (16 - IB);
+                    crc.code(ic as u16);
+                    word |= ic << DB;
+                }
+                word
+            };
+            let whole = ((DB + IB) / 8) as usize;
             if (DB + IB) % 8 == 0 {
-                s.packer.put_bytes(word, ((DB + IB) / 8) as usize);
-            } else if DB + IB <= 24 {
-                s.packer.put(word, DB + IB);
+                // Whole bytes per point: straight into their place, no bit position.
+                let Some(bytes) = s.packer.take_bytes(k.saturating_mul(whole)) else {
+                    return Err(Error::FrameTooLong);
+                };
+                for ((distance, intensity), out) in
+                    points.by_ref().take(k).zip(bytes.chunks_exact_mut(whole))
+                {
+                    let word = code(distance, intensity).to_le_bytes();
+                    if let Some(field) = word.get(..whole) {
+                        out.copy_from_slice(field);
+                    }
+                }
             } else {
-                s.packer.put(word & ((1 << DB) - 1), DB);
-                s.packer.put(word >> DB, IB);
+                for (distance, intensity) in points.by_ref().take(k) {
+                    let word = code(distance, intensity);
+                    if DB + IB <= 24 {
+                        s.packer.put(word, DB + IB);
+                    } else {
+                        s.packer.put(word & ((1 << DB) - 1), DB);
+                        s.packer.put(word >> DB, IB);
+                    }
+                }
             }
-            valid += u16::from(is_valid);
-            pushed += 1;
-            buffered += 1;
-            run.points += 1;
-            if buffered >= capacity || pushed == count {
-                (s.crc, s.pushed, s.buffered, s.valid) = (crc, pushed, buffered, valid);
+            // k <= room, a u16.
+            let k16 = k as u16;
+            s.pushed += k16;
+            s.buffered += k16;
+            run.points += u32::from(k16);
+            run.invalid += invalid;
+            if usize::from(room) == k {
+                (s.crc, s.valid) = (crc, valid);
                 let slot = sink.data_slot();
                 let lost = slot.is_none();
                 match slot {
                     Some(frame) => flush(s, id, fd, frame)?,
                     None => flush(s, id, fd, &mut Frame::default())?,
                 }
-                buffered = 0;
                 if lost {
                     run.stop = Some(RunStop::NoSlot);
                     return Ok(run);
@@ -358,7 +396,7 @@ impl ScanEncoder {
                 run.frames += 1;
             }
         }
-        (s.crc, s.pushed, s.buffered, s.valid) = (crc, pushed, buffered, valid);
+        (s.crc, s.valid) = (crc, valid);
         Ok(run)
     }
 

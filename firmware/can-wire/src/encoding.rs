@@ -328,12 +328,16 @@ impl Packer {
         self.nbits %= 8;
     }
 
-    /// Put a field of `bytes * 8` bits (1 to 4 bytes) when no bits are waiting (every
-    /// field so far filled whole bytes): a plain store.
+    /// The next `len` bytes, for fields of whole bytes written directly (no bits may be
+    /// waiting), and the position moved past them; `None` (nothing moved) if they do not
+    /// fit the buffer.
     #[inline(always)]
-    pub(crate) fn put_bytes(&mut self, value: u32, bytes: usize) {
-        self.store(value);
-        self.pos = self.pos.wrapping_add(bytes);
+    pub(crate) fn take_bytes(&mut self, len: usize) -> Option<&mut [u8]> {
+        let start = self.pos;
+        let end = start.checked_add(len)?;
+        let bytes = self.buf.get_mut(start..end)?;
+        self.pos = end;
+        Some(bytes)
     }
 
     #[inline(always)]
@@ -354,8 +358,10 @@ impl Packer {
     /// CAN FD frame can reach them).
     pub(crate) fn frame_bytes(&mut self, len: usize) -> Option<&[u8]> {
         let first_free = self.pos.wrapping_add(usize::from(self.nbits > 0));
-        if let Some(stale) = self.buf.get_mut(first_free.min(len)..len) {
-            stale.fill(0);
+        if first_free < len {
+            if let Some(stale) = self.buf.get_mut(first_free..len) {
+                stale.fill(0);
+            }
         }
         self.buf.get(..len)
     }

@@ -73,6 +73,7 @@ impl Frame {
 
     /// Makes this frame what [`Frame::new`] would return for the same arguments, in
     /// place (no frame moves by value); on error the frame is left as it was.
+    #[inline]
     pub fn set(&mut self, id: Id, data: &[u8], fd: bool) -> Result<(), Error> {
         let len = data.len();
         let ok = if fd {
