@@ -276,19 +276,33 @@ impl ScanEncoder {
         S: FrameSink + ?Sized,
     {
         let s = self.scan.as_ref().ok_or(Error::NoScan)?;
-        match (s.distance_bits, s.intensity_bits) {
-            (16, 0) => self.run::<16, 0, _, _>(points, sink),
-            (14, 0) => self.run::<14, 0, _, _>(points, sink),
-            (12, 0) => self.run::<12, 0, _, _>(points, sink),
-            (16, 16) => self.run::<16, 16, _, _>(points, sink),
-            (16, 12) => self.run::<16, 12, _, _>(points, sink),
-            (16, 8) => self.run::<16, 8, _, _>(points, sink),
-            (14, 16) => self.run::<14, 16, _, _>(points, sink),
-            (14, 12) => self.run::<14, 12, _, _>(points, sink),
-            (14, 8) => self.run::<14, 8, _, _>(points, sink),
-            (12, 16) => self.run::<12, 16, _, _>(points, sink),
-            (12, 12) => self.run::<12, 12, _, _>(points, sink),
-            (12, 8) => self.run::<12, 8, _, _>(points, sink),
+        let classic = !self.format.is_fd();
+        match (classic, s.distance_bits, s.intensity_bits) {
+            (false, 16, 0) => self.run::<16, 0, _, _>(points, sink),
+            (false, 14, 0) => self.run::<14, 0, _, _>(points, sink),
+            (false, 12, 0) => self.run::<12, 0, _, _>(points, sink),
+            (false, 16, 16) => self.run::<16, 16, _, _>(points, sink),
+            (false, 16, 12) => self.run::<16, 12, _, _>(points, sink),
+            (false, 16, 8) => self.run::<16, 8, _, _>(points, sink),
+            (false, 14, 16) => self.run::<14, 16, _, _>(points, sink),
+            (false, 14, 12) => self.run::<14, 12, _, _>(points, sink),
+            (false, 14, 8) => self.run::<14, 8, _, _>(points, sink),
+            (false, 12, 16) => self.run::<12, 16, _, _>(points, sink),
+            (false, 12, 12) => self.run::<12, 12, _, _>(points, sink),
+            (false, 12, 8) => self.run::<12, 8, _, _>(points, sink),
+            (true, 16, 0) => self.run_classic::<16, 0, _, _>(points, sink),
+            (true, 14, 0) => self.run_classic::<14, 0, _, _>(points, sink),
+            (true, 12, 0) => self.run_classic::<12, 0, _, _>(points, sink),
+            (true, 16, 16) => self.run_classic::<16, 16, _, _>(points, sink),
+            (true, 16, 12) => self.run_classic::<16, 12, _, _>(points, sink),
+            (true, 16, 8) => self.run_classic::<16, 8, _, _>(points, sink),
+            (true, 14, 16) => self.run_classic::<14, 16, _, _>(points, sink),
+            (true, 14, 12) => self.run_classic::<14, 12, _, _>(points, sink),
+            (true, 14, 8) => self.run_classic::<14, 8, _, _>(points, sink),
+            (true, 12, 16) => self.run_classic::<12, 16, _, _>(points, sink),
+            (true, 12, 12) => self.run_classic::<12, 12, _, _>(points, sink),
+            (true, 12, 8) => self.run_classic::<12, 8, _, _>(points, sink),
+            // Every encoding a scan can begin with is above.
             _ => Err(Error::UnknownEncoding(0)),
         }
     }
@@ -395,6 +409,109 @@ impl ScanEncoder {
                 }
                 run.frames += 1;
             }
+        }
+        (s.crc, s.valid) = (crc, valid);
+        Ok(run)
+    }
+
+    /// [`ScanEncoder::push_run`] for classic frames: a frame's 8 bytes are built in a
+    /// 64-bit word (the data header in its low 16 bits, the points after it), kept in
+    /// the packer between runs.
+    #[inline(never)]
+    fn run_classic<const DB: u32, const IB: u32, I, S>(
+        &mut self,
+        points: I,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        I: IntoIterator<Item = (Distance, u16)>,
+        I::IntoIter: ExactSizeIterator,
+        S: FrameSink + ?Sized,
+    {
+        let id = self.ids.id(Kind::Data);
+        let s = self.scan.as_mut().ok_or(Error::NoScan)?;
+        let mut run = Run {
+            points: 0,
+            invalid: 0,
+            frames: 0,
+            stop: None,
+        };
+        let bits = DB + IB;
+        let (count, capacity, coder) = (s.header.point_count, s.capacity, s.coder);
+        let (mut crc, mut valid) = (s.crc, s.valid);
+        let mut points = points.into_iter();
+        loop {
+            let left = points.len();
+            if left == 0 {
+                break;
+            }
+            if s.pushed >= count {
+                // Drawn, not taken.
+                let _ = points.next();
+                run.stop = Some(RunStop::TooManyPoints);
+                break;
+            }
+            let room = capacity
+                .saturating_sub(s.buffered)
+                .min(count.saturating_sub(s.pushed));
+            let k = usize::from(room).min(left);
+            // Bit position of the next point: after the data header and the points in.
+            let mut at = DATA_HEADER_LEN as u32 * 8 + u32::from(s.buffered) * bits;
+            // The points in so far (not the header bytes, nor bytes a longer frame left).
+            let mut word = if s.buffered == 0 {
+                0
+            } else {
+                s.packer.word64() & !0xFFFF & (u64::MAX >> (64 - at.min(64)))
+            };
+            let mut invalid = 0u32;
+            for (distance, intensity) in points.by_ref().take(k) {
+                let (dc, is_valid) = coder.code_valid(distance);
+                invalid += u32::from(distance == Distance::Invalid);
+                valid += u16::from(is_valid);
+                crc.code(dc);
+                let mut point = u64::from(dc);
+                if IB > 0 {
+                    let ic = u32::from(intensity) >> (16 - IB);
+                    crc.code(ic as u16);
+                    point |= u64::from(ic) << DB;
+                }
+                word |= point << (at & 63);
+                at += bits;
+            }
+            // k <= room, a u16.
+            let k16 = k as u16;
+            s.pushed += k16;
+            s.buffered += k16;
+            run.points += u32::from(k16);
+            run.invalid += invalid;
+            if usize::from(room) != k {
+                // The frame goes on in the next run.
+                s.packer.set_word64(word, at);
+                continue;
+            }
+            (s.crc, s.valid) = (crc, valid);
+            let len = if s.buffered == capacity {
+                s.full_len
+            } else {
+                data_frame_len(&s.header.encoding, usize::from(s.buffered))
+                    .ok_or(Error::FrameTooLong)?
+            };
+            let dh = DataHeader {
+                first_index: s.sent,
+                seq_low: (s.header.seq & 0xF) as u8,
+            };
+            word |= u64::from(u16::from_le_bytes(dh.emit()));
+            s.sent += s.buffered;
+            s.buffered = 0;
+            s.packer.reset(DATA_HEADER_LEN);
+            match sink.data_slot() {
+                Some(frame) => frame.set_classic(id, word.to_le_bytes(), len),
+                None => {
+                    run.stop = Some(RunStop::NoSlot);
+                    return Ok(run);
+                }
+            }
+            run.frames += 1;
         }
         (s.crc, s.valid) = (crc, valid);
         Ok(run)
@@ -565,7 +682,8 @@ mod tests {
 
     proptest::proptest! {
         /// A run gives the frames, trailer and stops of point-by-point pushing, in every
-        /// encoding and frame format, with runs cut anywhere.
+        /// encoding and frame format, with runs cut anywhere and (`mix`) runs and single
+        /// points taking turns within a frame.
         #[test]
         fn push_run_equals_push_point(
             d in 0usize..3,
@@ -582,6 +700,7 @@ mod tests {
             seed in proptest::collection::vec((0u32..70_000, proptest::prelude::any::<u16>()), 130),
             cuts in proptest::collection::vec(1usize..40, 1..8),
             room in 0usize..60,
+            mix in proptest::prelude::any::<bool>(),
         ) {
             let enc = Encoding {
                 distance: DistanceEncoding::ALL[d],
@@ -628,14 +747,37 @@ mod tests {
             let mut rest = &points[..];
             let mut run_stop = None;
             let mut frames = 0;
-            for &cut in cuts.iter().cycle() {
+            for (n, &cut) in cuts.iter().cycle().enumerate() {
                 if rest.is_empty() || run_stop.is_some() {
                     break;
                 }
                 let (now, later) = rest.split_at(cut.min(rest.len()));
-                let run = two.push_run(now.iter().copied(), &mut sink).unwrap();
-                frames += run.frames;
-                run_stop = run.stop;
+                if mix && n % 2 == 1 {
+                    // Point by point into the same sink: the two ways share a frame.
+                    for &(d, i) in now {
+                        let mut got = false;
+                        match two.push_point_into(d, i, || {
+                            let slot = sink.data_slot();
+                            got = slot.is_some();
+                            slot
+                        }) {
+                            Ok(true) if got => frames += 1,
+                            Ok(true) => {
+                                run_stop = Some(RunStop::NoSlot);
+                                break;
+                            }
+                            Ok(false) => {}
+                            Err(_) => {
+                                run_stop = Some(RunStop::TooManyPoints);
+                                break;
+                            }
+                        }
+                    }
+                } else {
+                    let run = two.push_run(now.iter().copied(), &mut sink).unwrap();
+                    frames += run.frames;
+                    run_stop = run.stop;
+                }
                 rest = later;
             }
             proptest::prop_assert_eq!(run_stop, stop);

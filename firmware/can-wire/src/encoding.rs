@@ -328,6 +328,26 @@ impl Packer {
         self.nbits %= 8;
     }
 
+    /// The first 8 bytes as a little-endian word (a classic frame being built).
+    #[inline(always)]
+    pub(crate) fn word64(&self) -> u64 {
+        self.buf
+            .first_chunk::<8>()
+            .map_or(0, |b| u64::from_le_bytes(*b))
+    }
+
+    /// Sets the first 8 bytes to `word` (little endian) with `bits` bits of fields put,
+    /// as if they had been put one by one.
+    #[inline(always)]
+    pub(crate) fn set_word64(&mut self, word: u64, bits: u32) {
+        if let Some(b) = self.buf.first_chunk_mut::<8>() {
+            *b = word.to_le_bytes();
+        }
+        self.pos = (bits / 8) as usize;
+        self.nbits = bits % 8;
+        self.acc = (word >> (self.pos * 8).min(63)) as u32 & ((1u32 << self.nbits) - 1);
+    }
+
     /// The next `len` bytes, for fields of whole bytes written directly (no bits may be
     /// waiting), and the position moved past them; `None` (nothing moved) if they do not
     /// fit the buffer.

@@ -109,6 +109,23 @@ impl Frame {
         Ok(())
     }
 
+    /// Makes this a classic frame of the first `len` (at most 8) of `data`, whose bytes
+    /// past `len` must be zero: [`Frame::set`] for a payload built in a 64-bit word. A
+    /// longer `len` is cut to 8.
+    #[inline]
+    pub fn set_classic(&mut self, id: Id, data: [u8; CLASSIC_LEN], len: usize) {
+        let len = len.min(CLASSIC_LEN);
+        if let Some(stale) = self.data.get_mut(CLASSIC_LEN..usize::from(self.len)) {
+            stale.fill(0);
+        }
+        if let Some(head) = self.data.first_chunk_mut::<CLASSIC_LEN>() {
+            *head = data;
+        }
+        self.id = id;
+        self.len = len as u8;
+        self.fd = false;
+    }
+
     /// The identifier.
     pub fn id(&self) -> Id {
         self.id

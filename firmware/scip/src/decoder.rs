@@ -185,6 +185,10 @@ pub struct Decoder {
     buf: [u8; LINE_CAP],
     len: usize,
     overflow: bool,
+    /// Of the line's bytes so far, taken while they are copied: their sum in two 16-bit
+    /// lanes and the non-value-char flags (see [`sum_and_check_words`]).
+    lanes: u32,
+    bad: u32,
     offset: u64,
     line_start: u64,
     current_line: u64,
@@ -244,6 +248,8 @@ impl Decoder {
             buf: [0; LINE_CAP],
             len: 0,
             overflow: false,
+            lanes: 0,
+            bad: 0,
             offset: 0,
             line_start: 0,
             current_line: 0,
@@ -358,13 +364,11 @@ impl Decoder {
         let mut consumed = 0;
         let mut rest = input;
         loop {
-            let Some(lf) = find_lf(rest) else {
-                self.append(rest);
+            let Some(lf) = self.take_line_bytes(rest) else {
                 self.offset += rest.len() as u64;
                 self.stats.bytes += rest.len() as u64;
                 return (input.len(), None);
             };
-            self.append(rest.get(..lf).unwrap_or(&[]));
             consumed += lf + 1;
             self.offset += lf as u64 + 1;
             self.stats.bytes += lf as u64 + 1;
@@ -400,18 +404,87 @@ impl Decoder {
         }
     }
 
+    /// Copies `bytes` up to the first LF into the line buffer and returns the LF's
+    /// index, or copies them all and returns `None`. One pass, a word at a time: the LF
+    /// test, the copy, and the sum and char check that [`Self::data_line`] needs. Past
+    /// the buffer's capacity the line is marked overflowed and its bytes are not kept.
     #[inline]
-    fn append(&mut self, bytes: &[u8]) {
+    fn take_line_bytes(&mut self, bytes: &[u8]) -> Option<usize> {
+        const HIGHS: u32 = 0x8080_8080;
+        const LOWS: u32 = 0x7F7F_7F7F;
+        const EVEN: u32 = 0x00FF_00FF;
+        const ONES: u32 = 0x0101_0101;
+        const LFS: u32 = 0x0A0A_0A0A;
         if self.overflow {
-            return;
+            return find_lf(bytes);
         }
-        match self.buf.get_mut(self.len..self.len + bytes.len()) {
-            Some(dst) => {
-                dst.copy_from_slice(bytes);
-                self.len += bytes.len();
+        if self.len == 0 {
+            (self.lanes, self.bad) = (0, 0);
+        }
+        let (mut len, mut lanes, mut bad) = (self.len, self.lanes, self.bad);
+        let mut at = 0;
+        let mut words = bytes.chunks_exact(4);
+        for word in &mut words {
+            let Ok(four) = <[u8; 4]>::try_from(word) else {
+                break;
+            };
+            let w = u32::from_le_bytes(four);
+            let x = w ^ LFS;
+            if x.wrapping_sub(ONES) & !x & HIGHS != 0 {
+                break;
             }
-            None => self.overflow = true,
+            let Some(dst) = self.buf.get_mut(len..len + 4) else {
+                break;
+            };
+            dst.copy_from_slice(&four);
+            len += 4;
+            at += 4;
+            lanes = (lanes & 0x0FFF_0FFF)
+                .wrapping_add(w & EVEN)
+                .wrapping_add((w >> 8) & EVEN);
+            let low = w & LOWS;
+            bad |= w | low.wrapping_add(0x1010_1010) | !(low | HIGHS).wrapping_sub(0x3030_3030);
         }
+        let mut found = None;
+        for (i, &b) in bytes.get(at..).unwrap_or(&[]).iter().enumerate() {
+            if b == b'\n' {
+                found = Some(at + i);
+                break;
+            }
+            match self.buf.get_mut(len) {
+                Some(slot) => *slot = b,
+                None => {
+                    self.overflow = true;
+                    found = find_lf(bytes.get(at + i..).unwrap_or(&[])).map(|j| at + i + j);
+                    break;
+                }
+            }
+            len += 1;
+            lanes = (lanes & 0x0FFF_0FFF).wrapping_add(u32::from(b));
+            bad |= u32::from(b.wrapping_sub(CHAR_MIN) >= 0x40) << 7;
+        }
+        (self.len, self.lanes, self.bad) = (len, lanes, bad);
+        found
+    }
+
+    /// The sum char of the buffered line's first `len - 1` bytes and whether all of them
+    /// are value chars, as [`sum_and_check`] gives them: from what
+    /// [`Self::take_line_bytes`] took when every byte of the line (sum char included) is
+    /// a value char, else computed again.
+    #[inline]
+    fn line_sum_and_check(&self, len: usize) -> Option<(u8, u8, bool)> {
+        let [data @ .., s] = self.buf.get(..len)? else {
+            return None;
+        };
+        // The accumulators cover exactly the line just completed (it did not overflow, or
+        // it would not be decoded).
+        if self.bad & 0x8080_8080 == 0 {
+            let total = (self.lanes & 0xFFFF).wrapping_add(self.lanes >> 16);
+            let sum = (total.wrapping_sub(u32::from(*s)) & 0x3F) as u8 + 0x30;
+            return Some((sum, *s, true));
+        }
+        let (sum, valid) = sum_and_check(data);
+        Some((sum, *s, valid))
     }
 
     /// Handles a complete line quickly when it produces no event (empty lines between
@@ -709,12 +782,8 @@ impl Decoder {
         }
         let n = len - 1;
         // One pass for the sum and the value-char check of the fast path.
-        let (expected, found, all_valid) = match self.buf.get(..len) {
-            Some([data @ .., s]) => {
-                let (sum, valid) = sum_and_check(data);
-                (sum, *s, valid)
-            }
-            _ => return self.fail(ErrorKind::BadDataLineLength),
+        let Some((expected, found, all_valid)) = self.line_sum_and_check(len) else {
+            return self.fail(ErrorKind::BadDataLineLength);
         };
         if expected != found {
             return self.fail(ErrorKind::BadSum { expected, found });
