@@ -106,8 +106,8 @@ pub enum RunStop {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Run {
-    /// Points taken. The run draws exactly these from its iterator, and one more when
-    /// it stops with [`RunStop::TooManyPoints`].
+    /// Points taken: the first `points` of the run's iterator. After a
+    /// [`RunStop::TooManyPoints`] stop the point after them was drawn and refused.
     pub points: u32,
     /// Points taken with [`Distance::Invalid`].
     pub invalid: u32,
@@ -414,9 +414,10 @@ impl ScanEncoder {
         Ok(run)
     }
 
-    /// [`ScanEncoder::push_run`] for classic frames: a frame's 8 bytes are built in a
-    /// 64-bit word (the data header in its low 16 bits, the points after it), kept in
-    /// the packer between runs.
+    /// [`ScanEncoder::push_run`] for classic frames. Points are coded a block at a time
+    /// (one data line is one block), then framed: a whole frame's points go into its
+    /// 64-bit payload word at shifts known at compile time; a frame begun or ended within
+    /// a block takes its points one by one and waits in the packer between runs.
     #[inline(never)]
     fn run_classic<const DB: u32, const IB: u32, I, S>(
         &mut self,
@@ -428,6 +429,8 @@ impl ScanEncoder {
         I::IntoIter: ExactSizeIterator,
         S: FrameSink + ?Sized,
     {
+        /// Points coded at a time: a data line's worth.
+        const BLOCK: usize = 36;
         let id = self.ids.id(Kind::Data);
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         let mut run = Run {
@@ -437,8 +440,14 @@ impl ScanEncoder {
             stop: None,
         };
         let bits = DB + IB;
-        let (count, capacity, coder) = (s.header.point_count, s.capacity, s.coder);
-        let (mut crc, mut valid) = (s.crc, s.valid);
+        // Points in a full classic frame: 48 bits after the data header.
+        let cap = (48 / bits) as usize;
+        let (count, coder) = (s.header.point_count, s.coder);
+        if usize::from(s.capacity) != cap {
+            return Err(Error::FrameTooLong);
+        }
+        let seq_bits = u64::from(s.header.seq & 0xF) << 12;
+        let mut crc = s.crc;
         let mut points = points.into_iter();
         loop {
             let left = points.len();
@@ -451,69 +460,106 @@ impl ScanEncoder {
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
-            let room = capacity
-                .saturating_sub(s.buffered)
-                .min(count.saturating_sub(s.pushed));
-            let k = usize::from(room).min(left);
-            // Bit position of the next point: after the data header and the points in.
-            let mut at = DATA_HEADER_LEN as u32 * 8 + u32::from(s.buffered) * bits;
-            // The points in so far (not the header bytes, nor bytes a longer frame left).
-            let mut word = if s.buffered == 0 {
-                0
-            } else {
-                s.packer.word64() & !0xFFFF & (u64::MAX >> (64 - at.min(64)))
-            };
-            let mut invalid = 0u32;
-            for (distance, intensity) in points.by_ref().take(k) {
+            let block = left.min(BLOCK).min(usize::from(count - s.pushed));
+            // Pass 1: the codes, distance in the low 16 bits, intensity above.
+            let mut codes = [0u32; BLOCK];
+            let (mut valid, mut invalid) = (0u16, 0u32);
+            for (code, (distance, intensity)) in codes.iter_mut().zip(points.by_ref().take(block)) {
                 let (dc, is_valid) = coder.code_valid(distance);
                 invalid += u32::from(distance == Distance::Invalid);
                 valid += u16::from(is_valid);
-                crc.code(dc);
-                let mut point = u64::from(dc);
-                if IB > 0 {
-                    let ic = u32::from(intensity) >> (16 - IB);
-                    crc.code(ic as u16);
-                    point |= u64::from(ic) << DB;
-                }
-                word |= point << (at & 63);
-                at += bits;
+                *code = if IB > 0 {
+                    u32::from(dc) | (u32::from(intensity) >> (16 - IB)) << 16
+                } else {
+                    u32::from(dc)
+                };
             }
-            // k <= room, a u16.
-            let k16 = k as u16;
-            s.pushed += k16;
-            s.buffered += k16;
-            run.points += u32::from(k16);
+            let codes = codes.get(..block).unwrap_or(&[]);
+            // Pass 2: frames.
+            let mut j = 0;
+            while let Some(rest) = codes.get(j..).filter(|r| !r.is_empty()) {
+                let room = (cap - usize::from(s.buffered)).min(usize::from(count - s.pushed));
+                let whole = if s.buffered == 0 && room == cap {
+                    let header = u64::from(s.sent & 0x0FFF) | seq_bits;
+                    match cap {
+                        1 => whole_frame::<1, DB, IB>(rest, header, &mut crc),
+                        2 => whole_frame::<2, DB, IB>(rest, header, &mut crc),
+                        3 => whole_frame::<3, DB, IB>(rest, header, &mut crc),
+                        4 => whole_frame::<4, DB, IB>(rest, header, &mut crc),
+                        _ => None,
+                    }
+                } else {
+                    None
+                };
+                let (word, len, k) = if let Some(word) = whole {
+                    (word, s.full_len, cap)
+                } else {
+                    // Points one by one into a frame begun earlier or ending later.
+                    let k = room.min(rest.len());
+                    let mut at = 16 + u32::from(s.buffered) * bits;
+                    let mut word = if s.buffered == 0 {
+                        0
+                    } else {
+                        s.packer.word64() & !0xFFFF & (u64::MAX >> (64 - at.min(64)))
+                    };
+                    for &code in rest.iter().take(k) {
+                        crc.code(code as u16);
+                        if IB > 0 {
+                            crc.code((code >> 16) as u16);
+                        }
+                        let point = u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB;
+                        word |= point << (at & 63);
+                        at += bits;
+                    }
+                    if k < room {
+                        // The frame goes on in the next run.
+                        s.packer.set_word64(word, at);
+                        s.pushed += k as u16;
+                        s.buffered += k as u16;
+                        j += k;
+                        continue;
+                    }
+                    let n = usize::from(s.buffered) + k;
+                    let len = if n == cap {
+                        s.full_len
+                    } else {
+                        data_frame_len(&s.header.encoding, n).ok_or(Error::FrameTooLong)?
+                    };
+                    let header = u64::from(s.sent & 0x0FFF) | seq_bits;
+                    s.packer.reset(DATA_HEADER_LEN);
+                    (word | header, len, k)
+                };
+                // A frame is due: its points are taken.
+                let k16 = k as u16;
+                s.pushed += k16;
+                s.sent += s.buffered + k16;
+                s.buffered = 0;
+                j += k;
+                match sink.data_slot() {
+                    Some(frame) => frame.set_classic(id, word.to_le_bytes(), len),
+                    None => {
+                        // The frame is lost; the points after it are not taken.
+                        let untaken = codes.get(j..).unwrap_or(&[]);
+                        for &code in untaken {
+                            let dc = code as u16;
+                            valid -= u16::from(coder.is_valid(dc));
+                            invalid -= u32::from(dc == 0);
+                        }
+                        run.points += j as u32;
+                        run.invalid += invalid;
+                        s.valid += valid;
+                        s.crc = crc;
+                        run.stop = Some(RunStop::NoSlot);
+                        return Ok(run);
+                    }
+                }
+                run.frames += 1;
+            }
+            run.points += block as u32;
             run.invalid += invalid;
-            if usize::from(room) != k {
-                // The frame goes on in the next run.
-                s.packer.set_word64(word, at);
-                continue;
-            }
-            (s.crc, s.valid) = (crc, valid);
-            let len = if s.buffered == capacity {
-                s.full_len
-            } else {
-                data_frame_len(&s.header.encoding, usize::from(s.buffered))
-                    .ok_or(Error::FrameTooLong)?
-            };
-            let dh = DataHeader {
-                first_index: s.sent,
-                seq_low: (s.header.seq & 0xF) as u8,
-            };
-            word |= u64::from(u16::from_le_bytes(dh.emit()));
-            s.sent += s.buffered;
-            s.buffered = 0;
-            s.packer.reset(DATA_HEADER_LEN);
-            match sink.data_slot() {
-                Some(frame) => frame.set_classic(id, word.to_le_bytes(), len),
-                None => {
-                    run.stop = Some(RunStop::NoSlot);
-                    return Ok(run);
-                }
-            }
-            run.frames += 1;
+            s.valid += valid;
         }
-        (s.crc, s.valid) = (crc, valid);
+        s.crc = crc;
         Ok(run)
     }
 
@@ -564,6 +610,29 @@ impl ScanEncoder {
         };
         self.frame(Kind::Abort, &a.emit()?)
     }
+}
+
+/// The payload word of a whole classic frame of `N` points (`header` in its low 16 bits)
+/// from the first `N` of `codes` (distance code in the low 16 bits, intensity above),
+/// their codes into `crc`; `None` when fewer than `N` codes are there.
+#[inline(always)]
+fn whole_frame<const N: usize, const DB: u32, const IB: u32>(
+    codes: &[u32],
+    header: u64,
+    crc: &mut ScanCrc,
+) -> Option<u64> {
+    let codes = codes.first_chunk::<N>()?;
+    let mut word = header;
+    let mut at = 16;
+    for &code in codes {
+        crc.code(code as u16);
+        if IB > 0 {
+            crc.code((code >> 16) as u16);
+        }
+        word |= (u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB) << at;
+        at += DB + IB;
+    }
+    Some(word)
 }
 
 /// The buffered points of `s` as a data frame with identifier `id`, written into `out`.

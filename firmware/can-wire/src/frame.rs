@@ -115,8 +115,10 @@ impl Frame {
     #[inline]
     pub fn set_classic(&mut self, id: Id, data: [u8; CLASSIC_LEN], len: usize) {
         let len = len.min(CLASSIC_LEN);
-        if let Some(stale) = self.data.get_mut(CLASSIC_LEN..usize::from(self.len)) {
-            stale.fill(0);
+        if usize::from(self.len) > CLASSIC_LEN {
+            if let Some(stale) = self.data.get_mut(CLASSIC_LEN..usize::from(self.len)) {
+                stale.fill(0);
+            }
         }
         if let Some(head) = self.data.first_chunk_mut::<CLASSIC_LEN>() {
             *head = data;
