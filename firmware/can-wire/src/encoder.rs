@@ -83,6 +83,9 @@ struct InProgress {
     full_len: usize,
 }
 
+/// Points a run codes at a time: a data line's worth.
+const BLOCK: usize = 36;
+
 /// Where [`ScanEncoder::push_run`] puts data frames as they fill: typically a transmit
 /// queue, whose new back slot the frame is written into in place (on a 32-bit MCU a
 /// frame moved by value is a 76-byte copy).
@@ -123,6 +126,8 @@ pub struct ScanEncoder {
     ids: NodeIds,
     format: FrameFormat,
     scan: Option<InProgress>,
+    /// The codes of the block of points a run is framing (see [`code_block`]).
+    codes: [u32; BLOCK],
 }
 
 impl ScanEncoder {
@@ -133,6 +138,7 @@ impl ScanEncoder {
             ids,
             format,
             scan: None,
+            codes: [0; BLOCK],
         })
     }
 
@@ -307,7 +313,8 @@ impl ScanEncoder {
         }
     }
 
-    /// [`ScanEncoder::push_run`] for `DB`-bit distances and `IB`-bit intensities.
+    /// [`ScanEncoder::push_run`] for CAN FD frames with `DB`-bit distances and `IB`-bit
+    /// intensities: points are coded a block at a time ([`code_block`]), then packed.
     #[inline(never)]
     fn run<const DB: u32, const IB: u32, I, S>(
         &mut self,
@@ -321,6 +328,7 @@ impl ScanEncoder {
     {
         let id = self.ids.id(Kind::Data);
         let fd = self.format.is_fd();
+        let codes_buf = &mut self.codes;
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         let mut run = Run {
             points: 0,
@@ -328,11 +336,7 @@ impl ScanEncoder {
             frames: 0,
             stop: None,
         };
-        // Frame by frame: the points that fit before the next frame is due go through a
-        // loop with nothing to check, its state in locals (registers); the counts go back
-        // into `s` before a flush and at the end.
-        let (count, capacity, coder) = (s.header.point_count, s.capacity, s.coder);
-        let (mut crc, mut valid) = (s.crc, s.valid);
+        let (count, capacity) = (s.header.point_count, s.capacity);
         let mut points = points.into_iter();
         loop {
             let left = points.len();
@@ -345,58 +349,55 @@ impl ScanEncoder {
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
-            // Points until a frame is due: the frame is full or the scan's last point is in.
-            let room = capacity
-                .saturating_sub(s.buffered)
-                .min(count.saturating_sub(s.pushed));
-            let k = usize::from(room).min(left);
-            let mut invalid = 0u32;
-            let mut code = |distance: Distance, intensity: u16| {
-                let (dc, is_valid) = coder.code_valid(distance);
-                invalid += u32::from(distance == Distance::Invalid);
-                valid += u16::from(is_valid);
-                crc.code(dc);
-                let mut word = u32::from(dc);
-                if IB > 0 {
-                    let ic = u32::from(intensity) >> (16 - IB);
-                    crc.code(ic as u16);
-                    word |= ic << DB;
-                }
-                word
-            };
-            let whole = ((DB + IB) / 8) as usize;
-            if (DB + IB) % 8 == 0 {
-                // Whole bytes per point: straight into their place, no bit position.
-                let Some(bytes) = s.packer.take_bytes(k.saturating_mul(whole)) else {
-                    return Err(Error::FrameTooLong);
-                };
-                for ((distance, intensity), out) in
-                    points.by_ref().take(k).zip(bytes.chunks_exact_mut(whole))
-                {
-                    let word = code(distance, intensity).to_le_bytes();
-                    if let Some(field) = word.get(..whole) {
-                        out.copy_from_slice(field);
+            let block = left.min(BLOCK).min(usize::from(count - s.pushed));
+            let (mut valid, mut invalid) = code_block::<IB, _>(&mut points, block, s, codes_buf);
+            let mut j = 0;
+            while j < block {
+                // Points until a frame is due: the frame is full or the scan's last is in.
+                let room = capacity
+                    .saturating_sub(s.buffered)
+                    .min(count.saturating_sub(s.pushed));
+                let k = usize::from(room).min(block - j);
+                let codes = codes_buf.get(j..j + k).unwrap_or(&[]);
+                let mut crc = s.crc;
+                for &code in codes {
+                    crc.code(code as u16);
+                    if IB > 0 {
+                        crc.code((code >> 16) as u16);
                     }
                 }
-            } else {
-                for (distance, intensity) in points.by_ref().take(k) {
-                    let word = code(distance, intensity);
-                    if DB + IB <= 24 {
-                        s.packer.put(word, DB + IB);
-                    } else {
-                        s.packer.put(word & ((1 << DB) - 1), DB);
-                        s.packer.put(word >> DB, IB);
+                s.crc = crc;
+                let whole = ((DB + IB) / 8) as usize;
+                if (DB + IB) % 8 == 0 {
+                    // Whole bytes per point: straight into their place, no bit position.
+                    let Some(bytes) = s.packer.take_bytes(k.saturating_mul(whole)) else {
+                        return Err(Error::FrameTooLong);
+                    };
+                    for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(whole)) {
+                        let word = (code & 0xFFFF) | (code >> 16) << DB;
+                        if let Some(field) = word.to_le_bytes().get(..whole) {
+                            out.copy_from_slice(field);
+                        }
+                    }
+                } else {
+                    for &code in codes {
+                        let (dc, ic) = (code & 0xFFFF, code >> 16);
+                        if DB + IB <= 24 {
+                            s.packer.put(dc | ic << DB, DB + IB);
+                        } else {
+                            s.packer.put(dc, DB);
+                            s.packer.put(ic, IB);
+                        }
                     }
                 }
-            }
-            // k <= room, a u16.
-            let k16 = k as u16;
-            s.pushed += k16;
-            s.buffered += k16;
-            run.points += u32::from(k16);
-            run.invalid += invalid;
-            if usize::from(room) == k {
-                (s.crc, s.valid) = (crc, valid);
+                // k <= room, a u16.
+                let k16 = k as u16;
+                s.pushed += k16;
+                s.buffered += k16;
+                j += k;
+                if usize::from(room) != k {
+                    continue;
+                }
                 let slot = sink.data_slot();
                 let lost = slot.is_none();
                 match slot {
@@ -404,13 +405,20 @@ impl ScanEncoder {
                     None => flush(s, id, fd, &mut Frame::default())?,
                 }
                 if lost {
+                    let rest = codes_buf.get(j..block).unwrap_or(&[]);
+                    untake(s, rest, &mut valid, &mut invalid);
+                    s.valid += valid;
+                    run.points += j as u32;
+                    run.invalid += invalid;
                     run.stop = Some(RunStop::NoSlot);
                     return Ok(run);
                 }
                 run.frames += 1;
             }
+            s.valid += valid;
+            run.points += block as u32;
+            run.invalid += invalid;
         }
-        (s.crc, s.valid) = (crc, valid);
         Ok(run)
     }
 
@@ -429,9 +437,8 @@ impl ScanEncoder {
         I::IntoIter: ExactSizeIterator,
         S: FrameSink + ?Sized,
     {
-        /// Points coded at a time: a data line's worth.
-        const BLOCK: usize = 36;
         let id = self.ids.id(Kind::Data);
+        let codes_buf = &mut self.codes;
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         let mut run = Run {
             points: 0,
@@ -442,7 +449,7 @@ impl ScanEncoder {
         let bits = DB + IB;
         // Points in a full classic frame: 48 bits after the data header.
         let cap = (48 / bits) as usize;
-        let (count, coder) = (s.header.point_count, s.coder);
+        let count = s.header.point_count;
         if usize::from(s.capacity) != cap {
             return Err(Error::FrameTooLong);
         }
@@ -461,20 +468,8 @@ impl ScanEncoder {
                 break;
             }
             let block = left.min(BLOCK).min(usize::from(count - s.pushed));
-            // Pass 1: the codes, distance in the low 16 bits, intensity above.
-            let mut codes = [0u32; BLOCK];
-            let (mut valid, mut invalid) = (0u16, 0u32);
-            for (code, (distance, intensity)) in codes.iter_mut().zip(points.by_ref().take(block)) {
-                let (dc, is_valid) = coder.code_valid(distance);
-                invalid += u32::from(distance == Distance::Invalid);
-                valid += u16::from(is_valid);
-                *code = if IB > 0 {
-                    u32::from(dc) | (u32::from(intensity) >> (16 - IB)) << 16
-                } else {
-                    u32::from(dc)
-                };
-            }
-            let codes = codes.get(..block).unwrap_or(&[]);
+            let (mut valid, mut invalid) = code_block::<IB, _>(&mut points, block, s, codes_buf);
+            let codes = codes_buf.get(..block).unwrap_or(&[]);
             // Pass 2: frames.
             let mut j = 0;
             while let Some(rest) = codes.get(j..).filter(|r| !r.is_empty()) {
@@ -539,12 +534,7 @@ impl ScanEncoder {
                     Some(frame) => frame.set_classic(id, word.to_le_bytes(), len),
                     None => {
                         // The frame is lost; the points after it are not taken.
-                        let untaken = codes.get(j..).unwrap_or(&[]);
-                        for &code in untaken {
-                            let dc = code as u16;
-                            valid -= u16::from(coder.is_valid(dc));
-                            invalid -= u32::from(dc == 0);
-                        }
+                        untake(s, codes.get(j..).unwrap_or(&[]), &mut valid, &mut invalid);
                         run.points += j as u32;
                         run.invalid += invalid;
                         s.valid += valid;
@@ -609,6 +599,42 @@ impl ScanEncoder {
             points_sent: s.sent,
         };
         self.frame(Kind::Abort, &a.emit()?)
+    }
+}
+
+/// Codes the next `n` points (at most [`BLOCK`]) into `codes`: per point its distance
+/// code in the low 16 bits and its intensity code (`IB` bits) above. Returns the valid
+/// distance codes and the [`Distance::Invalid`] points among them.
+#[inline(always)]
+fn code_block<const IB: u32, I: Iterator<Item = (Distance, u16)>>(
+    points: &mut I,
+    n: usize,
+    s: &InProgress,
+    codes: &mut [u32; BLOCK],
+) -> (u16, u32) {
+    let coder = s.coder;
+    let (mut valid, mut invalid) = (0u16, 0u32);
+    for (code, (distance, intensity)) in codes.iter_mut().zip(points.take(n)) {
+        let (dc, is_valid) = coder.code_valid(distance);
+        invalid += u32::from(distance == Distance::Invalid);
+        valid += u16::from(is_valid);
+        *code = if IB > 0 {
+            u32::from(dc) | (u32::from(intensity) >> (16 - IB)) << 16
+        } else {
+            u32::from(dc)
+        };
+    }
+    (valid, invalid)
+}
+
+/// Takes the counts of coded points that were not taken (a lost frame stopped the run)
+/// off `valid` and `invalid`.
+#[cold]
+fn untake(s: &InProgress, codes: &[u32], valid: &mut u16, invalid: &mut u32) {
+    for &code in codes {
+        let dc = code as u16;
+        *valid -= u16::from(s.coder.is_valid(dc));
+        *invalid -= u32::from(dc == 0);
     }
 }
 
