@@ -185,9 +185,10 @@ pub struct Decoder {
     buf: [u8; LINE_CAP],
     len: usize,
     overflow: bool,
-    /// Of the line's bytes so far, taken while they are copied: their sum in two 16-bit
-    /// lanes and the non-value-char flags (see [`sum_and_check_words`]).
-    lanes: u32,
+    /// Of the line's bytes so far, taken while they are copied: their sum (mod 64 is
+    /// what counts) and, in bits 6 and 7, a flag for a byte that is not a value char
+    /// (see [`Self::take_line_bytes`]).
+    sum: u32,
     bad: u32,
     offset: u64,
     line_start: u64,
@@ -248,7 +249,7 @@ impl Decoder {
             buf: [0; LINE_CAP],
             len: 0,
             overflow: false,
-            lanes: 0,
+            sum: 0,
             bad: 0,
             offset: 0,
             line_start: 0,
@@ -405,65 +406,80 @@ impl Decoder {
     }
 
     /// Copies `bytes` up to the first LF into the line buffer and returns the LF's
-    /// index, or copies them all and returns `None`. One pass, a word at a time: the LF
-    /// test, the copy, and the sum and char check that [`Self::data_line`] needs. Past
-    /// the buffer's capacity the line is marked overflowed and its bytes are not kept.
+    /// index, or copies them all and returns `None`. One pass that also takes what
+    /// [`Self::data_line`] needs: the byte sum (mod 64) and whether every byte is a
+    /// value char. Four value chars at a time go through a word test (no byte of `w -
+    /// 0x30303030` has bit 6 or 7 set exactly when all four are in `0x30..=0x6F`: a
+    /// byte below 0x30 flags itself, whatever it borrows), a store and a sum by
+    /// multiplication; a word with anything else in it (the LF, the sum char of some
+    /// lines, a damaged byte) goes byte by byte. Past the buffer's capacity the line is
+    /// marked overflowed and its bytes are not kept.
     #[inline]
     fn take_line_bytes(&mut self, bytes: &[u8]) -> Option<usize> {
-        const HIGHS: u32 = 0x8080_8080;
-        const LOWS: u32 = 0x7F7F_7F7F;
-        const EVEN: u32 = 0x00FF_00FF;
-        const ONES: u32 = 0x0101_0101;
-        const LFS: u32 = 0x0A0A_0A0A;
+        const FLAGS: u32 = 0xC0C0_C0C0;
+        const CHARS: u32 = 0x3030_3030;
         if self.overflow {
             return find_lf(bytes);
         }
         if self.len == 0 {
-            (self.lanes, self.bad) = (0, 0);
+            (self.sum, self.bad) = (0, 0);
         }
-        let (mut len, mut lanes, mut bad) = (self.len, self.lanes, self.bad);
+        let (mut len, mut sum, mut bad) = (self.len, self.sum, self.bad);
         let mut at = 0;
-        let mut words = bytes.chunks_exact(4);
-        for word in &mut words {
-            let Ok(four) = <[u8; 4]>::try_from(word) else {
-                break;
-            };
-            let w = u32::from_le_bytes(four);
-            let x = w ^ LFS;
-            if x.wrapping_sub(ONES) & !x & HIGHS != 0 {
-                break;
-            }
-            let Some(dst) = self.buf.get_mut(len..len + 4) else {
-                break;
-            };
-            dst.copy_from_slice(&four);
-            len += 4;
-            at += 4;
-            lanes = (lanes & 0x0FFF_0FFF)
-                .wrapping_add(w & EVEN)
-                .wrapping_add((w >> 8) & EVEN);
-            let low = w & LOWS;
-            bad |= w | low.wrapping_add(0x1010_1010) | !(low | HIGHS).wrapping_sub(0x3030_3030);
-        }
-        let mut found = None;
-        for (i, &b) in bytes.get(at..).unwrap_or(&[]).iter().enumerate() {
-            if b == b'\n' {
-                found = Some(at + i);
-                break;
-            }
-            match self.buf.get_mut(len) {
-                Some(slot) => *slot = b,
-                None => {
-                    self.overflow = true;
-                    found = find_lf(bytes.get(at + i..).unwrap_or(&[])).map(|j| at + i + j);
+        let found = loop {
+            // Whole words of value chars.
+            while let Some(four) = bytes
+                .get(at..at + 4)
+                .and_then(|b| <[u8; 4]>::try_from(b).ok())
+            {
+                let v = u32::from_le_bytes(four).wrapping_sub(CHARS);
+                if v & FLAGS != 0 {
                     break;
                 }
+                let Some(dst) = self.buf.get_mut(len..len + 4) else {
+                    break;
+                };
+                dst.copy_from_slice(&four);
+                len += 4;
+                at += 4;
+                // The top byte of v·0x01010101 is the sum of v's bytes: each is below
+                // 0x40, so no partial sum carries. They are the chars less 4·0x30, a
+                // multiple of 64, so the sum mod 64 is the chars' own.
+                sum = sum.wrapping_add(v.wrapping_mul(0x0101_0101) >> 24);
             }
-            len += 1;
-            lanes = (lanes & 0x0FFF_0FFF).wrapping_add(u32::from(b));
-            bad |= u32::from(b.wrapping_sub(CHAR_MIN) >= 0x40) << 7;
-        }
-        (self.len, self.lanes, self.bad) = (len, lanes, bad);
+            // Then up to four bytes one at a time.
+            let Some(next) = bytes.get(at..).filter(|r| !r.is_empty()) else {
+                break None;
+            };
+            let mut lf = None;
+            for (i, &b) in next.iter().take(4).enumerate() {
+                if b == b'\n' {
+                    lf = Some(at + i);
+                    break;
+                }
+                match self.buf.get_mut(len) {
+                    Some(slot) => *slot = b,
+                    None => {
+                        self.overflow = true;
+                        let from = at + i;
+                        lf = Some(
+                            find_lf(bytes.get(from..).unwrap_or(&[]))
+                                .map_or(usize::MAX, |j| from + j),
+                        );
+                        break;
+                    }
+                }
+                len += 1;
+                sum = sum.wrapping_add(u32::from(b));
+                bad |= u32::from(b.wrapping_sub(CHAR_MIN));
+            }
+            match lf {
+                Some(usize::MAX) => break None,
+                Some(i) => break Some(i),
+                None => at += next.len().min(4),
+            }
+        };
+        (self.len, self.sum, self.bad) = (len, sum, bad);
         found
     }
 
@@ -478,9 +494,8 @@ impl Decoder {
         };
         // The accumulators cover exactly the line just completed (it did not overflow, or
         // it would not be decoded).
-        if self.bad & 0x8080_8080 == 0 {
-            let total = (self.lanes & 0xFFFF).wrapping_add(self.lanes >> 16);
-            let sum = (total.wrapping_sub(u32::from(*s)) & 0x3F) as u8 + 0x30;
+        if self.bad & 0xC0 == 0 {
+            let sum = (self.sum.wrapping_sub(u32::from(*s)) & 0x3F) as u8 + 0x30;
             return Some((sum, *s, true));
         }
         let (sum, valid) = sum_and_check(data);
@@ -1178,6 +1193,49 @@ mod tests {
     use super::*;
     use crate::command::ScanMode;
     use crate::response::ResponseWriter;
+
+    #[test]
+    fn sum_and_check_taken_while_copying_equals_the_bytewise_one() {
+        // Lines of value chars (some with one arbitrary byte, never LF), their LF, in
+        // pseudo-random pieces: what `take_line_bytes` takes must be what
+        // `sum_and_check_bytes` computes over the line's data.
+        let mut x = 0x9E37_79B9u32;
+        let mut next = || {
+            x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            x >> 8
+        };
+        for _ in 0..20_000 {
+            let len = 1 + next() as usize % 90;
+            let mut line: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
+            if next() % 2 == 0 {
+                let at = next() as usize % len;
+                line[at] = match next() as u8 {
+                    b'\n' => 0,
+                    b => b,
+                };
+            }
+            let mut stream = line.clone();
+            stream.push(b'\n');
+            let mut d = Decoder::new();
+            let mut rest = &stream[..];
+            let mut lf = None;
+            let mut base = 0;
+            while lf.is_none() && !rest.is_empty() {
+                let piece = (1 + next() as usize % 70).min(rest.len());
+                lf = d.take_line_bytes(&rest[..piece]).map(|i| base + i);
+                base += piece;
+                rest = &rest[piece..];
+            }
+            assert_eq!(lf, Some(len), "{line:?}");
+            let expect = sum_and_check_bytes(&line[..len - 1]);
+            let overflow = len > LINE_CAP;
+            if !overflow {
+                let (sum, found, valid) = d.line_sum_and_check(len).unwrap();
+                assert_eq!(found, line[len - 1]);
+                assert_eq!((sum, valid), expect, "{line:?}");
+            }
+        }
+    }
 
     #[test]
     fn word_sum_and_check_equals_the_bytewise_one() {
