@@ -410,7 +410,7 @@ impl<const Q: usize> Core<Q> {
             self.pipeline.count_invalid(invalid);
             return;
         }
-        let points = line.readings.iter().map(move |r| {
+        let point = move |r: &scip::Reading| {
             let distance = if is_invalid(r) {
                 Distance::Invalid
             } else {
@@ -422,36 +422,32 @@ impl<const Q: usize> Core<Q> {
                 0
             };
             (distance, intensity)
-        });
+        };
         let mut slots = DataSlots(&mut self.queue);
-        let result = self.encoder.push_run(points, &mut slots);
-        // Points the encoder did not draw (it stopped early) are counted too, as the
-        // pipeline emitted them.
+        let result = self.encoder.push_run(line.readings, point, &mut slots);
         let mut invalid = 0;
-        let drawn = match result {
+        let taken = match result {
             Ok(run) => {
                 invalid = usize::try_from(run.invalid).unwrap_or(usize::MAX);
                 self.stats.frames = self.stats.frames.wrapping_add(run.frames);
-                let refused = match run.stop {
+                match run.stop {
                     Some(RunStop::NoSlot) => {
                         self.overflow = true;
                         self.stats.queue_overflows += 1;
-                        0
                     }
-                    Some(RunStop::TooManyPoints) => {
-                        self.filtered = true;
-                        1
-                    }
-                    None => 0,
-                };
-                usize::try_from(run.points).unwrap_or(usize::MAX) + refused
+                    Some(RunStop::TooManyPoints) => self.filtered = true,
+                    None => {}
+                }
+                usize::try_from(run.points).unwrap_or(usize::MAX)
             }
             Err(_) => {
                 self.filtered = true;
                 0
             }
         };
-        let rest = line.readings.get(drawn..).unwrap_or(&[]);
+        // Points the encoder did not take (it stopped early) are counted too, as the
+        // pipeline emitted them.
+        let rest = line.readings.get(taken..).unwrap_or(&[]);
         invalid += rest.iter().filter(|r| is_invalid(r)).count();
         self.pipeline.count_invalid(invalid);
     }

@@ -101,7 +101,7 @@ pub enum RunStop {
     /// The sink had no slot for a due data frame: the frame was lost (the scan goes on
     /// as if it had been sent, like [`ScanEncoder::push_point_into`]).
     NoSlot,
-    /// More points than the header announced: the point drawn last was not taken.
+    /// More points than the header announced: the points after those taken were not.
     TooManyPoints,
 }
 
@@ -109,8 +109,7 @@ pub enum RunStop {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Run {
-    /// Points taken: the first `points` of the run's iterator. After a
-    /// [`RunStop::TooManyPoints`] stop the point after them was drawn and refused.
+    /// Points taken: the first `points` of the run.
     pub points: u32,
     /// Points taken with [`Distance::Invalid`].
     pub invalid: u32,
@@ -269,45 +268,45 @@ impl ScanEncoder {
         Ok(s.buffered >= s.capacity || s.pushed == s.header.point_count)
     }
 
-    /// Adds points in order, like [`ScanEncoder::push_point_into`] for each, with every
-    /// due data frame written into a slot of `sink`. The loop is compiled once per
-    /// encoding, so a point costs a few instructions of coding and packing. It stops at
-    /// the first point the scan cannot take, or after the first frame `sink` had no slot
-    /// for.
+    /// Adds `points` in order, each turned into a distance and an intensity by `point`,
+    /// like [`ScanEncoder::push_point_into`] for each, with every due data frame written
+    /// into a slot of `sink`. The loops are compiled once per encoding and frame kind,
+    /// and points are coded a block at a time and then framed, so a point costs a few
+    /// instructions. It stops at the first point the scan cannot take, or after the
+    /// first frame `sink` had no slot for.
     #[inline]
-    pub fn push_run<I, S>(&mut self, points: I, sink: &mut S) -> Result<Run, Error>
+    pub fn push_run<T, F, S>(&mut self, points: &[T], point: F, sink: &mut S) -> Result<Run, Error>
     where
-        I: IntoIterator<Item = (Distance, u16)>,
-        I::IntoIter: ExactSizeIterator,
+        F: Fn(&T) -> (Distance, u16),
         S: FrameSink + ?Sized,
     {
         let s = self.scan.as_ref().ok_or(Error::NoScan)?;
         let classic = !self.format.is_fd();
         match (classic, s.distance_bits, s.intensity_bits) {
-            (false, 16, 0) => self.run::<16, 0, _, _>(points, sink),
-            (false, 14, 0) => self.run::<14, 0, _, _>(points, sink),
-            (false, 12, 0) => self.run::<12, 0, _, _>(points, sink),
-            (false, 16, 16) => self.run::<16, 16, _, _>(points, sink),
-            (false, 16, 12) => self.run::<16, 12, _, _>(points, sink),
-            (false, 16, 8) => self.run::<16, 8, _, _>(points, sink),
-            (false, 14, 16) => self.run::<14, 16, _, _>(points, sink),
-            (false, 14, 12) => self.run::<14, 12, _, _>(points, sink),
-            (false, 14, 8) => self.run::<14, 8, _, _>(points, sink),
-            (false, 12, 16) => self.run::<12, 16, _, _>(points, sink),
-            (false, 12, 12) => self.run::<12, 12, _, _>(points, sink),
-            (false, 12, 8) => self.run::<12, 8, _, _>(points, sink),
-            (true, 16, 0) => self.run_classic::<16, 0, _, _>(points, sink),
-            (true, 14, 0) => self.run_classic::<14, 0, _, _>(points, sink),
-            (true, 12, 0) => self.run_classic::<12, 0, _, _>(points, sink),
-            (true, 16, 16) => self.run_classic::<16, 16, _, _>(points, sink),
-            (true, 16, 12) => self.run_classic::<16, 12, _, _>(points, sink),
-            (true, 16, 8) => self.run_classic::<16, 8, _, _>(points, sink),
-            (true, 14, 16) => self.run_classic::<14, 16, _, _>(points, sink),
-            (true, 14, 12) => self.run_classic::<14, 12, _, _>(points, sink),
-            (true, 14, 8) => self.run_classic::<14, 8, _, _>(points, sink),
-            (true, 12, 16) => self.run_classic::<12, 16, _, _>(points, sink),
-            (true, 12, 12) => self.run_classic::<12, 12, _, _>(points, sink),
-            (true, 12, 8) => self.run_classic::<12, 8, _, _>(points, sink),
+            (false, 16, 0) => self.run::<16, 0, _, _, _>(points, &point, sink),
+            (false, 14, 0) => self.run::<14, 0, _, _, _>(points, &point, sink),
+            (false, 12, 0) => self.run::<12, 0, _, _, _>(points, &point, sink),
+            (false, 16, 16) => self.run::<16, 16, _, _, _>(points, &point, sink),
+            (false, 16, 12) => self.run::<16, 12, _, _, _>(points, &point, sink),
+            (false, 16, 8) => self.run::<16, 8, _, _, _>(points, &point, sink),
+            (false, 14, 16) => self.run::<14, 16, _, _, _>(points, &point, sink),
+            (false, 14, 12) => self.run::<14, 12, _, _, _>(points, &point, sink),
+            (false, 14, 8) => self.run::<14, 8, _, _, _>(points, &point, sink),
+            (false, 12, 16) => self.run::<12, 16, _, _, _>(points, &point, sink),
+            (false, 12, 12) => self.run::<12, 12, _, _, _>(points, &point, sink),
+            (false, 12, 8) => self.run::<12, 8, _, _, _>(points, &point, sink),
+            (true, 16, 0) => self.run_classic::<16, 0, _, _, _>(points, &point, sink),
+            (true, 14, 0) => self.run_classic::<14, 0, _, _, _>(points, &point, sink),
+            (true, 12, 0) => self.run_classic::<12, 0, _, _, _>(points, &point, sink),
+            (true, 16, 16) => self.run_classic::<16, 16, _, _, _>(points, &point, sink),
+            (true, 16, 12) => self.run_classic::<16, 12, _, _, _>(points, &point, sink),
+            (true, 16, 8) => self.run_classic::<16, 8, _, _, _>(points, &point, sink),
+            (true, 14, 16) => self.run_classic::<14, 16, _, _, _>(points, &point, sink),
+            (true, 14, 12) => self.run_classic::<14, 12, _, _, _>(points, &point, sink),
+            (true, 14, 8) => self.run_classic::<14, 8, _, _, _>(points, &point, sink),
+            (true, 12, 16) => self.run_classic::<12, 16, _, _, _>(points, &point, sink),
+            (true, 12, 12) => self.run_classic::<12, 12, _, _, _>(points, &point, sink),
+            (true, 12, 8) => self.run_classic::<12, 8, _, _, _>(points, &point, sink),
             // Every encoding a scan can begin with is above.
             _ => Err(Error::UnknownEncoding(0)),
         }
@@ -316,14 +315,14 @@ impl ScanEncoder {
     /// [`ScanEncoder::push_run`] for CAN FD frames with `DB`-bit distances and `IB`-bit
     /// intensities: points are coded a block at a time ([`code_block`]), then packed.
     #[inline(never)]
-    fn run<const DB: u32, const IB: u32, I, S>(
+    fn run<const DB: u32, const IB: u32, T, F, S>(
         &mut self,
-        points: I,
+        points: &[T],
+        point: &F,
         sink: &mut S,
     ) -> Result<Run, Error>
     where
-        I: IntoIterator<Item = (Distance, u16)>,
-        I::IntoIter: ExactSizeIterator,
+        F: Fn(&T) -> (Distance, u16),
         S: FrameSink + ?Sized,
     {
         let id = self.ids.id(Kind::Data);
@@ -337,20 +336,20 @@ impl ScanEncoder {
             stop: None,
         };
         let (count, capacity) = (s.header.point_count, s.capacity);
-        let mut points = points.into_iter();
+        let mut rest = points;
         loop {
-            let left = points.len();
+            let left = rest.len();
             if left == 0 {
                 break;
             }
             if s.pushed >= count {
-                // Drawn, not taken.
-                let _ = points.next();
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
             let block = left.min(BLOCK).min(usize::from(count - s.pushed));
-            let (mut valid, mut invalid) = code_block::<IB, _>(&mut points, block, s, codes_buf);
+            let (now, later) = rest.split_at(block);
+            rest = later;
+            let (mut valid, mut invalid) = code_block::<IB, _, _>(now, point, s, codes_buf);
             let mut j = 0;
             while j < block {
                 // Points until a frame is due: the frame is full or the scan's last is in.
@@ -427,14 +426,14 @@ impl ScanEncoder {
     /// 64-bit payload word at shifts known at compile time; a frame begun or ended within
     /// a block takes its points one by one and waits in the packer between runs.
     #[inline(never)]
-    fn run_classic<const DB: u32, const IB: u32, I, S>(
+    fn run_classic<const DB: u32, const IB: u32, T, F, S>(
         &mut self,
-        points: I,
+        points: &[T],
+        point: &F,
         sink: &mut S,
     ) -> Result<Run, Error>
     where
-        I: IntoIterator<Item = (Distance, u16)>,
-        I::IntoIter: ExactSizeIterator,
+        F: Fn(&T) -> (Distance, u16),
         S: FrameSink + ?Sized,
     {
         let id = self.ids.id(Kind::Data);
@@ -455,20 +454,20 @@ impl ScanEncoder {
         }
         let seq_bits = u64::from(s.header.seq & 0xF) << 12;
         let mut crc = s.crc;
-        let mut points = points.into_iter();
+        let mut rest = points;
         loop {
-            let left = points.len();
+            let left = rest.len();
             if left == 0 {
                 break;
             }
             if s.pushed >= count {
-                // Drawn, not taken.
-                let _ = points.next();
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
             let block = left.min(BLOCK).min(usize::from(count - s.pushed));
-            let (mut valid, mut invalid) = code_block::<IB, _>(&mut points, block, s, codes_buf);
+            let (now, later) = rest.split_at(block);
+            rest = later;
+            let (mut valid, mut invalid) = code_block::<IB, _, _>(now, point, s, codes_buf);
             let codes = codes_buf.get(..block).unwrap_or(&[]);
             // Pass 2: frames.
             let mut j = 0;
@@ -602,19 +601,21 @@ impl ScanEncoder {
     }
 }
 
-/// Codes the next `n` points (at most [`BLOCK`]) into `codes`: per point its distance
-/// code in the low 16 bits and its intensity code (`IB` bits) above. Returns the valid
-/// distance codes and the [`Distance::Invalid`] points among them.
-#[inline(always)]
-fn code_block<const IB: u32, I: Iterator<Item = (Distance, u16)>>(
-    points: &mut I,
-    n: usize,
+/// Codes `points` (at most [`BLOCK`]) into `codes`: per point its distance code in the
+/// low 16 bits and its intensity code (`IB` bits) above. Returns the valid distance codes
+/// and the [`Distance::Invalid`] points among them. Kept out of line: in a function of
+/// its own the loop keeps its counters and constants in registers.
+#[inline(never)]
+fn code_block<const IB: u32, T, F: Fn(&T) -> (Distance, u16)>(
+    points: &[T],
+    point: &F,
     s: &InProgress,
     codes: &mut [u32; BLOCK],
 ) -> (u16, u32) {
     let coder = s.coder;
     let (mut valid, mut invalid) = (0u16, 0u32);
-    for (code, (distance, intensity)) in codes.iter_mut().zip(points.take(n)) {
+    for (code, p) in codes.iter_mut().zip(points) {
+        let (distance, intensity) = point(p);
         let (dc, is_valid) = coder.code_valid(distance);
         invalid += u32::from(distance == Distance::Invalid);
         valid += u16::from(is_valid);
@@ -869,7 +870,7 @@ mod tests {
                         }
                     }
                 } else {
-                    let run = two.push_run(now.iter().copied(), &mut sink).unwrap();
+                    let run = two.push_run(now, |&p| p, &mut sink).unwrap();
                     frames += run.frames;
                     run_stop = run.stop;
                 }
