@@ -475,13 +475,7 @@ impl ScanEncoder {
                 let room = (cap - usize::from(s.buffered)).min(usize::from(count - s.pushed));
                 let whole = if s.buffered == 0 && room == cap {
                     let header = u64::from(s.sent & 0x0FFF) | seq_bits;
-                    match cap {
-                        1 => whole_frame::<1, DB, IB>(rest, header, &mut crc),
-                        2 => whole_frame::<2, DB, IB>(rest, header, &mut crc),
-                        3 => whole_frame::<3, DB, IB>(rest, header, &mut crc),
-                        4 => whole_frame::<4, DB, IB>(rest, header, &mut crc),
-                        _ => None,
-                    }
+                    whole_frame::<DB, IB>(rest, cap, header, &mut crc)
                 } else {
                     None
                 };
@@ -639,27 +633,57 @@ fn untake(s: &InProgress, codes: &[u32], valid: &mut u16, invalid: &mut u32) {
     }
 }
 
-/// The payload word of a whole classic frame of `N` points (`header` in its low 16 bits)
-/// from the first `N` of `codes` (distance code in the low 16 bits, intensity above),
-/// their codes into `crc`; `None` when fewer than `N` codes are there.
+/// The payload word of a whole classic frame of `n` points (1 to 4; `header` in its
+/// low 16 bits) from the first `n` of `codes` (distance code in the low 16 bits,
+/// intensity above), their codes into `crc`; `None` when fewer than `n` codes are there.
+/// Written out per `n`, so every point goes in at a shift known at compile time.
 #[inline(always)]
-fn whole_frame<const N: usize, const DB: u32, const IB: u32>(
+fn whole_frame<const DB: u32, const IB: u32>(
     codes: &[u32],
+    n: usize,
     header: u64,
     crc: &mut ScanCrc,
 ) -> Option<u64> {
-    let codes = codes.first_chunk::<N>()?;
-    let mut word = header;
-    let mut at = 16;
-    for &code in codes {
+    let mut add = |code: u32| {
         crc.code(code as u16);
         if IB > 0 {
             crc.code((code >> 16) as u16);
         }
-        word |= (u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB) << at;
-        at += DB + IB;
-    }
-    Some(word)
+    };
+    // Point `i` of the frame, in place.
+    let place = |code: u32, i: u32| {
+        (u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB) << (16 + i * (DB + IB))
+    };
+    let word = match n {
+        1 => {
+            let &[a] = codes.first_chunk::<1>()?;
+            add(a);
+            place(a, 0)
+        }
+        2 => {
+            let &[a, b] = codes.first_chunk::<2>()?;
+            add(a);
+            add(b);
+            place(a, 0) | place(b, 1)
+        }
+        3 => {
+            let &[a, b, c] = codes.first_chunk::<3>()?;
+            add(a);
+            add(b);
+            add(c);
+            place(a, 0) | place(b, 1) | place(c, 2)
+        }
+        4 => {
+            let &[a, b, c, d] = codes.first_chunk::<4>()?;
+            add(a);
+            add(b);
+            add(c);
+            add(d);
+            place(a, 0) | place(b, 1) | place(c, 2) | place(d, 3)
+        }
+        _ => return None,
+    };
+    Some(header | word)
 }
 
 /// The buffered points of `s` as a data frame with identifier `id`, written into `out`.
