@@ -606,11 +606,31 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (Distance, u16)>(
     s: &InProgress,
     codes: &mut [u32; BLOCK],
 ) -> (u16, u32) {
+    // Millimetre codes (the usual unit) skip the rounding shift.
+    if s.coder.is_mm() {
+        code_points::<IB, true, T, F>(points, point, s, codes)
+    } else {
+        code_points::<IB, false, T, F>(points, point, s, codes)
+    }
+}
+
+/// The loop of [`code_block`], with `MM` telling the unit is 1 mm.
+#[inline(always)]
+fn code_points<const IB: u32, const MM: bool, T, F: Fn(&T) -> (Distance, u16)>(
+    points: &[T],
+    point: &F,
+    s: &InProgress,
+    codes: &mut [u32; BLOCK],
+) -> (u16, u32) {
     let coder = s.coder;
     let (mut valid, mut invalid) = (0u16, 0u32);
     for (code, p) in codes.iter_mut().zip(points) {
         let (distance, intensity) = point(p);
-        let (dc, is_valid) = coder.code_valid(distance);
+        let (dc, is_valid) = if MM {
+            coder.code_valid_mm(distance)
+        } else {
+            coder.code_valid(distance)
+        };
         invalid += u32::from(distance == Distance::Invalid);
         valid += u16::from(is_valid);
         *code = if IB > 0 {
