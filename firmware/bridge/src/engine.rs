@@ -410,21 +410,23 @@ impl<const Q: usize> Core<Q> {
             self.pipeline.count_invalid(invalid);
             return;
         }
+        let [a, b] = test.exceptions();
+        let rule = can_wire::RangeRule {
+            min: test.min(),
+            except: [a, b],
+        };
         let point = move |r: &scip::Reading| {
-            let distance = if is_invalid(r) {
-                Distance::Invalid
-            } else {
-                Distance::Mm(r.distance)
-            };
             let intensity = if has_aux {
                 u16::try_from(r.aux).unwrap_or(u16::MAX)
             } else {
                 0
             };
-            (distance, intensity)
+            (r.distance, intensity)
         };
         let mut slots = DataSlots(&mut self.queue);
-        let result = self.encoder.push_run(line.readings, point, &mut slots);
+        let result = self
+            .encoder
+            .push_run(line.readings, rule, point, &mut slots);
         let mut invalid = 0;
         let taken = match result {
             Ok(run) => {

@@ -105,13 +105,51 @@ pub enum RunStop {
     TooManyPoints,
 }
 
+/// Which raw distances of a [`ScanEncoder::push_run`] are ranges: those at least `min`
+/// that are none of `except` (error codes above `min`; `u32::MAX` fills an unused
+/// place). The others are [`Distance::Invalid`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RangeRule {
+    /// The smallest range.
+    pub min: u32,
+    /// Error codes at or above `min`.
+    pub except: [u32; 2],
+}
+
+impl RangeRule {
+    /// Every distance of at least `min` is a range.
+    pub const fn at_least(min: u32) -> RangeRule {
+        RangeRule {
+            min,
+            except: [u32::MAX; 2],
+        }
+    }
+
+    /// The distance `d` as the rule classifies it.
+    #[inline(always)]
+    pub fn distance(&self, d: u32) -> Distance {
+        if self.is_range(d) {
+            Distance::Mm(d)
+        } else {
+            Distance::Invalid
+        }
+    }
+
+    #[inline(always)]
+    fn is_range(&self, d: u32) -> bool {
+        let [a, b] = self.except;
+        d >= self.min && d != a && d != b
+    }
+}
+
 /// What [`ScanEncoder::push_run`] did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Run {
     /// Points taken: the first `points` of the run.
     pub points: u32,
-    /// Points taken with [`Distance::Invalid`].
+    /// Points taken that were no range.
     pub invalid: u32,
     /// Data frames written into the sink.
     pub frames: u32,
@@ -268,45 +306,52 @@ impl ScanEncoder {
         Ok(s.buffered >= s.capacity || s.pushed == s.header.point_count)
     }
 
-    /// Adds `points` in order, each turned into a distance and an intensity by `point`,
-    /// like [`ScanEncoder::push_point_into`] for each, with every due data frame written
+    /// Adds `points` in order, each turned by `point` into a raw distance (a range or
+    /// not, as `rule` says) and an intensity, like [`ScanEncoder::push_point_into`] for
+    /// each, with every due data frame written
     /// into a slot of `sink`. The loops are compiled once per encoding and frame kind,
     /// and points are coded a block at a time and then framed, so a point costs a few
     /// instructions. It stops at the first point the scan cannot take, or after the
     /// first frame `sink` had no slot for.
     #[inline]
-    pub fn push_run<T, F, S>(&mut self, points: &[T], point: F, sink: &mut S) -> Result<Run, Error>
+    pub fn push_run<T, F, S>(
+        &mut self,
+        points: &[T],
+        rule: RangeRule,
+        point: F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
     where
-        F: Fn(&T) -> (Distance, u16),
+        F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
         let s = self.scan.as_ref().ok_or(Error::NoScan)?;
         let classic = !self.format.is_fd();
         match (classic, s.distance_bits, s.intensity_bits) {
-            (false, 16, 0) => self.run::<16, 0, _, _, _>(points, &point, sink),
-            (false, 14, 0) => self.run::<14, 0, _, _, _>(points, &point, sink),
-            (false, 12, 0) => self.run::<12, 0, _, _, _>(points, &point, sink),
-            (false, 16, 16) => self.run::<16, 16, _, _, _>(points, &point, sink),
-            (false, 16, 12) => self.run::<16, 12, _, _, _>(points, &point, sink),
-            (false, 16, 8) => self.run::<16, 8, _, _, _>(points, &point, sink),
-            (false, 14, 16) => self.run::<14, 16, _, _, _>(points, &point, sink),
-            (false, 14, 12) => self.run::<14, 12, _, _, _>(points, &point, sink),
-            (false, 14, 8) => self.run::<14, 8, _, _, _>(points, &point, sink),
-            (false, 12, 16) => self.run::<12, 16, _, _, _>(points, &point, sink),
-            (false, 12, 12) => self.run::<12, 12, _, _, _>(points, &point, sink),
-            (false, 12, 8) => self.run::<12, 8, _, _, _>(points, &point, sink),
-            (true, 16, 0) => self.run_classic::<16, 0, _, _, _>(points, &point, sink),
-            (true, 14, 0) => self.run_classic::<14, 0, _, _, _>(points, &point, sink),
-            (true, 12, 0) => self.run_classic::<12, 0, _, _, _>(points, &point, sink),
-            (true, 16, 16) => self.run_classic::<16, 16, _, _, _>(points, &point, sink),
-            (true, 16, 12) => self.run_classic::<16, 12, _, _, _>(points, &point, sink),
-            (true, 16, 8) => self.run_classic::<16, 8, _, _, _>(points, &point, sink),
-            (true, 14, 16) => self.run_classic::<14, 16, _, _, _>(points, &point, sink),
-            (true, 14, 12) => self.run_classic::<14, 12, _, _, _>(points, &point, sink),
-            (true, 14, 8) => self.run_classic::<14, 8, _, _, _>(points, &point, sink),
-            (true, 12, 16) => self.run_classic::<12, 16, _, _, _>(points, &point, sink),
-            (true, 12, 12) => self.run_classic::<12, 12, _, _, _>(points, &point, sink),
-            (true, 12, 8) => self.run_classic::<12, 8, _, _, _>(points, &point, sink),
+            (false, 16, 0) => self.run::<16, 0, _, _, _>(points, rule, &point, sink),
+            (false, 14, 0) => self.run::<14, 0, _, _, _>(points, rule, &point, sink),
+            (false, 12, 0) => self.run::<12, 0, _, _, _>(points, rule, &point, sink),
+            (false, 16, 16) => self.run::<16, 16, _, _, _>(points, rule, &point, sink),
+            (false, 16, 12) => self.run::<16, 12, _, _, _>(points, rule, &point, sink),
+            (false, 16, 8) => self.run::<16, 8, _, _, _>(points, rule, &point, sink),
+            (false, 14, 16) => self.run::<14, 16, _, _, _>(points, rule, &point, sink),
+            (false, 14, 12) => self.run::<14, 12, _, _, _>(points, rule, &point, sink),
+            (false, 14, 8) => self.run::<14, 8, _, _, _>(points, rule, &point, sink),
+            (false, 12, 16) => self.run::<12, 16, _, _, _>(points, rule, &point, sink),
+            (false, 12, 12) => self.run::<12, 12, _, _, _>(points, rule, &point, sink),
+            (false, 12, 8) => self.run::<12, 8, _, _, _>(points, rule, &point, sink),
+            (true, 16, 0) => self.run_classic::<16, 0, _, _, _>(points, rule, &point, sink),
+            (true, 14, 0) => self.run_classic::<14, 0, _, _, _>(points, rule, &point, sink),
+            (true, 12, 0) => self.run_classic::<12, 0, _, _, _>(points, rule, &point, sink),
+            (true, 16, 16) => self.run_classic::<16, 16, _, _, _>(points, rule, &point, sink),
+            (true, 16, 12) => self.run_classic::<16, 12, _, _, _>(points, rule, &point, sink),
+            (true, 16, 8) => self.run_classic::<16, 8, _, _, _>(points, rule, &point, sink),
+            (true, 14, 16) => self.run_classic::<14, 16, _, _, _>(points, rule, &point, sink),
+            (true, 14, 12) => self.run_classic::<14, 12, _, _, _>(points, rule, &point, sink),
+            (true, 14, 8) => self.run_classic::<14, 8, _, _, _>(points, rule, &point, sink),
+            (true, 12, 16) => self.run_classic::<12, 16, _, _, _>(points, rule, &point, sink),
+            (true, 12, 12) => self.run_classic::<12, 12, _, _, _>(points, rule, &point, sink),
+            (true, 12, 8) => self.run_classic::<12, 8, _, _, _>(points, rule, &point, sink),
             // Every encoding a scan can begin with is above.
             _ => Err(Error::UnknownEncoding(0)),
         }
@@ -318,11 +363,12 @@ impl ScanEncoder {
     fn run<const DB: u32, const IB: u32, T, F, S>(
         &mut self,
         points: &[T],
+        rule: RangeRule,
         point: &F,
         sink: &mut S,
     ) -> Result<Run, Error>
     where
-        F: Fn(&T) -> (Distance, u16),
+        F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
         let id = self.ids.id(Kind::Data);
@@ -349,7 +395,7 @@ impl ScanEncoder {
             let block = left.min(BLOCK).min(usize::from(count - s.pushed));
             let (now, later) = rest.split_at(block);
             rest = later;
-            let (mut valid, mut invalid) = code_block::<IB, _, _>(now, point, s, codes_buf);
+            let (mut valid, mut invalid) = code_block::<IB, _, _>(now, rule, point, s, codes_buf);
             let mut j = 0;
             while j < block {
                 // Points until a frame is due: the frame is full or the scan's last is in.
@@ -429,11 +475,12 @@ impl ScanEncoder {
     fn run_classic<const DB: u32, const IB: u32, T, F, S>(
         &mut self,
         points: &[T],
+        rule: RangeRule,
         point: &F,
         sink: &mut S,
     ) -> Result<Run, Error>
     where
-        F: Fn(&T) -> (Distance, u16),
+        F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
         let id = self.ids.id(Kind::Data);
@@ -467,7 +514,7 @@ impl ScanEncoder {
             let block = left.min(BLOCK).min(usize::from(count - s.pushed));
             let (now, later) = rest.split_at(block);
             rest = later;
-            let (mut valid, mut invalid) = code_block::<IB, _, _>(now, point, s, codes_buf);
+            let (mut valid, mut invalid) = code_block::<IB, _, _>(now, rule, point, s, codes_buf);
             let codes = codes_buf.get(..block).unwrap_or(&[]);
             // Pass 2: frames.
             let mut j = 0;
@@ -597,27 +644,32 @@ impl ScanEncoder {
 
 /// Codes `points` (at most [`BLOCK`]) into `codes`: per point its distance code in the
 /// low 16 bits and its intensity code (`IB` bits) above. Returns the valid distance codes
-/// and the [`Distance::Invalid`] points among them. Kept out of line: in a function of
-/// its own the loop keeps its counters and constants in registers.
+/// and the points that are no range (as `rule` says). Kept out of line: in a function of
+/// its own the loop keeps its counters and constants in registers; the usual cases (no
+/// error code above DMIN, 1 mm units) get loops of their own.
 #[inline(never)]
-fn code_block<const IB: u32, T, F: Fn(&T) -> (Distance, u16)>(
+fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     points: &[T],
+    rule: RangeRule,
     point: &F,
     s: &InProgress,
     codes: &mut [u32; BLOCK],
 ) -> (u16, u32) {
-    // Millimetre codes (the usual unit) skip the rounding shift.
-    if s.coder.is_mm() {
-        code_points::<IB, true, T, F>(points, point, s, codes)
-    } else {
-        code_points::<IB, false, T, F>(points, point, s, codes)
+    let simple = rule.except == [u32::MAX; 2];
+    match (simple, s.coder.is_mm()) {
+        (true, true) => code_points::<IB, true, true, T, F>(points, rule, point, s, codes),
+        (true, false) => code_points::<IB, true, false, T, F>(points, rule, point, s, codes),
+        (false, true) => code_points::<IB, false, true, T, F>(points, rule, point, s, codes),
+        (false, false) => code_points::<IB, false, false, T, F>(points, rule, point, s, codes),
     }
 }
 
-/// The loop of [`code_block`], with `MM` telling the unit is 1 mm.
+/// The loop of [`code_block`]: `SIMPLE` when `rule` has no exceptions, `MM` when the
+/// unit is 1 mm.
 #[inline(always)]
-fn code_points<const IB: u32, const MM: bool, T, F: Fn(&T) -> (Distance, u16)>(
+fn code_points<const IB: u32, const SIMPLE: bool, const MM: bool, T, F: Fn(&T) -> (u32, u16)>(
     points: &[T],
+    rule: RangeRule,
     point: &F,
     s: &InProgress,
     codes: &mut [u32; BLOCK],
@@ -625,13 +677,23 @@ fn code_points<const IB: u32, const MM: bool, T, F: Fn(&T) -> (Distance, u16)>(
     let coder = s.coder;
     let (mut valid, mut invalid) = (0u16, 0u32);
     for (code, p) in codes.iter_mut().zip(points) {
-        let (distance, intensity) = point(p);
+        let (raw, intensity) = point(p);
+        let is_range = if SIMPLE {
+            raw >= rule.min
+        } else {
+            rule.is_range(raw)
+        };
+        let distance = if is_range {
+            Distance::Mm(raw)
+        } else {
+            Distance::Invalid
+        };
         let (dc, is_valid) = if MM {
             coder.code_valid_mm(distance)
         } else {
             coder.code_valid(distance)
         };
-        invalid += u32::from(distance == Distance::Invalid);
+        invalid += u32::from(!is_range);
         valid += u16::from(is_valid);
         *code = if IB > 0 {
             u32::from(dc) | (u32::from(intensity) >> (16 - IB)) << 16
@@ -841,6 +903,8 @@ mod tests {
             cuts in proptest::collection::vec(1usize..40, 1..8),
             room in 0usize..60,
             mix in proptest::prelude::any::<bool>(),
+            rule_min in 0u32..40,
+            rule_except in 0usize..3,
         ) {
             let enc = Encoding {
                 distance: DistanceEncoding::ALL[d],
@@ -848,25 +912,28 @@ mod tests {
                 unit_exp,
             };
             let ids = IdWindow::DEFAULT.node(3).unwrap();
-            let points: Vec<(Distance, u16)> = seed
+            let rule = RangeRule {
+                min: rule_min,
+                except: [[u32::MAX; 2], [4095, u32::MAX], [65533, 4095]][rule_except],
+            };
+            // Raw distances: some below the minimum, some exactly an exception.
+            let points: Vec<(u32, u16)> = seed
                 .iter()
                 .take(usize::from(count) + extra)
-                .map(|&(mm, int)| {
-                    let d = match mm % 50 {
-                        0 => Distance::Invalid,
-                        1 => Distance::OutOfRange,
-                        _ => Distance::Mm(mm),
-                    };
-                    (d, int)
+                .map(|&(mm, int)| match mm % 50 {
+                    0 => (4095, int),
+                    1 => (65533, int),
+                    _ => (mm, int),
                 })
                 .collect();
+            let raw = |&(r, i): &(u32, u16)| (r, i);
             // Point by point, with the same room for frames.
             let mut one = ScanEncoder::new(ids, format).unwrap();
             one.begin(&header(count, enc)).unwrap();
             let mut expected = Vec::new();
             let mut stop = None;
-            for &(d, i) in &points {
-                match one.push_point(d, i) {
+            for &(r, i) in &points {
+                match one.push_point(rule.distance(r), i) {
                     Ok(Some(f)) if expected.len() < room => expected.push(f),
                     Ok(Some(_)) => {
                         stop = Some(RunStop::NoSlot);
@@ -894,9 +961,9 @@ mod tests {
                 let (now, later) = rest.split_at(cut.min(rest.len()));
                 if mix && n % 2 == 1 {
                     // Point by point into the same sink: the two ways share a frame.
-                    for &(d, i) in now {
+                    for &(r, i) in now {
                         let mut got = false;
-                        match two.push_point_into(d, i, || {
+                        match two.push_point_into(rule.distance(r), i, || {
                             let slot = sink.data_slot();
                             got = slot.is_some();
                             slot
@@ -914,7 +981,7 @@ mod tests {
                         }
                     }
                 } else {
-                    let run = two.push_run(now, |&p| p, &mut sink).unwrap();
+                    let run = two.push_run(now, rule, raw, &mut sink).unwrap();
                     frames += run.frames;
                     run_stop = run.stop;
                 }

@@ -20,7 +20,7 @@ pub mod trailer;
 
 pub use abort::{Abort, AbortReason};
 pub use control::{Answer, Command, Control, DecimationMode, MedianWindow, Outcome};
-pub use encoder::{Emitted, FrameFormat, FrameSink, Run, RunStop, ScanEncoder};
+pub use encoder::{Emitted, FrameFormat, FrameSink, RangeRule, Run, RunStop, ScanEncoder};
 pub use encoding::{Distance, DistanceEncoding, Encoding, IntensityEncoding};
 pub use error::Error;
 pub use frame::Frame;

@@ -210,6 +210,17 @@ impl RangeTest {
     pub fn is_range(&self, distance: u32) -> bool {
         distance >= self.min && distance != self.not_a && distance != self.not_b
     }
+
+    /// The smallest range (DMIN).
+    pub fn min(&self) -> u32 {
+        self.min
+    }
+
+    /// The values at or above [`RangeTest::min`] that are error codes; `u32::MAX`
+    /// (never a SCIP value) stands for none.
+    pub fn exceptions(&self) -> [u32; 2] {
+        [self.not_a, self.not_b]
+    }
 }
 
 impl RangeLimits {
