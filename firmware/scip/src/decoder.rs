@@ -427,26 +427,27 @@ impl Decoder {
         let (mut len, mut sum, mut bad) = (self.len, self.sum, self.bad);
         let mut at = 0;
         let found = loop {
-            // Whole words of value chars.
-            while let Some(four) = bytes
-                .get(at..at + 4)
-                .and_then(|b| <[u8; 4]>::try_from(b).ok())
-            {
+            // Whole words of value chars, as many as the input and the buffer have.
+            let input = bytes.get(at..).unwrap_or(&[]);
+            let room = self.buf.get_mut(len..).unwrap_or(&mut []);
+            let mut words = 0;
+            for (src, dst) in input.chunks_exact(4).zip(room.chunks_exact_mut(4)) {
+                let Ok(four) = <[u8; 4]>::try_from(src) else {
+                    break;
+                };
                 let v = u32::from_le_bytes(four).wrapping_sub(CHARS);
                 if v & FLAGS != 0 {
                     break;
                 }
-                let Some(dst) = self.buf.get_mut(len..len + 4) else {
-                    break;
-                };
                 dst.copy_from_slice(&four);
-                len += 4;
-                at += 4;
+                words += 1;
                 // The top byte of v·0x01010101 is the sum of v's bytes: each is below
                 // 0x40, so no partial sum carries. They are the chars less 4·0x30, a
                 // multiple of 64, so the sum mod 64 is the chars' own.
                 sum = sum.wrapping_add(v.wrapping_mul(0x0101_0101) >> 24);
             }
+            len += 4 * words;
+            at += 4 * words;
             // Then up to four bytes one at a time.
             let Some(next) = bytes.get(at..).filter(|r| !r.is_empty()) else {
                 break None;
