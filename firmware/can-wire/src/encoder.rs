@@ -519,16 +519,50 @@ impl ScanEncoder {
             // Pass 2: frames.
             let mut j = 0;
             while let Some(rest) = codes.get(j..).filter(|r| !r.is_empty()) {
+                if s.buffered == 0 {
+                    // Whole frames, as many as there are codes and points left in the scan.
+                    let m = (rest.len() / cap).min(usize::from(count - s.pushed) / cap);
+                    if m > 0 {
+                        let mut sent = s.sent;
+                        let mut frames = 0;
+                        let mut lost = false;
+                        for chunk in rest.chunks_exact(cap).take(m) {
+                            let header = u64::from(sent & 0x0FFF) | seq_bits;
+                            let word = whole_frame::<DB, IB>(chunk, cap, header, &mut crc)
+                                .ok_or(Error::FrameTooLong)?;
+                            sent = sent.wrapping_add(cap as u16);
+                            frames += 1;
+                            match sink.data_slot() {
+                                Some(frame) => {
+                                    frame.set_classic(id, word.to_le_bytes(), s.full_len)
+                                }
+                                None => {
+                                    lost = true;
+                                    break;
+                                }
+                            }
+                        }
+                        let taken = frames * cap;
+                        s.sent = sent;
+                        s.pushed += taken as u16;
+                        j += taken;
+                        if lost {
+                            // The frame is lost; the points after it are not taken.
+                            untake(s, codes.get(j..).unwrap_or(&[]), &mut valid, &mut invalid);
+                            run.frames += frames as u32 - 1;
+                            run.points += j as u32;
+                            run.invalid += invalid;
+                            s.valid += valid;
+                            s.crc = crc;
+                            run.stop = Some(RunStop::NoSlot);
+                            return Ok(run);
+                        }
+                        run.frames += frames as u32;
+                        continue;
+                    }
+                }
                 let room = (cap - usize::from(s.buffered)).min(usize::from(count - s.pushed));
-                let whole = if s.buffered == 0 && room == cap {
-                    let header = u64::from(s.sent & 0x0FFF) | seq_bits;
-                    whole_frame::<DB, IB>(rest, cap, header, &mut crc)
-                } else {
-                    None
-                };
-                let (word, len, k) = if let Some(word) = whole {
-                    (word, s.full_len, cap)
-                } else {
+                let (word, len, k) = {
                     // Points one by one into a frame begun earlier or ending later.
                     let k = room.min(rest.len());
                     let mut at = 16 + u32::from(s.buffered) * bits;
