@@ -81,10 +81,17 @@ struct InProgress {
     intensity_bits: u32,
     /// Length of a full data frame (`capacity` points).
     full_len: usize,
+    /// Points taken by a classic run whose codes wait at the front of the encoder's code
+    /// buffer, not yet in the CRC or the packer (counted in `pushed` and `buffered`).
+    pending: usize,
 }
 
 /// Points a run codes at a time: a data line's worth.
 const BLOCK: usize = 36;
+
+/// The code buffer: a block and the codes pending before it (fewer than a classic
+/// frame's 4 points at most).
+const CODES: usize = BLOCK + 4;
 
 /// Where [`ScanEncoder::push_run`] puts data frames as they fill: typically a transmit
 /// queue, whose new back slot the frame is written into in place (on a 32-bit MCU a
@@ -163,8 +170,9 @@ pub struct ScanEncoder {
     ids: NodeIds,
     format: FrameFormat,
     scan: Option<InProgress>,
-    /// The codes of the block of points a run is framing (see [`code_block`]).
-    codes: [u32; BLOCK],
+    /// The codes of the block of points a run is framing (see [`code_block`]), after
+    /// the pending codes of a classic frame begun by the last run.
+    codes: [u32; CODES],
 }
 
 impl ScanEncoder {
@@ -175,7 +183,7 @@ impl ScanEncoder {
             ids,
             format,
             scan: None,
-            codes: [0; BLOCK],
+            codes: [0; CODES],
         })
     }
 
@@ -234,6 +242,7 @@ impl ScanEncoder {
             distance_bits,
             intensity_bits,
             full_len: data_frame_len(&enc, usize::from(capacity)).ok_or(Error::FrameTooLong)?,
+            pending: 0,
         });
         Ok(frames)
     }
@@ -277,9 +286,36 @@ impl ScanEncoder {
         Ok(true)
     }
 
+    /// Puts the codes a classic run left pending into the CRC and the packer, where
+    /// point-by-point pushing and [`ScanEncoder::finish`] expect a frame's points.
+    #[cold]
+    fn settle_pending(&mut self) {
+        let Some(s) = self.scan.as_mut() else {
+            return;
+        };
+        let n = core::mem::take(&mut s.pending);
+        for &code in self.codes.get(..n).unwrap_or(&[]) {
+            let (dc, ic) = (code & 0xFFFF, code >> 16);
+            s.crc.code(dc as u16);
+            if s.intensity_bits > 0 {
+                s.crc.code(ic as u16);
+            }
+            if s.distance_bits + s.intensity_bits <= 24 {
+                s.packer.put(
+                    dc | ic << s.distance_bits,
+                    s.distance_bits + s.intensity_bits,
+                );
+            } else {
+                s.packer.put(dc, s.distance_bits);
+                s.packer.put(ic, s.intensity_bits);
+            }
+        }
+    }
+
     /// Packs a point; returns whether a data frame is due (full, or the scan's last).
     #[inline(always)]
     fn add(&mut self, distance: Distance, intensity: u16) -> Result<bool, Error> {
+        self.settle_pending();
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         if s.pushed >= s.header.point_count {
             return Err(Error::TooManyPoints);
@@ -451,7 +487,9 @@ impl ScanEncoder {
                 }
                 if lost {
                     let rest = codes_buf.get(j..block).unwrap_or(&[]);
-                    untake(s, rest, &mut valid, &mut invalid);
+                    let (v, i) = untake(s, rest);
+                    valid -= v;
+                    invalid -= i;
                     s.valid += valid;
                     run.points += j as u32;
                     run.invalid += invalid;
@@ -468,9 +506,12 @@ impl ScanEncoder {
     }
 
     /// [`ScanEncoder::push_run`] for classic frames. Points are coded a block at a time
-    /// (one data line is one block), then framed: a whole frame's points go into its
-    /// 64-bit payload word at shifts known at compile time; a frame begun or ended within
-    /// a block takes its points one by one and waits in the packer between runs.
+    /// (one data line is one block), then framed: whole frames go into their 64-bit
+    /// payload word at shifts known at compile time. The codes of a frame not yet full
+    /// at the end of a run wait, uncounted by the CRC, at the front of the code buffer
+    /// for the next run (`pending`), so frames that straddle data lines are built whole
+    /// too. Only a frame begun by [`ScanEncoder::push_point`] (its points already in the
+    /// packer) or the scan's short last frame take their points one by one.
     #[inline(never)]
     fn run_classic<const DB: u32, const IB: u32, T, F, S>(
         &mut self,
@@ -496,132 +537,143 @@ impl ScanEncoder {
         // Points in a full classic frame: 48 bits after the data header.
         let cap = (48 / bits) as usize;
         let count = s.header.point_count;
-        if usize::from(s.capacity) != cap {
+        if usize::from(s.capacity) != cap || s.pending >= cap {
             return Err(Error::FrameTooLong);
         }
         let seq_bits = u64::from(s.header.seq & 0xF) << 12;
         let mut crc = s.crc;
         let mut rest = points;
-        loop {
-            let left = rest.len();
-            if left == 0 {
-                break;
-            }
+        while !rest.is_empty() {
             if s.pushed >= count {
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
-            let block = left.min(BLOCK).min(usize::from(count - s.pushed));
+            let block = rest.len().min(BLOCK).min(usize::from(count - s.pushed));
             let (now, later) = rest.split_at(block);
             rest = later;
-            let (mut valid, mut invalid) = code_block::<IB, _, _>(now, rule, point, s, codes_buf);
-            let codes = codes_buf.get(..block).unwrap_or(&[]);
-            // Pass 2: frames.
+            // The pending codes, then this block's.
+            let p = s.pending;
+            let end = p + block;
+            let fresh = codes_buf.get_mut(p..end).unwrap_or(&mut []);
+            let (valid, invalid) = code_block::<IB, _, _>(now, rule, point, s, fresh);
+            let codes = codes_buf.get(..end).unwrap_or(&[]);
+            // The block is taken; a lost frame gives back what follows it.
+            let before = usize::from(s.buffered) - p;
+            s.pushed += block as u16;
+            s.buffered += block as u16;
+            s.valid += valid;
+            run.points += block as u32;
+            run.invalid += invalid;
             let mut j = 0;
-            while let Some(rest) = codes.get(j..).filter(|r| !r.is_empty()) {
-                if s.buffered == 0 {
-                    // Whole frames, as many as there are codes and points left in the scan.
-                    let m = (rest.len() / cap).min(usize::from(count - s.pushed) / cap);
-                    if m > 0 {
-                        let mut sent = s.sent;
-                        let mut frames = 0;
-                        let mut lost = false;
-                        for chunk in rest.chunks_exact(cap).take(m) {
-                            let header = u64::from(sent & 0x0FFF) | seq_bits;
-                            let word = whole_frame::<DB, IB>(chunk, cap, header, &mut crc)
-                                .ok_or(Error::FrameTooLong)?;
-                            sent = sent.wrapping_add(cap as u16);
-                            frames += 1;
-                            match sink.data_slot() {
-                                Some(frame) => {
-                                    frame.set_classic(id, word.to_le_bytes(), s.full_len)
-                                }
-                                None => {
-                                    lost = true;
-                                    break;
-                                }
-                            }
-                        }
-                        let taken = frames * cap;
-                        s.sent = sent;
-                        s.pushed += taken as u16;
-                        j += taken;
-                        if lost {
-                            // The frame is lost; the points after it are not taken.
-                            untake(s, codes.get(j..).unwrap_or(&[]), &mut valid, &mut invalid);
-                            run.frames += frames as u32 - 1;
-                            run.points += j as u32;
-                            run.invalid += invalid;
-                            s.valid += valid;
-                            s.crc = crc;
-                            run.stop = Some(RunStop::NoSlot);
-                            return Ok(run);
-                        }
-                        run.frames += frames as u32;
-                        continue;
+            let mut lost = false;
+            if before > 0 {
+                // A frame begun by `push_point`, in the packer (then nothing is pending):
+                // its next points one by one, sent if that makes it due.
+                let k = (cap - before).min(block);
+                let mut at = 16 + before as u32 * bits;
+                let mut word = s.packer.word64() & !0xFFFF & (u64::MAX >> (64 - at.min(64)));
+                for &code in codes.iter().take(k) {
+                    crc.code(code as u16);
+                    if IB > 0 {
+                        crc.code((code >> 16) as u16);
                     }
+                    word |= (u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB) << (at & 63);
+                    at += bits;
                 }
-                let room = (cap - usize::from(s.buffered)).min(usize::from(count - s.pushed));
-                let (word, len, k) = {
-                    // Points one by one into a frame begun earlier or ending later.
-                    let k = room.min(rest.len());
-                    let mut at = 16 + u32::from(s.buffered) * bits;
-                    let mut word = if s.buffered == 0 {
-                        0
-                    } else {
-                        s.packer.word64() & !0xFFFF & (u64::MAX >> (64 - at.min(64)))
-                    };
-                    for &code in rest.iter().take(k) {
-                        crc.code(code as u16);
-                        if IB > 0 {
-                            crc.code((code >> 16) as u16);
-                        }
-                        let point = u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB;
-                        word |= point << (at & 63);
-                        at += bits;
-                    }
-                    if k < room {
-                        // The frame goes on in the next run.
-                        s.packer.set_word64(word, at);
-                        s.pushed += k as u16;
-                        s.buffered += k as u16;
-                        j += k;
-                        continue;
-                    }
-                    let n = usize::from(s.buffered) + k;
+                j = k;
+                let n = before + k;
+                if n == cap || usize::from(s.sent) + n == usize::from(count) {
                     let len = if n == cap {
                         s.full_len
                     } else {
                         data_frame_len(&s.header.encoding, n).ok_or(Error::FrameTooLong)?
                     };
-                    let header = u64::from(s.sent & 0x0FFF) | seq_bits;
+                    word |= u64::from(s.sent & 0x0FFF) | seq_bits;
                     s.packer.reset(DATA_HEADER_LEN);
-                    (word | header, len, k)
-                };
-                // A frame is due: its points are taken.
-                let k16 = k as u16;
-                s.pushed += k16;
-                s.sent += s.buffered + k16;
-                s.buffered = 0;
-                j += k;
-                match sink.data_slot() {
-                    Some(frame) => frame.set_classic(id, word.to_le_bytes(), len),
-                    None => {
-                        // The frame is lost; the points after it are not taken.
-                        untake(s, codes.get(j..).unwrap_or(&[]), &mut valid, &mut invalid);
-                        run.points += j as u32;
-                        run.invalid += invalid;
-                        s.valid += valid;
-                        s.crc = crc;
-                        run.stop = Some(RunStop::NoSlot);
-                        return Ok(run);
+                    s.sent += n as u16;
+                    s.buffered -= n as u16;
+                    match sink.data_slot() {
+                        Some(frame) => {
+                            frame.set_classic(id, word.to_le_bytes(), len);
+                            run.frames += 1;
+                        }
+                        None => lost = true,
+                    }
+                } else {
+                    s.packer.set_word64(word, at);
+                }
+            }
+            // Whole frames.
+            if !lost {
+                let whole = codes.get(j..).unwrap_or(&[]);
+                let mut sent = s.sent;
+                for chunk in whole.chunks_exact(cap) {
+                    let header = u64::from(sent & 0x0FFF) | seq_bits;
+                    let word = whole_frame::<DB, IB>(chunk, cap, header, &mut crc)
+                        .ok_or(Error::FrameTooLong)?;
+                    sent = sent.wrapping_add(cap as u16);
+                    j += cap;
+                    match sink.data_slot() {
+                        Some(frame) => {
+                            frame.set_classic(id, word.to_le_bytes(), s.full_len);
+                            run.frames += 1;
+                        }
+                        None => {
+                            lost = true;
+                            break;
+                        }
                     }
                 }
-                run.frames += 1;
+                s.buffered -= sent.wrapping_sub(s.sent);
+                s.sent = sent;
             }
-            run.points += block as u32;
-            run.invalid += invalid;
-            s.valid += valid;
+            // The rest: the scan's last frame, or codes pending for the next run.
+            let r = end - j;
+            s.pending = 0;
+            // (A frame begun in the packer and not yet due took the whole block: r = 0.)
+            if !lost && r > 0 {
+                if usize::from(s.sent) + r == usize::from(count) {
+                    let mut word = u64::from(s.sent & 0x0FFF) | seq_bits;
+                    let mut at = 16;
+                    for &code in codes.get(j..end).unwrap_or(&[]) {
+                        crc.code(code as u16);
+                        if IB > 0 {
+                            crc.code((code >> 16) as u16);
+                        }
+                        word |=
+                            (u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB) << (at & 63);
+                        at += bits;
+                    }
+                    let len = data_frame_len(&s.header.encoding, r).ok_or(Error::FrameTooLong)?;
+                    s.sent += r as u16;
+                    s.buffered = 0;
+                    j = end;
+                    match sink.data_slot() {
+                        Some(frame) => {
+                            frame.set_classic(id, word.to_le_bytes(), len);
+                            run.frames += 1;
+                        }
+                        None => lost = true,
+                    }
+                } else {
+                    codes_buf.copy_within(j..end, 0);
+                    s.pending = r;
+                    j = end;
+                }
+            }
+            if lost {
+                // The points after the lost frame are not taken.
+                let untaken = codes_buf.get(j..end).unwrap_or(&[]);
+                let (v, i) = untake(s, untaken);
+                s.valid -= v;
+                s.pushed -= untaken.len() as u16;
+                s.buffered = 0;
+                run.points -= untaken.len() as u32;
+                run.invalid -= i;
+                s.crc = crc;
+                run.stop = Some(RunStop::NoSlot);
+                return Ok(run);
+            }
         }
         s.crc = crc;
         Ok(run)
@@ -639,6 +691,7 @@ impl ScanEncoder {
     /// End the scan: returns the last data frame if points are still buffered (only when
     /// the scan is truncated) and the trailer. `flags.truncated` is set from the counts.
     pub fn finish(&mut self, flags: TrailerFlags) -> Result<Emitted, Error> {
+        self.settle_pending();
         let mut out = Emitted::new();
         let buffered = self.scan.as_ref().ok_or(Error::NoScan)?.buffered;
         if buffered > 0 {
@@ -687,7 +740,7 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     rule: RangeRule,
     point: &F,
     s: &InProgress,
-    codes: &mut [u32; BLOCK],
+    codes: &mut [u32],
 ) -> (u16, u32) {
     let simple = rule.except == [u32::MAX; 2];
     match (simple, s.coder.is_mm()) {
@@ -706,7 +759,7 @@ fn code_points<const IB: u32, const SIMPLE: bool, const MM: bool, T, F: Fn(&T) -
     rule: RangeRule,
     point: &F,
     s: &InProgress,
-    codes: &mut [u32; BLOCK],
+    codes: &mut [u32],
 ) -> (u16, u32) {
     let coder = s.coder;
     let (mut valid, mut invalid) = (0u16, 0u32);
@@ -738,15 +791,17 @@ fn code_points<const IB: u32, const SIMPLE: bool, const MM: bool, T, F: Fn(&T) -
     (valid, invalid)
 }
 
-/// Takes the counts of coded points that were not taken (a lost frame stopped the run)
-/// off `valid` and `invalid`.
+/// The valid distance codes and the points that were no range among `codes` (of points
+/// a lost frame left untaken, to be given back).
 #[cold]
-fn untake(s: &InProgress, codes: &[u32], valid: &mut u16, invalid: &mut u32) {
+fn untake(s: &InProgress, codes: &[u32]) -> (u16, u32) {
+    let (mut valid, mut invalid) = (0u16, 0u32);
     for &code in codes {
         let dc = code as u16;
-        *valid -= u16::from(s.coder.is_valid(dc));
-        *invalid -= u32::from(dc == 0);
+        valid += u16::from(s.coder.is_valid(dc));
+        invalid += u32::from(dc == 0);
     }
+    (valid, invalid)
 }
 
 /// The payload word of a whole classic frame of `n` points (1 to 4; `header` in its
@@ -961,18 +1016,16 @@ mod tests {
                 })
                 .collect();
             let raw = |&(r, i): &(u32, u16)| (r, i);
-            // Point by point, with the same room for frames.
+            // Point by point, with the same room for frames: once it is used up, every
+            // due frame is lost and pushing goes on.
             let mut one = ScanEncoder::new(ids, format).unwrap();
             one.begin(&header(count, enc)).unwrap();
             let mut expected = Vec::new();
-            let mut stop = None;
+            let (mut stop, mut lost) = (None, 0);
             for &(r, i) in &points {
                 match one.push_point(rule.distance(r), i) {
                     Ok(Some(f)) if expected.len() < room => expected.push(f),
-                    Ok(Some(_)) => {
-                        stop = Some(RunStop::NoSlot);
-                        break;
-                    }
+                    Ok(Some(_)) => lost += 1,
                     Ok(None) => {}
                     Err(e) => {
                         proptest::prop_assert_eq!(e, Error::TooManyPoints);
@@ -981,13 +1034,13 @@ mod tests {
                     }
                 }
             }
-            // In runs.
+            // In runs (after a lost frame, the next run starts at the first point not
+            // taken), and with `mix` point by point now and then.
             let mut two = ScanEncoder::new(ids, format).unwrap();
             two.begin(&header(count, enc)).unwrap();
             let mut sink = VecSink { frames: Vec::new(), room };
             let mut rest = &points[..];
-            let mut run_stop = None;
-            let mut frames = 0;
+            let (mut run_stop, mut run_lost, mut frames) = (None, 0, 0);
             for (n, &cut) in cuts.iter().cycle().enumerate() {
                 if rest.is_empty() || run_stop.is_some() {
                     break;
@@ -1003,10 +1056,7 @@ mod tests {
                             slot
                         }) {
                             Ok(true) if got => frames += 1,
-                            Ok(true) => {
-                                run_stop = Some(RunStop::NoSlot);
-                                break;
-                            }
+                            Ok(true) => run_lost += 1,
                             Ok(false) => {}
                             Err(_) => {
                                 run_stop = Some(RunStop::TooManyPoints);
@@ -1014,14 +1064,24 @@ mod tests {
                             }
                         }
                     }
+                    rest = later;
                 } else {
                     let run = two.push_run(now, rule, raw, &mut sink).unwrap();
                     frames += run.frames;
-                    run_stop = run.stop;
+                    match run.stop {
+                        Some(RunStop::NoSlot) => {
+                            run_lost += 1;
+                            rest = &rest[run.points as usize..];
+                        }
+                        other => {
+                            run_stop = other;
+                            rest = later;
+                        }
+                    }
                 }
-                rest = later;
             }
             proptest::prop_assert_eq!(run_stop, stop);
+            proptest::prop_assert_eq!(run_lost, lost);
             proptest::prop_assert_eq!(frames as usize, sink.frames.len());
             proptest::prop_assert_eq!(&sink.frames, &expected);
             let t1 = one.finish(TrailerFlags::default()).unwrap();
