@@ -743,12 +743,47 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     codes: &mut [u32],
 ) -> (u16, u32) {
     let simple = rule.except == [u32::MAX; 2];
+    if simple && s.coder.is_mm() && rule.min <= s.coder.max_code() {
+        return code_mm::<IB, T, F>(points, rule.min, point, s, codes);
+    }
     match (simple, s.coder.is_mm()) {
         (true, true) => code_points::<IB, true, true, T, F>(points, rule, point, s, codes),
         (true, false) => code_points::<IB, true, false, T, F>(points, rule, point, s, codes),
         (false, true) => code_points::<IB, false, true, T, F>(points, rule, point, s, codes),
         (false, false) => code_points::<IB, false, false, T, F>(points, rule, point, s, codes),
     }
+}
+
+/// The loop of [`code_block`] for the usual case: every distance of at least `min` is a
+/// range, the unit is 1 mm, and `min` is below the out-of-range code (so a distance at
+/// or above that code is a range: counting those and the ones below `min` gives the
+/// valid codes without a test that needs both).
+#[inline(always)]
+fn code_mm<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
+    points: &[T],
+    min: u32,
+    point: &F,
+    s: &InProgress,
+    codes: &mut [u32],
+) -> (u16, u32) {
+    let max = s.coder.max_code();
+    let (mut below, mut over, mut n) = (0u32, 0u32, 0u32);
+    for (code, p) in codes.iter_mut().zip(points) {
+        let (d, intensity) = point(p);
+        let is_range = d >= min;
+        below += u32::from(!is_range);
+        over += u32::from(d >= max);
+        n += 1;
+        // A range of 0 mm is coded 1; ranges at or past the out-of-range code are coded so.
+        let dc = if is_range { d.clamp(1, max) } else { 0 };
+        *code = if IB > 0 {
+            dc | (u32::from(intensity) >> (16 - IB)) << 16
+        } else {
+            dc
+        };
+    }
+    // n <= BLOCK.
+    ((n - below - over) as u16, below)
 }
 
 /// The loop of [`code_block`]: `SIMPLE` when `rule` has no exceptions, `MM` when the

@@ -269,6 +269,12 @@ impl DistanceCoder {
         }
     }
 
+    /// The out-of-range code (every range at or above it is coded so).
+    #[inline(always)]
+    pub(crate) const fn max_code(&self) -> u32 {
+        self.max
+    }
+
     /// Whether codes are millimetres as they are (unit 1 mm: no rounding, no shift).
     #[inline(always)]
     pub(crate) const fn is_mm(&self) -> bool {
