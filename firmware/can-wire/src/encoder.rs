@@ -743,8 +743,17 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     codes: &mut [u32],
 ) -> (u16, u32) {
     let simple = rule.except == [u32::MAX; 2];
-    if simple && s.coder.is_mm() && rule.min <= s.coder.max_code() {
-        return code_mm::<IB, T, F>(points, rule.min, point, s, codes);
+    if s.coder.is_mm() && rule.min <= s.coder.max_code() {
+        // The counting loops need every exception to be a range otherwise and below
+        // the out-of-range code (or unused).
+        let max = s.coder.max_code();
+        let fits = |e: u32| e == u32::MAX || (rule.min <= e && e < max);
+        if simple {
+            return code_mm::<IB, false, T, F>(points, rule, point, s, codes);
+        }
+        if rule.except.iter().all(|&e| fits(e)) {
+            return code_mm::<IB, true, T, F>(points, rule, point, s, codes);
+        }
     }
     match (simple, s.coder.is_mm()) {
         (true, true) => code_points::<IB, true, true, T, F>(points, rule, point, s, codes),
@@ -754,24 +763,30 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     }
 }
 
-/// The loop of [`code_block`] for the usual case: every distance of at least `min` is a
-/// range, the unit is 1 mm, and `min` is below the out-of-range code (so a distance at
-/// or above that code is a range: counting those and the ones below `min` gives the
-/// valid codes without a test that needs both).
+/// The loop of [`code_block`] for the usual cases: the unit is 1 mm, `rule.min` is
+/// below the out-of-range code, and (`EXC`) the rule's error codes above DMIN are ranges
+/// otherwise, below the out-of-range code. Then the valid codes are the points less
+/// those below DMIN, those that are an error code and those at or past the out-of-range
+/// code: counted, not tested point by point.
 #[inline(always)]
-fn code_mm<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
+fn code_mm<const IB: u32, const EXC: bool, T, F: Fn(&T) -> (u32, u16)>(
     points: &[T],
-    min: u32,
+    rule: RangeRule,
     point: &F,
     s: &InProgress,
     codes: &mut [u32],
 ) -> (u16, u32) {
     let max = s.coder.max_code();
-    let (mut below, mut over, mut n) = (0u32, 0u32, 0u32);
+    let (min, [a, b]) = (rule.min, rule.except);
+    let (mut invalid, mut over, mut n) = (0u32, 0u32, 0u32);
     for (code, p) in codes.iter_mut().zip(points) {
         let (d, intensity) = point(p);
-        let is_range = d >= min;
-        below += u32::from(!is_range);
+        let is_range = if EXC {
+            d >= min && d != a && d != b
+        } else {
+            d >= min
+        };
+        invalid += u32::from(!is_range);
         over += u32::from(d >= max);
         n += 1;
         // A range of 0 mm is coded 1; ranges at or past the out-of-range code are coded so.
@@ -782,8 +797,8 @@ fn code_mm<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
             dc
         };
     }
-    // n <= BLOCK.
-    ((n - below - over) as u16, below)
+    // n <= BLOCK; the points at or past the out-of-range code are all ranges.
+    ((n - invalid - over) as u16, invalid)
 }
 
 /// The loop of [`code_block`]: `SIMPLE` when `rule` has no exceptions, `MM` when the
