@@ -143,6 +143,15 @@ impl RangeRule {
         }
     }
 
+    /// The same rule with its two error codes in the other order.
+    fn swapped(self) -> RangeRule {
+        let [a, b] = self.except;
+        RangeRule {
+            min: self.min,
+            except: [b, a],
+        }
+    }
+
     #[inline(always)]
     fn is_range(&self, d: u32) -> bool {
         let [a, b] = self.except;
@@ -743,16 +752,22 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     codes: &mut [u32],
 ) -> (u16, u32) {
     let simple = rule.except == [u32::MAX; 2];
-    if s.coder.is_mm() && rule.min <= s.coder.max_code() {
+    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() {
         // The counting loops need every exception to be a range otherwise and below
         // the out-of-range code (or unused).
         let max = s.coder.max_code();
         let fits = |e: u32| e == u32::MAX || (rule.min <= e && e < max);
+        let [a, b] = rule.except;
         if simple {
-            return code_mm::<IB, false, T, F>(points, rule, point, s, codes);
+            return code_mm::<IB, 0, T, F>(points, rule, point, s, codes);
         }
-        if rule.except.iter().all(|&e| fits(e)) {
-            return code_mm::<IB, true, T, F>(points, rule, point, s, codes);
+        if fits(a) && fits(b) {
+            // One error code (the other place unused) or two.
+            return match (a == u32::MAX, b == u32::MAX) {
+                (true, _) => code_mm::<IB, 1, T, F>(points, rule.swapped(), point, s, codes),
+                (_, true) => code_mm::<IB, 1, T, F>(points, rule, point, s, codes),
+                _ => code_mm::<IB, 2, T, F>(points, rule, point, s, codes),
+            };
         }
     }
     match (simple, s.coder.is_mm()) {
@@ -763,13 +778,13 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     }
 }
 
-/// The loop of [`code_block`] for the usual cases: the unit is 1 mm, `rule.min` is
-/// below the out-of-range code, and (`EXC`) the rule's error codes above DMIN are ranges
-/// otherwise, below the out-of-range code. Then the valid codes are the points less
+/// The loop of [`code_block`] for the usual cases: the unit is 1 mm, `rule.min` is not
+/// 0 and below the out-of-range code, and the rule's first `EXC` error codes above DMIN (the
+/// only ones it has) are ranges otherwise, below the out-of-range code. Then the valid codes are the points less
 /// those below DMIN, those that are an error code and those at or past the out-of-range
 /// code: counted, not tested point by point.
 #[inline(always)]
-fn code_mm<const IB: u32, const EXC: bool, T, F: Fn(&T) -> (u32, u16)>(
+fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
     points: &[T],
     rule: RangeRule,
     point: &F,
@@ -781,16 +796,17 @@ fn code_mm<const IB: u32, const EXC: bool, T, F: Fn(&T) -> (u32, u16)>(
     let (mut invalid, mut over, mut n) = (0u32, 0u32, 0u32);
     for (code, p) in codes.iter_mut().zip(points) {
         let (d, intensity) = point(p);
-        let is_range = if EXC {
-            d >= min && d != a && d != b
-        } else {
-            d >= min
+        let is_range = match EXC {
+            0 => d >= min,
+            1 => d >= min && d != a,
+            _ => d >= min && d != a && d != b,
         };
         invalid += u32::from(!is_range);
         over += u32::from(d >= max);
         n += 1;
-        // A range of 0 mm is coded 1; ranges at or past the out-of-range code are coded so.
-        let dc = if is_range { d.clamp(1, max) } else { 0 };
+        // Ranges (at least `min`, so never 0 mm) at or past the out-of-range code are
+        // coded so.
+        let dc = if is_range { d.min(max) } else { 0 };
         *code = if IB > 0 {
             dc | (u32::from(intensity) >> (16 - IB)) << 16
         } else {
@@ -1043,7 +1059,7 @@ mod tests {
             room in 0usize..60,
             mix in proptest::prelude::any::<bool>(),
             rule_min in 0u32..40,
-            rule_except in 0usize..3,
+            rule_except in 0usize..4,
         ) {
             let enc = Encoding {
                 distance: DistanceEncoding::ALL[d],
@@ -1053,7 +1069,12 @@ mod tests {
             let ids = IdWindow::DEFAULT.node(3).unwrap();
             let rule = RangeRule {
                 min: rule_min,
-                except: [[u32::MAX; 2], [4095, u32::MAX], [65533, 4095]][rule_except],
+                except: [
+                    [u32::MAX; 2],
+                    [4095, u32::MAX],
+                    [u32::MAX, 65533],
+                    [65533, 4095],
+                ][rule_except],
             };
             // Raw distances: some below the minimum, some exactly an exception.
             let points: Vec<(u32, u16)> = seed
