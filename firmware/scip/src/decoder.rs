@@ -214,6 +214,8 @@ pub struct Decoder {
     extra_echoes: u16,
     short_line_seen: bool,
     readings: [Reading; MAX_READINGS],
+    /// Every reading slot has echo 0 and aux 0 (see [`Self::decode_steps`]).
+    readings_plain: bool,
     n_readings: usize,
     // What the decoder learned of the sensor.
     params: SensorParams,
@@ -284,6 +286,7 @@ impl Decoder {
                 distance: 0,
                 aux: 0,
             }; MAX_READINGS],
+            readings_plain: true,
             n_readings: 0,
             params: EMPTY,
             pp: EMPTY,
@@ -885,6 +888,14 @@ impl Decoder {
         if usize::from(self.values) + total > usize::from(self.shape.expected) {
             return Err(too_many);
         }
+        if A == 0 && !self.readings_plain {
+            // Once per change of data set: clear what readings with echoes or second
+            // values left, so that distance-only lines write less.
+            self.readings = [Reading::default(); MAX_READINGS];
+            self.readings_plain = true;
+        } else if A > 0 {
+            self.readings_plain = false;
+        }
         let first = self.n_readings;
         let slots = self
             .readings
@@ -903,20 +914,31 @@ impl Decoder {
                 index = index.wrapping_add(1);
             }
         }
-        for (slot, step) in slots.zip(mid.chunks_exact(width)) {
-            let Some((d, a)) = step.split_first_chunk::<D>() else {
-                continue;
-            };
-            let Some(a) = a.first_chunk::<A>() else {
-                continue;
-            };
-            *slot = Reading {
-                index,
-                echo: 0,
-                distance: decode_valid(d),
-                aux: decode_valid(a),
-            };
-            index = index.wrapping_add(1);
+        if A == 0 && self.readings_plain {
+            // Every slot already has echo 0 and aux 0: the distance and index will do.
+            for (slot, step) in slots.zip(mid.chunks_exact(width)) {
+                if let Some(d) = step.first_chunk::<D>() {
+                    slot.distance = decode_valid(d);
+                    slot.index = index;
+                }
+                index = index.wrapping_add(1);
+            }
+        } else {
+            for (slot, step) in slots.zip(mid.chunks_exact(width)) {
+                let Some((d, a)) = step.split_first_chunk::<D>() else {
+                    continue;
+                };
+                let Some(a) = a.first_chunk::<A>() else {
+                    continue;
+                };
+                *slot = Reading {
+                    index,
+                    echo: 0,
+                    distance: decode_valid(d),
+                    aux: decode_valid(a),
+                };
+                index = index.wrapping_add(1);
+            }
         }
         if total > 0 {
             self.echo_no = 0;
@@ -1028,6 +1050,7 @@ impl Decoder {
             .ok_or(ErrorKind::TooManyValues {
                 expected: self.shape.expected,
             })?;
+        self.readings_plain &= echo == 0 && aux == 0;
         *slot = Reading {
             index,
             echo,
@@ -1194,6 +1217,25 @@ mod tests {
     use super::*;
     use crate::command::ScanMode;
     use crate::response::ResponseWriter;
+
+    #[test]
+    fn distance_lines_after_intensity_lines_carry_no_old_intensity() {
+        // Readings of a distance-only scan are written without their echo and aux when
+        // the slots are known clear: after a scan with intensities they must be cleared.
+        let (ge, _) = scan(DataSet::DistanceIntensity, 100);
+        let (gd, values) = scan(DataSet::Distance, 100);
+        let mut both = ge.clone();
+        both.extend_from_slice(&gd);
+        for chunk in [1, 7, 64, 4096] {
+            let (_, after) = decode(Decoder::new(), &both, chunk);
+            let (_, alone) = decode(Decoder::new(), &gd, chunk);
+            assert_eq!(&after[100..], &alone[..], "chunk {chunk}");
+            assert!(alone
+                .iter()
+                .zip(&values)
+                .all(|(r, &(d, _))| r.distance == d && r.aux == 0));
+        }
+    }
 
     #[test]
     fn sum_and_check_taken_while_copying_equals_the_bytewise_one() {
