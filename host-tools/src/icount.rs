@@ -282,6 +282,9 @@ pub struct BenchLine {
     pub frame_hash: u32,
     /// UART receive overruns (bytes lost before the core).
     pub overruns: u64,
+    /// SysTick ticks inside `pop_frame`, summed (every frame, and the call that found
+    /// the queue empty after each chunk).
+    pub pop_ticks: u64,
 }
 
 impl BenchLine {
@@ -308,6 +311,7 @@ impl BenchLine {
             frames: num("frames")?,
             frame_hash: u32::from_str_radix(hash, 16).ok()?,
             overruns: num("overruns")?,
+            pop_ticks: num("pop_ticks")?,
         })
     }
 }
@@ -441,6 +445,21 @@ impl Measurement {
             .unwrap_or(0)
     }
 
+    /// Instructions inside `pop_frame`, all calls.
+    pub fn pop_instructions(&self) -> u64 {
+        self.firmware.pop_ticks * INSTRUCTIONS_PER_TICK
+    }
+
+    /// Instructions of `pop_frame` per frame taken.
+    pub fn pop_per_frame(&self) -> f64 {
+        self.pop_instructions() as f64 / self.firmware.frames.max(1) as f64
+    }
+
+    /// Instructions per stream byte of `on_uart` and `pop_frame` together.
+    pub fn total_per_byte(&self) -> f64 {
+        (self.instructions() + self.pop_instructions()) as f64 / self.bytes.max(1) as f64
+    }
+
     /// The most instructions of one chunk.
     pub fn max_per_chunk(&self) -> u64 {
         self.firmware.max_chunk_ticks * INSTRUCTIONS_PER_TICK
@@ -564,6 +583,9 @@ pub fn run(args: IcountArgs) -> anyhow::Result<()> {
             "instructions_per_byte": (m.per_byte() * 10.0).round() / 10.0,
             "instructions_per_scan": m.per_scan(),
             "max_instructions_per_chunk": m.max_per_chunk(),
+            "pop_frame_instructions": m.pop_instructions(),
+            "pop_frame_instructions_per_frame": (m.pop_per_frame() * 10.0).round() / 10.0,
+            "with_pop_frame_instructions_per_byte": (m.total_per_byte() * 10.0).round() / 10.0,
             "frames": f.frames,
             "frame_hash": format!("{:#010x}", f.frame_hash),
             "frames_match_host": true,
@@ -592,7 +614,13 @@ pub fn run(args: IcountArgs) -> anyhow::Result<()> {
         m.instructions(),
         f.ticks
     )?;
-    writeln!(out, "per UART byte      {:.1}", m.per_byte())?;
+    writeln!(out, "per UART byte      {:.1} (on_uart)", m.per_byte())?;
+    writeln!(
+        out,
+        "pop_frame          {:.1} per frame; {:.1} per UART byte with on_uart",
+        m.pop_per_frame(),
+        m.total_per_byte()
+    )?;
     writeln!(out, "per scan           {}", m.per_scan())?;
     writeln!(out, "max per chunk      {}", m.max_per_chunk())?;
     writeln!(
@@ -621,7 +649,8 @@ mod tests {
     fn the_bench_line_parses() {
         let text = "scip2can-qemu-bench 0.1.0 mps2-an386: ...\r\n\
                     bench bytes=7814 chunks=123 ticks=14647 max_chunk_ticks=299 scans_in=1 \
-                    scans_sent=1 scans_aborted=0 frames=364 frame_hash=0x64e23ebe overruns=0\r\n";
+                    scans_sent=1 scans_aborted=0 frames=364 frame_hash=0x64e23ebe overruns=0 \
+                    pop_ticks=812\r\n";
         assert_eq!(
             BenchLine::find(text),
             Some(BenchLine {
@@ -635,6 +664,7 @@ mod tests {
                 frames: 364,
                 frame_hash: 0x64e2_3ebe,
                 overruns: 0,
+                pop_ticks: 812,
             })
         );
         assert_eq!(BenchLine::find("bench bytes=1 chunks=1\r\n"), None);

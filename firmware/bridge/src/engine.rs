@@ -217,10 +217,20 @@ impl<const Q: usize> Bridge<Q> {
     /// The next frame to transmit: control answers and status first, then the frames
     /// of scans in their order.
     pub fn pop_frame(&mut self) -> Option<Frame> {
-        let frame = self.core.queue.pop_front()?;
-        let budget = self.core.config.budget;
-        self.core.health.sent(&frame, budget.rates, budget.extended);
-        Some(frame)
+        self.pop_frame_with(|frame| *frame)
+    }
+
+    /// [`Bridge::pop_frame`] that hands the frame to `send` where it lies in the queue,
+    /// instead of returning a copy (a 76-byte move on a 32-bit MCU): for a board that
+    /// copies it into its CAN controller anyway. `None` (and `send` not called) when no
+    /// frame is waiting.
+    #[inline]
+    pub fn pop_frame_with<R>(&mut self, send: impl FnOnce(&Frame) -> R) -> Option<R> {
+        let Core { queue, health, .. } = &mut self.core;
+        queue.pop_front_with(|frame| {
+            health.sent(frame);
+            send(frame)
+        })
     }
 
     /// Takes a frame received from the bus; control frames addressed to this bridge are
@@ -490,7 +500,9 @@ impl<const Q: usize> Core<Q> {
             return;
         }
         if self.health.last_status_ms.is_some() {
-            self.health.close_period(now.saturating_sub(last));
+            let budget = self.config.budget;
+            self.health
+                .close_period(now.saturating_sub(last), budget.rates, budget.extended);
         }
         self.health.last_status_ms = Some(now);
         let sum_errors = dec

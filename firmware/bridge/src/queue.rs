@@ -112,6 +112,19 @@ impl<const Q: usize> FrameQueue<Q> {
         frame
     }
 
+    /// Takes the front frame, handing it to `f` in its slot (no copy of the whole
+    /// frame); `None` without calling `f` when the queue is empty.
+    #[inline]
+    pub fn pop_front_with<R>(&mut self, f: impl FnOnce(&Frame) -> R) -> Option<R> {
+        if self.len == 0 {
+            return None;
+        }
+        let out = self.slots.get(self.head).map(f);
+        self.head = self.slot(1);
+        self.len -= 1;
+        out
+    }
+
     /// Drops the back frame (one just pushed that turned out not to be wanted).
     pub fn pop_back(&mut self) {
         self.len = self.len.saturating_sub(1);
@@ -145,7 +158,7 @@ mod tests {
         assert_eq!(q.push_back(frame(9, 8)), Err(frame(9, 8)));
         assert_eq!(q.push_front(frame(9, 8)), Err(frame(9, 8)));
         assert!(q.push_back_slot().is_none());
-        assert_eq!(q.pop_front(), Some(frame(0, 8)));
+        assert_eq!(q.pop_front_with(|f| *f), Some(frame(0, 8)));
         let slot = q.push_back_slot().unwrap();
         // The reused slot still holds the frame popped from it; a shorter frame set over
         // it keeps no byte of the old one.

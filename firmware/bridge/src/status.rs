@@ -42,8 +42,10 @@ pub struct Health {
     pub bus_state: BusStateCode,
     /// CPU load, permille, as the board measured it.
     pub cpu_permille: u16,
-    /// Worst-case bus time of the frames handed to the board in this status period, ns.
-    pub period_bus_ns: u64,
+    /// Frames handed to the board in this status period, classic and CAN FD, by data
+    /// length code. Their bus time is worked out once per period ([`Health::close_period`]):
+    /// per frame that would cost a 32-bit MCU a 64-bit division (about 150 instructions).
+    pub period_frames: [[u32; 16]; 2],
     /// Bus load of the last full status period, permille.
     pub bus_permille: u16,
     /// When the last status frames were queued, ms.
@@ -65,7 +67,7 @@ impl Health {
             tx_overflows: 0,
             bus_state: 0,
             cpu_permille: 0,
-            period_bus_ns: 0,
+            period_frames: [[0; 16]; 2],
             bus_permille: 0,
             last_status_ms: None,
             boot_ms: None,
@@ -73,20 +75,67 @@ impl Health {
     }
 
     /// Accounts a frame handed to the bus.
-    pub fn sent(&mut self, frame: &Frame, rates: can_wire::bandwidth::BitRates, extended: bool) {
-        let bits = frame_bits(frame.data().len(), frame.is_fd(), extended);
-        self.period_bus_ns = self.period_bus_ns.saturating_add(bits.time_ns(rates));
+    #[inline]
+    pub fn sent(&mut self, frame: &Frame) {
+        let len = frame.len();
+        let dlc = if len <= 8 { len } else { fd_dlc(len) };
+        if let Some(n) = self
+            .period_frames
+            .get_mut(usize::from(frame.is_fd()))
+            .and_then(|by_dlc| by_dlc.get_mut(dlc))
+        {
+            *n = n.saturating_add(1);
+        }
     }
 
-    /// Closes a status period of `period_ms`: the bus load of the period.
-    pub fn close_period(&mut self, period_ms: u64) {
-        let ns = period_ms.saturating_mul(1_000_000).max(1);
-        self.bus_permille = (self.period_bus_ns.saturating_mul(1000) / ns).min(1000) as u16;
-        self.period_bus_ns = 0;
+    /// Closes a status period of `period_ms`: the bus load of the period at `rates`, the
+    /// worst-case bus time of its frames (with 29-bit identifiers if `extended`).
+    pub fn close_period(
+        &mut self,
+        period_ms: u64,
+        rates: can_wire::bandwidth::BitRates,
+        extended: bool,
+    ) {
+        let counts = core::mem::take(&mut self.period_frames);
+        let (mut nominal, mut data) = (0u64, 0u64);
+        for (fd, by_dlc) in [false, true].into_iter().zip(counts) {
+            for (dlc, n) in by_dlc.into_iter().enumerate() {
+                let bits = frame_bits(dlc_len(dlc), fd, extended);
+                nominal = nominal.saturating_add(u64::from(n) * u64::from(bits.nominal));
+                data = data.saturating_add(u64::from(n) * u64::from(bits.data));
+            }
+        }
+        let ns = |bits: u64, rate: u32| {
+            bits.saturating_mul(1_000_000_000)
+                .div_ceil(u64::from(rate.max(1)))
+        };
+        let busy = ns(nominal, rates.nominal).saturating_add(ns(data, rates.data));
+        let period_ns = period_ms.saturating_mul(1_000_000).max(1);
+        self.bus_permille = (busy.saturating_mul(1000) / period_ns).min(1000) as u16;
     }
 
     fn bus_state(&self) -> BusState {
         BusState::from(self.bus_state)
+    }
+}
+
+/// The data length code of a CAN FD length above 8 (9..=15; the next longer valid
+/// length for any other).
+fn fd_dlc(len: usize) -> usize {
+    let at = can_wire::frame::FD_LENGTHS
+        .iter()
+        .position(|&l| usize::from(l) >= len)
+        .unwrap_or(can_wire::frame::FD_LENGTHS.len() - 1);
+    9 + at
+}
+
+/// The data length of a data length code.
+fn dlc_len(dlc: usize) -> usize {
+    match dlc.checked_sub(9) {
+        None => dlc,
+        Some(i) => can_wire::frame::FD_LENGTHS
+            .get(i)
+            .map_or(64, |&l| usize::from(l)),
     }
 }
 
@@ -187,4 +236,63 @@ pub fn info_pages(params: &scip::SensorParams) -> [Status; 4] {
             scan_rpm: u16c(params.scan_rpm),
         },
     ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use can_wire::bandwidth::{frame_bits, BitRates};
+    use can_wire::frame::FD_LENGTHS;
+    use embedded_can::{Id, StandardId};
+
+    #[test]
+    fn data_length_codes_round_trip() {
+        for len in 0..=8 {
+            assert_eq!(dlc_len(len), len);
+        }
+        for (i, &l) in FD_LENGTHS.iter().enumerate() {
+            assert_eq!(fd_dlc(usize::from(l)), 9 + i);
+            assert_eq!(dlc_len(9 + i), usize::from(l));
+        }
+    }
+
+    #[test]
+    fn the_period_load_is_the_frames_worst_case_time() {
+        let id = Id::Standard(StandardId::new(0x123).unwrap());
+        let rates = BitRates {
+            nominal: 500_000,
+            data: 2_000_000,
+        };
+        let mut h = Health::new();
+        let mut nominal = 0u64;
+        let mut data = 0u64;
+        let frames: Vec<Frame> = (0..=8)
+            .map(|n| Frame::new(id, &[0xA5; 8][..n], false).unwrap())
+            .chain(
+                FD_LENGTHS
+                    .iter()
+                    .map(|&l| Frame::new(id, &[0x5A; 64][..usize::from(l)], true).unwrap()),
+            )
+            .cycle()
+            .take(400)
+            .collect();
+        for f in &frames {
+            h.sent(f);
+            let bits = frame_bits(f.len(), f.is_fd(), false);
+            nominal += u64::from(bits.nominal);
+            data += u64::from(bits.data);
+        }
+        // Bus time, ns, rounded up per rate; over a period of 100 ms.
+        let busy = (nominal * 1_000_000_000).div_ceil(500_000)
+            + (data * 1_000_000_000).div_ceil(2_000_000);
+        h.close_period(100, rates, false);
+        assert_eq!(
+            u64::from(h.bus_permille),
+            (busy * 1000 / 100_000_000).min(1000)
+        );
+        assert!(h.bus_permille > 0);
+        // The period starts over.
+        h.close_period(100, rates, false);
+        assert_eq!(h.bus_permille, 0);
+    }
 }

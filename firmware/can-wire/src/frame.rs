@@ -138,6 +138,18 @@ impl Frame {
         self.data.get(..usize::from(self.len)).unwrap_or(&[])
     }
 
+    /// The data length, bytes.
+    #[inline]
+    pub fn len(&self) -> usize {
+        usize::from(self.len)
+    }
+
+    /// Whether the frame carries no data.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
     /// Whether this is a CAN FD frame.
     pub fn is_fd(&self) -> bool {
         self.fd
