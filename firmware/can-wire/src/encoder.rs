@@ -372,41 +372,96 @@ impl ScanEncoder {
     {
         let s = self.scan.as_ref().ok_or(Error::NoScan)?;
         let classic = !self.format.is_fd();
-        match (classic, s.distance_bits, s.intensity_bits) {
-            (false, 16, 0) => self.run::<16, 0, _, _, _>(points, rule, &point, sink),
-            (false, 14, 0) => self.run::<14, 0, _, _, _>(points, rule, &point, sink),
-            (false, 12, 0) => self.run::<12, 0, _, _, _>(points, rule, &point, sink),
-            (false, 16, 16) => self.run::<16, 16, _, _, _>(points, rule, &point, sink),
-            (false, 16, 12) => self.run::<16, 12, _, _, _>(points, rule, &point, sink),
-            (false, 16, 8) => self.run::<16, 8, _, _, _>(points, rule, &point, sink),
-            (false, 14, 16) => self.run::<14, 16, _, _, _>(points, rule, &point, sink),
-            (false, 14, 12) => self.run::<14, 12, _, _, _>(points, rule, &point, sink),
-            (false, 14, 8) => self.run::<14, 8, _, _, _>(points, rule, &point, sink),
-            (false, 12, 16) => self.run::<12, 16, _, _, _>(points, rule, &point, sink),
-            (false, 12, 12) => self.run::<12, 12, _, _, _>(points, rule, &point, sink),
-            (false, 12, 8) => self.run::<12, 8, _, _, _>(points, rule, &point, sink),
-            (true, 16, 0) => self.run_classic::<16, 0, _, _, _>(points, rule, &point, sink),
-            (true, 14, 0) => self.run_classic::<14, 0, _, _, _>(points, rule, &point, sink),
-            (true, 12, 0) => self.run_classic::<12, 0, _, _, _>(points, rule, &point, sink),
-            (true, 16, 16) => self.run_classic::<16, 16, _, _, _>(points, rule, &point, sink),
-            (true, 16, 12) => self.run_classic::<16, 12, _, _, _>(points, rule, &point, sink),
-            (true, 16, 8) => self.run_classic::<16, 8, _, _, _>(points, rule, &point, sink),
-            (true, 14, 16) => self.run_classic::<14, 16, _, _, _>(points, rule, &point, sink),
-            (true, 14, 12) => self.run_classic::<14, 12, _, _, _>(points, rule, &point, sink),
-            (true, 14, 8) => self.run_classic::<14, 8, _, _, _>(points, rule, &point, sink),
-            (true, 12, 16) => self.run_classic::<12, 16, _, _, _>(points, rule, &point, sink),
-            (true, 12, 12) => self.run_classic::<12, 12, _, _, _>(points, rule, &point, sink),
-            (true, 12, 8) => self.run_classic::<12, 8, _, _, _>(points, rule, &point, sink),
-            // Every encoding a scan can begin with is above.
-            _ => Err(Error::UnknownEncoding(0)),
+        let (db, ib) = (s.distance_bits, s.intensity_bits);
+        // Distance-only encodings get loops compiled for their widths; encodings with an
+        // intensity channel share one with the widths as values (smaller, a bit slower).
+        match (classic, db, ib) {
+            (false, 16, 0) => self.run_fixed::<16, 0, _, _, _>(points, rule, &point, sink),
+            (false, 14, 0) => self.run_fixed::<14, 0, _, _, _>(points, rule, &point, sink),
+            (false, 12, 0) => self.run_fixed::<12, 0, _, _, _>(points, rule, &point, sink),
+            (false, _, _) => self.run_any(db, ib, points, rule, &point, sink),
+            (true, 16, 0) => self.run_classic_fixed::<16, 0, _, _, _>(points, rule, &point, sink),
+            (true, 14, 0) => self.run_classic_fixed::<14, 0, _, _, _>(points, rule, &point, sink),
+            (true, 12, 0) => self.run_classic_fixed::<12, 0, _, _, _>(points, rule, &point, sink),
+            (true, _, _) => self.run_classic_any(db, ib, points, rule, &point, sink),
         }
+    }
+
+    /// [`Self::run_with`] for `DB`-bit distances and `IB`-bit intensities.
+    #[inline(never)]
+    fn run_fixed<const DB: u32, const IB: u32, T, F, S>(
+        &mut self,
+        points: &[T],
+        rule: RangeRule,
+        point: &F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        self.run_with(DB, IB, points, rule, point, sink)
+    }
+
+    /// [`Self::run_with`] for any widths.
+    #[inline(never)]
+    fn run_any<T, F, S>(
+        &mut self,
+        db: u32,
+        ib: u32,
+        points: &[T],
+        rule: RangeRule,
+        point: &F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        self.run_with(db, ib, points, rule, point, sink)
+    }
+
+    /// [`Self::run_classic_with`] for `DB`-bit distances and `IB`-bit intensities.
+    #[inline(never)]
+    fn run_classic_fixed<const DB: u32, const IB: u32, T, F, S>(
+        &mut self,
+        points: &[T],
+        rule: RangeRule,
+        point: &F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        self.run_classic_with(DB, IB, points, rule, point, sink)
+    }
+
+    /// [`Self::run_classic_with`] for any widths.
+    #[inline(never)]
+    fn run_classic_any<T, F, S>(
+        &mut self,
+        db: u32,
+        ib: u32,
+        points: &[T],
+        rule: RangeRule,
+        point: &F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        self.run_classic_with(db, ib, points, rule, point, sink)
     }
 
     /// [`ScanEncoder::push_run`] for CAN FD frames with `DB`-bit distances and `IB`-bit
     /// intensities: points are coded a block at a time ([`code_block`]), then packed.
-    #[inline(never)]
-    fn run<const DB: u32, const IB: u32, T, F, S>(
+    #[inline(always)]
+    fn run_with<T, F, S>(
         &mut self,
+        db: u32,
+        ib: u32,
         points: &[T],
         rule: RangeRule,
         point: &F,
@@ -440,7 +495,7 @@ impl ScanEncoder {
             let block = left.min(BLOCK).min(usize::from(count - s.pushed));
             let (now, later) = rest.split_at(block);
             rest = later;
-            let (mut valid, mut invalid) = code_block::<IB, _, _>(now, rule, point, s, codes_buf);
+            let (mut valid, mut invalid) = code_block_any(ib, now, rule, point, s, codes_buf);
             let mut j = 0;
             while j < block {
                 // Points until a frame is due: the frame is full or the scan's last is in.
@@ -452,19 +507,19 @@ impl ScanEncoder {
                 let mut crc = s.crc;
                 for &code in codes {
                     crc.code(code as u16);
-                    if IB > 0 {
+                    if ib > 0 {
                         crc.code((code >> 16) as u16);
                     }
                 }
                 s.crc = crc;
-                let whole = ((DB + IB) / 8) as usize;
-                if (DB + IB) % 8 == 0 {
+                let whole = ((db + ib) / 8) as usize;
+                if (db + ib) % 8 == 0 {
                     // Whole bytes per point: straight into their place, no bit position.
                     let Some(bytes) = s.packer.take_bytes(k.saturating_mul(whole)) else {
                         return Err(Error::FrameTooLong);
                     };
                     for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(whole)) {
-                        let word = (code & 0xFFFF) | (code >> 16) << DB;
+                        let word = (code & 0xFFFF) | (code >> 16) << db;
                         if let Some(field) = word.to_le_bytes().get(..whole) {
                             out.copy_from_slice(field);
                         }
@@ -472,11 +527,11 @@ impl ScanEncoder {
                 } else {
                     for &code in codes {
                         let (dc, ic) = (code & 0xFFFF, code >> 16);
-                        if DB + IB <= 24 {
-                            s.packer.put(dc | ic << DB, DB + IB);
+                        if db + ib <= 24 {
+                            s.packer.put(dc | ic << db, db + ib);
                         } else {
-                            s.packer.put(dc, DB);
-                            s.packer.put(ic, IB);
+                            s.packer.put(dc, db);
+                            s.packer.put(ic, ib);
                         }
                     }
                 }
@@ -521,9 +576,11 @@ impl ScanEncoder {
     /// for the next run (`pending`), so frames that straddle data lines are built whole
     /// too. Only a frame begun by [`ScanEncoder::push_point`] (its points already in the
     /// packer) or the scan's short last frame take their points one by one.
-    #[inline(never)]
-    fn run_classic<const DB: u32, const IB: u32, T, F, S>(
+    #[inline(always)]
+    fn run_classic_with<T, F, S>(
         &mut self,
+        db: u32,
+        ib: u32,
         points: &[T],
         rule: RangeRule,
         point: &F,
@@ -542,7 +599,7 @@ impl ScanEncoder {
             frames: 0,
             stop: None,
         };
-        let bits = DB + IB;
+        let bits = db + ib;
         // Points in a full classic frame: 48 bits after the data header.
         let cap = (48 / bits) as usize;
         let count = s.header.point_count;
@@ -564,7 +621,7 @@ impl ScanEncoder {
             let p = s.pending;
             let end = p + block;
             let fresh = codes_buf.get_mut(p..end).unwrap_or(&mut []);
-            let (valid, invalid) = code_block::<IB, _, _>(now, rule, point, s, fresh);
+            let (valid, invalid) = code_block_any(ib, now, rule, point, s, fresh);
             let codes = codes_buf.get(..end).unwrap_or(&[]);
             // The block is taken; a lost frame gives back what follows it.
             let before = usize::from(s.buffered) - p;
@@ -583,10 +640,10 @@ impl ScanEncoder {
                 let mut word = s.packer.word64() & !0xFFFF & (u64::MAX >> (64 - at.min(64)));
                 for &code in codes.iter().take(k) {
                     crc.code(code as u16);
-                    if IB > 0 {
+                    if ib > 0 {
                         crc.code((code >> 16) as u16);
                     }
-                    word |= (u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB) << (at & 63);
+                    word |= (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (at & 63);
                     at += bits;
                 }
                 j = k;
@@ -618,7 +675,7 @@ impl ScanEncoder {
                 let mut sent = s.sent;
                 for chunk in whole.chunks_exact(cap) {
                     let header = u64::from(sent & 0x0FFF) | seq_bits;
-                    let word = whole_frame::<DB, IB>(chunk, cap, header, &mut crc)
+                    let word = whole_frame(db, ib, chunk, cap, header, &mut crc)
                         .ok_or(Error::FrameTooLong)?;
                     sent = sent.wrapping_add(cap as u16);
                     j += cap;
@@ -646,11 +703,11 @@ impl ScanEncoder {
                     let mut at = 16;
                     for &code in codes.get(j..end).unwrap_or(&[]) {
                         crc.code(code as u16);
-                        if IB > 0 {
+                        if ib > 0 {
                             crc.code((code >> 16) as u16);
                         }
                         word |=
-                            (u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB) << (at & 63);
+                            (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (at & 63);
                         at += bits;
                     }
                     let len = data_frame_len(&s.header.encoding, r).ok_or(Error::FrameTooLong)?;
@@ -738,6 +795,24 @@ impl ScanEncoder {
     }
 }
 
+/// [`code_block`] for an intensity width given as a value.
+#[inline(always)]
+fn code_block_any<T, F: Fn(&T) -> (u32, u16)>(
+    ib: u32,
+    points: &[T],
+    rule: RangeRule,
+    point: &F,
+    s: &InProgress,
+    codes: &mut [u32],
+) -> (u16, u32) {
+    match ib {
+        0 => code_block::<0, T, F>(points, rule, point, s, codes),
+        8 => code_block::<8, T, F>(points, rule, point, s, codes),
+        12 => code_block::<12, T, F>(points, rule, point, s, codes),
+        _ => code_block::<16, T, F>(points, rule, point, s, codes),
+    }
+}
+
 /// Codes `points` (at most [`BLOCK`]) into `codes`: per point its distance code in the
 /// low 16 bits and its intensity code (`IB` bits) above. Returns the valid distance codes
 /// and the points that are no range (as `rule` says). Kept out of line: in a function of
@@ -770,12 +845,7 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
             };
         }
     }
-    match (simple, s.coder.is_mm()) {
-        (true, true) => code_points::<IB, true, true, T, F>(points, rule, point, s, codes),
-        (true, false) => code_points::<IB, true, false, T, F>(points, rule, point, s, codes),
-        (false, true) => code_points::<IB, false, true, T, F>(points, rule, point, s, codes),
-        (false, false) => code_points::<IB, false, false, T, F>(points, rule, point, s, codes),
-    }
+    code_points::<IB, T, F>(points, rule, point, s, codes)
 }
 
 /// The loop of [`code_block`] for the usual cases: the unit is 1 mm, `rule.min` is not
@@ -817,10 +887,9 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
     ((n - invalid - over) as u16, invalid)
 }
 
-/// The loop of [`code_block`]: `SIMPLE` when `rule` has no exceptions, `MM` when the
-/// unit is 1 mm.
+/// The loop of [`code_block`] for any rule and unit.
 #[inline(always)]
-fn code_points<const IB: u32, const SIMPLE: bool, const MM: bool, T, F: Fn(&T) -> (u32, u16)>(
+fn code_points<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     points: &[T],
     rule: RangeRule,
     point: &F,
@@ -831,22 +900,9 @@ fn code_points<const IB: u32, const SIMPLE: bool, const MM: bool, T, F: Fn(&T) -
     let (mut valid, mut invalid) = (0u16, 0u32);
     for (code, p) in codes.iter_mut().zip(points) {
         let (raw, intensity) = point(p);
-        let is_range = if SIMPLE {
-            raw >= rule.min
-        } else {
-            rule.is_range(raw)
-        };
-        let distance = if is_range {
-            Distance::Mm(raw)
-        } else {
-            Distance::Invalid
-        };
-        let (dc, is_valid) = if MM {
-            coder.code_valid_mm(distance)
-        } else {
-            coder.code_valid(distance)
-        };
-        invalid += u32::from(!is_range);
+        let distance = rule.distance(raw);
+        let (dc, is_valid) = coder.code_valid(distance);
+        invalid += u32::from(distance == Distance::Invalid);
         valid += u16::from(is_valid);
         *code = if IB > 0 {
             u32::from(dc) | (u32::from(intensity) >> (16 - IB)) << 16
@@ -875,7 +931,9 @@ fn untake(s: &InProgress, codes: &[u32]) -> (u16, u32) {
 /// intensity above), their codes into `crc`; `None` when fewer than `n` codes are there.
 /// Written out per `n`, so every point goes in at a shift known at compile time.
 #[inline(always)]
-fn whole_frame<const DB: u32, const IB: u32>(
+fn whole_frame(
+    db: u32,
+    ib: u32,
     codes: &[u32],
     n: usize,
     header: u64,
@@ -883,13 +941,13 @@ fn whole_frame<const DB: u32, const IB: u32>(
 ) -> Option<u64> {
     let mut add = |code: u32| {
         crc.code(code as u16);
-        if IB > 0 {
+        if ib > 0 {
             crc.code((code >> 16) as u16);
         }
     };
     // Point `i` of the frame, in place.
     let place = |code: u32, i: u32| {
-        (u64::from(code & 0xFFFF) | u64::from(code >> 16) << DB) << (16 + i * (DB + IB))
+        (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (16 + i * (db + ib))
     };
     let word = match n {
         1 => {

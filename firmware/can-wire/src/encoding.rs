@@ -281,24 +281,6 @@ impl DistanceCoder {
         self.exp == 0
     }
 
-    /// [`DistanceCoder::code_valid`] for a coder whose unit is 1 mm ([`Self::is_mm`]).
-    #[inline(always)]
-    pub(crate) const fn code_valid_mm(&self, d: Distance) -> (u16, bool) {
-        match d {
-            Distance::Invalid => (0, false),
-            Distance::OutOfRange => (self.max as u16, false),
-            Distance::Mm(mm) => {
-                if mm >= self.max {
-                    (self.max as u16, false)
-                } else if mm == 0 {
-                    (1, true)
-                } else {
-                    (mm as u16, true)
-                }
-            }
-        }
-    }
-
     /// Whether a code is a range (neither invalid nor out of range).
     #[inline(always)]
     pub(crate) const fn is_valid(&self, code: u16) -> bool {
