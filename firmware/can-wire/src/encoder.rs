@@ -373,15 +373,13 @@ impl ScanEncoder {
         let s = self.scan.as_ref().ok_or(Error::NoScan)?;
         let classic = !self.format.is_fd();
         let (db, ib) = (s.distance_bits, s.intensity_bits);
-        // Distance-only encodings get loops compiled for their widths; encodings with an
-        // intensity channel share one with the widths as values (smaller, a bit slower).
+        // D16 and D12 without intensity get loops compiled for their widths; the other
+        // encodings share one with the widths as values (smaller, a bit slower).
         match (classic, db, ib) {
             (false, 16, 0) => self.run_fixed::<16, 0, _, _, _>(points, rule, &point, sink),
-            (false, 14, 0) => self.run_fixed::<14, 0, _, _, _>(points, rule, &point, sink),
             (false, 12, 0) => self.run_fixed::<12, 0, _, _, _>(points, rule, &point, sink),
             (false, _, _) => self.run_any(db, ib, points, rule, &point, sink),
             (true, 16, 0) => self.run_classic_fixed::<16, 0, _, _, _>(points, rule, &point, sink),
-            (true, 14, 0) => self.run_classic_fixed::<14, 0, _, _, _>(points, rule, &point, sink),
             (true, 12, 0) => self.run_classic_fixed::<12, 0, _, _, _>(points, rule, &point, sink),
             (true, _, _) => self.run_classic_any(db, ib, points, rule, &point, sink),
         }
