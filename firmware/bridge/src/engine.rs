@@ -379,23 +379,45 @@ impl<const Q: usize> Core<Q> {
         };
         // Without multi-echo every reading is a first echo, the next step of the scan.
         let first = line.readings.first().map(|r| step(r.index));
+        let limits = line.limits;
+        let raw = |r: &scip::Reading| RawPoint {
+            step: step(r.index),
+            distance: r.distance,
+            intensity: has_aux.then_some(r.aux),
+            valid: matches!(limits.classify(r.distance, width), Range::Mm(_)),
+        };
         if let Some(first) = first.filter(|_| !s.multi_echo) {
             if self.pipeline.pass_run(first, line.readings.len()) {
                 self.publish_run(line, width, has_aux);
                 return;
             }
+            // Decimation the only stage: the line's output points, then one encoder run.
+            let mut out = [Point {
+                step: 0,
+                range_mm: None,
+                intensity: None,
+            }; scip::MAX_READINGS];
+            if let Some(n) = self
+                .pipeline
+                .decimate_run(first, line.readings, raw, &mut out)
+            {
+                if !self.overflow {
+                    let point = |p: &Point| {
+                        // Classified already: a range is at least 1 mm here (a range of
+                        // 0 mm is coded 1 either way).
+                        let d = p.range_mm.map_or(0, |mm| mm.max(1));
+                        let i = p
+                            .intensity
+                            .map_or(0, |i| u16::try_from(i).unwrap_or(u16::MAX));
+                        (d, i)
+                    };
+                    let points = out.get(..n).unwrap_or(&[]);
+                    self.encode_run(points, can_wire::RangeRule::at_least(1), point);
+                }
+                return;
+            }
         }
-        let limits = line.limits;
-        let points = line
-            .readings
-            .iter()
-            .filter(|r| r.echo == 0)
-            .map(|r| RawPoint {
-                step: step(r.index),
-                distance: r.distance,
-                intensity: has_aux.then_some(r.aux),
-                valid: matches!(limits.classify(r.distance, width), Range::Mm(_)),
-            });
+        let points = line.readings.iter().filter(|r| r.echo == 0).map(raw);
         let Self {
             pipeline,
             encoder,
@@ -433,14 +455,26 @@ impl<const Q: usize> Core<Q> {
             };
             (r.distance, intensity)
         };
+        let (taken, mut invalid) = self.encode_run(line.readings, rule, point);
+        // Points the encoder did not take (it stopped early) are counted too, as the
+        // pipeline emitted them.
+        let rest = line.readings.get(taken..).unwrap_or(&[]);
+        invalid += rest.iter().filter(|r| is_invalid(r)).count();
+        self.pipeline.count_invalid(invalid);
+    }
+
+    /// Points the pipeline emitted, into the encoder in one run (what [`emit_point`]
+    /// does for each of them); returns how many it took and how many of those were no
+    /// range.
+    fn encode_run<T>(
+        &mut self,
+        points: &[T],
+        rule: can_wire::RangeRule,
+        point: impl Fn(&T) -> (u32, u16),
+    ) -> (usize, usize) {
         let mut slots = DataSlots(&mut self.queue);
-        let result = self
-            .encoder
-            .push_run(line.readings, rule, point, &mut slots);
-        let mut invalid = 0;
-        let taken = match result {
+        match self.encoder.push_run(points, rule, point, &mut slots) {
             Ok(run) => {
-                invalid = usize::try_from(run.invalid).unwrap_or(usize::MAX);
                 self.stats.frames = self.stats.frames.wrapping_add(run.frames);
                 match run.stop {
                     Some(RunStop::NoSlot) => {
@@ -450,18 +484,14 @@ impl<const Q: usize> Core<Q> {
                     Some(RunStop::TooManyPoints) => self.filtered = true,
                     None => {}
                 }
-                usize::try_from(run.points).unwrap_or(usize::MAX)
+                let n = |x: u32| usize::try_from(x).unwrap_or(usize::MAX);
+                (n(run.points), n(run.invalid))
             }
             Err(_) => {
                 self.filtered = true;
-                0
+                (0, 0)
             }
-        };
-        // Points the encoder did not take (it stopped early) are counted too, as the
-        // pipeline emitted them.
-        let rest = line.readings.get(taken..).unwrap_or(&[]);
-        invalid += rest.iter().filter(|r| is_invalid(r)).count();
-        self.pipeline.count_invalid(invalid);
+        }
     }
 
     /// A frame that goes ahead of queued scan frames (control answers, status). It never

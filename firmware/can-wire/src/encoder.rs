@@ -324,7 +324,9 @@ impl ScanEncoder {
     /// Packs a point; returns whether a data frame is due (full, or the scan's last).
     #[inline(always)]
     fn add(&mut self, distance: Distance, intensity: u16) -> Result<bool, Error> {
-        self.settle_pending();
+        if self.scan.as_ref().is_some_and(|s| s.pending > 0) {
+            self.settle_pending();
+        }
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
         if s.pushed >= s.header.point_count {
             return Err(Error::TooManyPoints);

@@ -343,6 +343,70 @@ impl Pipeline {
         true
     }
 
+    /// The direct path when angular decimation is the only stage on: `n` consecutive
+    /// points from `first_step` (as for [`Pipeline::pass_run`]), turned into raw points
+    /// by `raw`, go straight through the decimator; the output points are written to
+    /// `out` (room for `n` is enough) and their number returned, with every counter as
+    /// pushing them one by one would leave it. `None`, nothing changed, when the stages
+    /// are otherwise or the run does not continue the open scan in sequence: push them.
+    pub fn decimate_run<T>(
+        &mut self,
+        first_step: u16,
+        points: &[T],
+        raw: impl Fn(&T) -> RawPoint,
+        out: &mut [Point],
+    ) -> Option<usize> {
+        let c = &self.config;
+        let only_decimation = c.decimation.is_some()
+            && c.roi.is_none()
+            && c.range_window.is_none()
+            && c.min_intensity.is_none()
+            && c.speckle.is_none()
+            && c.median.is_none();
+        let n = points.len();
+        if !only_decimation || n == 0 || out.len() < n {
+            return None;
+        }
+        let Open::Active(scan) = &mut self.open else {
+            return None;
+        };
+        let n32 = u32::try_from(n).ok()?;
+        let span = n32.saturating_sub(1).saturating_mul(scan.cluster);
+        let first = u32::from(first_step);
+        if scan.broken
+            || first != scan.next_step
+            || first.saturating_add(span) > scan.last_point_step
+        {
+            return None;
+        }
+        scan.next_step = first.saturating_add(span).saturating_add(scan.cluster);
+        let (mut emitted, mut invalid_in, mut invalid_out) = (0usize, 0usize, 0usize);
+        for p in points {
+            let r = raw(p);
+            invalid_in = invalid_in.wrapping_add(usize::from(!r.valid));
+            let point = Point {
+                step: r.step,
+                range_mm: r.valid.then_some(r.distance),
+                intensity: r.intensity,
+            };
+            if let Some(d) = self.decimator.push(point) {
+                if let Some(slot) = out.get_mut(emitted) {
+                    *slot = d;
+                    // Each count is at most `n`: a plain add cannot wrap.
+                    emitted = emitted.wrapping_add(1);
+                    invalid_out = invalid_out.wrapping_add(usize::from(!d.is_valid()));
+                }
+            }
+        }
+        scan.emitted = scan.emitted.saturating_add(emitted);
+        let st = &mut self.stats;
+        add(&mut st.points_in, n);
+        add(&mut st.invalid_error_code, invalid_in);
+        add(&mut st.points_out, emitted);
+        add(&mut st.points_out_invalid, invalid_out);
+        Some(emitted)
+    }
+
     /// Counts `n` points of a [`Pipeline::pass_run`] run that had no range.
     #[inline]
     pub fn count_invalid(&mut self, n: usize) {
@@ -1257,6 +1321,73 @@ mod tests {
             let one_by_one = run(0);
             proptest::prop_assert_eq!(&run(1), &one_by_one);
             proptest::prop_assert_eq!(&run(2), &one_by_one);
+        }
+    }
+    proptest::proptest! {
+        /// `decimate_run` on runs of consecutive points, with decimation the only stage,
+        /// gives the points, end and counters of pushing them one by one.
+        #[test]
+        fn decimated_runs_match_single_pushes(
+            inputs in proptest::collection::vec(
+                (0u16..6, 0u32..3000, proptest::option::of(0u32..70_000), proptest::bool::ANY),
+                0..80,
+            ),
+            cluster in 1u16..3,
+            count in 1u16..60,
+            factor in 1u16..6,
+            mode in 0usize..3,
+            sizes in proptest::collection::vec(1usize..25, 1..5),
+        ) {
+            let mode = [DecimationMode::First, DecimationMode::Min, DecimationMode::Mean][mode];
+            let config = PipelineConfig {
+                decimation: Some(Decimation { factor, mode }),
+                ..PipelineConfig::default()
+            };
+            let info = ScanInfo {
+                seq: 0,
+                timestamp_ms: 0,
+                first_step: 10,
+                last_step: 10 + (count - 1) * cluster,
+                cluster,
+            };
+            let mut step = 10u16;
+            let points: Vec<RawPoint> = inputs
+                .iter()
+                .map(|&(skip, distance, intensity, valid)| {
+                    if skip == 5 {
+                        step += cluster;
+                    }
+                    let p = RawPoint { step, distance, intensity, valid };
+                    step += cluster;
+                    p
+                })
+                .collect();
+            let run = |fast: bool| {
+                let mut p = Pipeline::new(config).unwrap();
+                p.begin_scan(info);
+                let mut out = Vec::new();
+                let mut rest = &points[..];
+                let mut i = 0;
+                while !rest.is_empty() {
+                    let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
+                    let consecutive = a.windows(2).all(|w| w[1].step == w[0].step + cluster);
+                    let mut buf = [Point { step: 0, range_mm: None, intensity: None }; 32];
+                    let done = if fast && consecutive {
+                        p.decimate_run(a[0].step, a, |r| *r, &mut buf)
+                    } else {
+                        None
+                    };
+                    match done {
+                        Some(k) => out.extend_from_slice(&buf[..k]),
+                        None => p.push_batch(a, &mut |x| out.push(x)),
+                    }
+                    rest = b;
+                    i += 1;
+                }
+                let end = p.end_scan(true, &mut |x| out.push(x));
+                (out, end, *p.stats())
+            };
+            proptest::prop_assert_eq!(run(true), run(false));
         }
     }
 }

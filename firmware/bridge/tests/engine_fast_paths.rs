@@ -1,0 +1,173 @@
+//! The engine's direct paths (a line's points straight into one encoder run when every
+//! pipeline stage is off, or when angular decimation is the only one) publish exactly
+//! what the pipeline gives point by point: scans with error codes, ranges past the
+//! encoding's out-of-range code, lines split anywhere, classic and CAN FD frames.
+
+use bridge::engine::{Bridge, BridgeConfig};
+use bridge::governor::Budget;
+use bridge::pipeline::{
+    Decimation, DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo,
+};
+use bridge::session::SessionConfig;
+use can_wire::bandwidth::BitRates;
+use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
+use can_wire::{Distance, Encoding, FrameFormat, IdWindow};
+use scip::{
+    Command, ModelFamily, Range, RangeLimits, Request, ResponseWriter, ScanMode, ScanRequest,
+};
+
+const Q: usize = 512;
+
+/// Steps per scan: 17 whole data lines and a short one.
+const STEPS: u16 = 1081;
+
+fn config(pipeline: PipelineConfig, format: FrameFormat) -> BridgeConfig {
+    BridgeConfig {
+        session: SessionConfig::default(),
+        pipeline,
+        encoding: Encoding::PLAIN_MM,
+        budget: Budget {
+            rates: BitRates::FD_1M_5M,
+            format,
+            extended: false,
+            share_permille: 1000,
+        },
+        ids: IdWindow::DEFAULT.node(5).unwrap(),
+        uart_bit_rate: 115_200,
+        status_period_ms: 0,
+        fd_capable: true,
+    }
+}
+
+/// Distances of scan `k`: ranges, error codes below DMIN (20), and ranges past 65534
+/// (the out-of-range code of 16-bit millimetres).
+fn distances(k: u32) -> Vec<u32> {
+    (0..u32::from(STEPS))
+        .map(|i| {
+            let x = (i + 1).wrapping_mul(2_654_435_761) ^ k.wrapping_mul(0x9E37_79B9);
+            match x % 11 {
+                0 => x % 20,
+                1 => 65_000 + x % 4_000,
+                _ => 20 + x % 30_000,
+            }
+        })
+        .collect()
+}
+
+/// A continuous-scan stream of `scans` frames over steps 0..STEPS-1.
+fn stream(scans: u32) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+    let mut s = ScanRequest::distance(ScanMode::Continuous, 0, STEPS - 1);
+    s.count = 0;
+    for k in 0..scans {
+        w.echo(&Request::new(Command::Scan(s)));
+        w.status(*b"99");
+        w.timestamp(1000 + 25 * k);
+        for d in distances(k) {
+            w.step(d, 0);
+        }
+        w.end();
+    }
+    let _ = w.into_inner();
+    out
+}
+
+/// The bridge's scans, decoded from its frames: per scan its distances.
+fn bridge_scans(cfg: BridgeConfig, bytes: &[u8], chunk: usize) -> Vec<Vec<Distance>> {
+    let mut b: Box<Bridge<Q>> = Box::new(Bridge::new(cfg).unwrap());
+    b.set_auto_decimation(false);
+    let mut dec: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
+    let mut out = Vec::new();
+    let mut at = 0u64;
+    for piece in bytes.chunks(chunk) {
+        // The time the piece's last byte arrives at 115 200 bit/s.
+        at += piece.len() as u64;
+        b.on_uart(piece, at * 10 * 1000 / 115_200);
+        while let Some(f) = b.pop_frame() {
+            if let Ok(Some(CanEvent::Scan { scan, .. })) = dec.push_frame(&f) {
+                assert!(scan.is_intact());
+                out.push(
+                    scan.points()
+                        .map(|p| p.map_or(Distance::Invalid, |p| p.distance))
+                        .collect(),
+                );
+            }
+        }
+    }
+    assert_eq!(b.stats().queue_overflows, 0);
+    assert_eq!(b.stats().scans_dropped, 0);
+    out
+}
+
+/// What the pipeline gives for the same scans pushed point by point, as the wire
+/// encoding carries it.
+fn expected(pipeline: PipelineConfig, scans: u32) -> Vec<Vec<Distance>> {
+    let limits = RangeLimits {
+        dmin: 20,
+        family: ModelFamily::Unknown,
+    };
+    let enc = Encoding::PLAIN_MM;
+    (0..scans)
+        .map(|k| {
+            let mut p = Pipeline::new(pipeline).unwrap();
+            p.begin_scan(ScanInfo {
+                seq: k,
+                timestamp_ms: 0,
+                first_step: 0,
+                last_step: STEPS - 1,
+                cluster: 1,
+            });
+            let mut out: Vec<Point> = Vec::new();
+            for (i, d) in distances(k).into_iter().enumerate() {
+                let raw = RawPoint {
+                    step: i as u16,
+                    distance: d,
+                    intensity: None,
+                    valid: matches!(limits.classify(d, 3), Range::Mm(_)),
+                };
+                p.push(raw, &mut |x| out.push(x));
+            }
+            p.end_scan(true, &mut |x| out.push(x));
+            out.iter()
+                .map(|x| {
+                    let d = x.range_mm.map_or(Distance::Invalid, Distance::Mm);
+                    enc.decode_distance(enc.encode_distance(d))
+                })
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn direct_paths_publish_what_the_pipeline_gives_point_by_point() {
+    let bytes = stream(3);
+    let mut pipelines = vec![PipelineConfig::default()];
+    for mode in [
+        DecimationMode::First,
+        DecimationMode::Min,
+        DecimationMode::Mean,
+    ] {
+        for factor in [2, 3, 7] {
+            pipelines.push(PipelineConfig {
+                decimation: Some(Decimation { factor, mode }),
+                ..PipelineConfig::default()
+            });
+        }
+    }
+    for pipeline in pipelines {
+        let want = expected(pipeline, 3);
+        for format in [FrameFormat::Classic, FrameFormat::FD64] {
+            for chunk in [64, 1000] {
+                let got = bridge_scans(config(pipeline, format), &bytes, chunk);
+                let what = format!("{pipeline:?} {format:?} chunks of {chunk}");
+                assert_eq!(got.len(), want.len(), "{what}");
+                for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+                    assert_eq!(g.len(), w.len(), "{what}: scan {k}");
+                    let first = g.iter().zip(w).position(|(a, b)| a != b);
+                    assert_eq!(first, None, "{what}: scan {k}, first difference");
+                }
+            }
+        }
+    }
+}
