@@ -25,7 +25,7 @@ use can_wire::{
     AbortReason, Distance, Encoding, Frame, FrameSink, Grouping, NodeIds, RunStop, ScanEncoder,
     ScanHeader, TrailerFlags,
 };
-use scip::{Command, DataLine, Decoder, Event, Range, ScanMode, ScanRequest, Status};
+use scip::{Command, DataLine, Decoder, Event, ScanMode, ScanRequest, Status};
 
 use crate::governor::{Budget, Governor};
 use crate::pipeline::{
@@ -140,6 +140,8 @@ struct Core<const Q: usize> {
     auto_decimation: bool,
     /// The governor's last plan.
     plan: Option<crate::governor::Plan>,
+    /// A data line's points out of [`Pipeline::decimate_run`].
+    decimated: [Point; scip::MAX_READINGS],
 }
 
 /// The bridge. `Q` is the capacity of the CAN transmit queue, in frames (at least 4).
@@ -175,6 +177,11 @@ impl<const Q: usize> Bridge<Q> {
                 health: crate::status::Health::new(),
                 auto_decimation: true,
                 plan: None,
+                decimated: [Point {
+                    step: 0,
+                    range_mm: None,
+                    intensity: None,
+                }; scip::MAX_READINGS],
                 config,
             },
         })
@@ -379,12 +386,12 @@ impl<const Q: usize> Core<Q> {
         };
         // Without multi-echo every reading is a first echo, the next step of the scan.
         let first = line.readings.first().map(|r| step(r.index));
-        let limits = line.limits;
+        let test = line.limits.range_test(width);
         let raw = |r: &scip::Reading| RawPoint {
             step: step(r.index),
             distance: r.distance,
             intensity: has_aux.then_some(r.aux),
-            valid: matches!(limits.classify(r.distance, width), Range::Mm(_)),
+            valid: test.is_range(r.distance),
         };
         if let Some(first) = first.filter(|_| !s.multi_echo) {
             if self.pipeline.pass_run(first, line.readings.len()) {
@@ -392,15 +399,10 @@ impl<const Q: usize> Core<Q> {
                 return;
             }
             // Decimation the only stage: the line's output points, then one encoder run.
-            let mut out = [Point {
-                step: 0,
-                range_mm: None,
-                intensity: None,
-            }; scip::MAX_READINGS];
-            if let Some(n) = self
-                .pipeline
-                .decimate_run(first, line.readings, raw, &mut out)
-            {
+            let decimated =
+                self.pipeline
+                    .decimate_run(first, line.readings, raw, &mut self.decimated);
+            if let Some(n) = decimated {
                 if !self.overflow {
                     let point = |p: &Point| {
                         // Classified already: a range is at least 1 mm here (a range of
@@ -411,8 +413,24 @@ impl<const Q: usize> Core<Q> {
                             .map_or(0, |i| u16::try_from(i).unwrap_or(u16::MAX));
                         (d, i)
                     };
-                    let points = out.get(..n).unwrap_or(&[]);
-                    self.encode_run(points, can_wire::RangeRule::at_least(1), point);
+                    let Self {
+                        encoder,
+                        queue,
+                        stats,
+                        overflow,
+                        filtered,
+                        decimated,
+                        ..
+                    } = self;
+                    let points = decimated.get(..n).unwrap_or(&[]);
+                    let mut out = Output {
+                        encoder,
+                        queue,
+                        stats,
+                        overflow,
+                        filtered,
+                    };
+                    out.encode_run(points, can_wire::RangeRule::at_least(1), point);
                 }
                 return;
             }
@@ -455,43 +473,19 @@ impl<const Q: usize> Core<Q> {
             };
             (r.distance, intensity)
         };
-        let (taken, mut invalid) = self.encode_run(line.readings, rule, point);
+        let mut out = Output {
+            encoder: &mut self.encoder,
+            queue: &mut self.queue,
+            stats: &mut self.stats,
+            overflow: &mut self.overflow,
+            filtered: &mut self.filtered,
+        };
+        let (taken, mut invalid) = out.encode_run(line.readings, rule, point);
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = line.readings.get(taken..).unwrap_or(&[]);
         invalid += rest.iter().filter(|r| is_invalid(r)).count();
         self.pipeline.count_invalid(invalid);
-    }
-
-    /// Points the pipeline emitted, into the encoder in one run (what [`emit_point`]
-    /// does for each of them); returns how many it took and how many of those were no
-    /// range.
-    fn encode_run<T>(
-        &mut self,
-        points: &[T],
-        rule: can_wire::RangeRule,
-        point: impl Fn(&T) -> (u32, u16),
-    ) -> (usize, usize) {
-        let mut slots = DataSlots(&mut self.queue);
-        match self.encoder.push_run(points, rule, point, &mut slots) {
-            Ok(run) => {
-                self.stats.frames = self.stats.frames.wrapping_add(run.frames);
-                match run.stop {
-                    Some(RunStop::NoSlot) => {
-                        self.overflow = true;
-                        self.stats.queue_overflows += 1;
-                    }
-                    Some(RunStop::TooManyPoints) => self.filtered = true,
-                    None => {}
-                }
-                let n = |x: u32| usize::try_from(x).unwrap_or(usize::MAX);
-                (n(run.points), n(run.invalid))
-            }
-            Err(_) => {
-                self.filtered = true;
-                (0, 0)
-            }
-        }
     }
 
     /// A frame that goes ahead of queued scan frames (control answers, status). It never
@@ -843,6 +837,48 @@ impl<const Q: usize> Core<Q> {
     /// Ends the pipeline's scan without publishing what its windows still hold.
     fn pipeline_discard(&mut self) {
         let _ = self.pipeline.end_scan(false, &mut |_p: Point| {});
+    }
+}
+
+/// The parts of the engine a run of output points goes through.
+struct Output<'a, const Q: usize> {
+    encoder: &'a mut ScanEncoder,
+    queue: &'a mut FrameQueue<Q>,
+    stats: &'a mut BridgeStats,
+    overflow: &'a mut bool,
+    filtered: &'a mut bool,
+}
+
+impl<const Q: usize> Output<'_, Q> {
+    /// Points the pipeline emitted, into the encoder in one run (what [`emit_point`]
+    /// does for each of them); returns how many it took and how many of those were no
+    /// range.
+    fn encode_run<T>(
+        &mut self,
+        points: &[T],
+        rule: can_wire::RangeRule,
+        point: impl Fn(&T) -> (u32, u16),
+    ) -> (usize, usize) {
+        let mut slots = DataSlots(self.queue);
+        match self.encoder.push_run(points, rule, point, &mut slots) {
+            Ok(run) => {
+                self.stats.frames = self.stats.frames.wrapping_add(run.frames);
+                match run.stop {
+                    Some(RunStop::NoSlot) => {
+                        *self.overflow = true;
+                        self.stats.queue_overflows += 1;
+                    }
+                    Some(RunStop::TooManyPoints) => *self.filtered = true,
+                    None => {}
+                }
+                let n = |x: u32| usize::try_from(x).unwrap_or(usize::MAX);
+                (n(run.points), n(run.invalid))
+            }
+            Err(_) => {
+                *self.filtered = true;
+                (0, 0)
+            }
+        }
     }
 }
 

@@ -96,6 +96,84 @@ impl Decimator {
         out
     }
 
+    /// [`Decimator::push`] for each of `points`, the output points written to `out`
+    /// (one at most per point: `out` as long as `points` is enough, more are dropped);
+    /// returns how many. `First` and `Min` run with the group's state in locals.
+    #[inline]
+    pub fn push_run(&mut self, points: impl Iterator<Item = Point>, out: &mut [Point]) -> usize {
+        let mut n = 0;
+        let mut put = |p: Point| {
+            if let Some(slot) = out.get_mut(n) {
+                *slot = p;
+                // At most `out.len()`.
+                n = n.wrapping_add(1);
+            }
+        };
+        match self.mode {
+            _ if self.factor <= 1 => points.for_each(put),
+            DecimationMode::First => {
+                let mut count = self.count;
+                for p in points {
+                    if count == 0 {
+                        put(p);
+                    }
+                    // Below `factor` before, so at most `factor` after.
+                    count = count.wrapping_add(1);
+                    if count >= self.factor {
+                        count = 0;
+                    }
+                }
+                // A group's state is its count alone (its first point is out already).
+                if count == 0 {
+                    self.clear();
+                } else {
+                    self.count = count;
+                }
+            }
+            DecimationMode::Min => {
+                let (mut count, mut first_step, mut best) =
+                    (self.count, self.first_step, self.best);
+                for p in points {
+                    if count == 0 {
+                        first_step = p.step;
+                    }
+                    if let Some(r) = p.range_mm {
+                        if best.is_none_or(|(b, _)| r < b) {
+                            best = Some((r, p.intensity));
+                        }
+                    }
+                    // Below `factor` before, so at most `factor` after.
+                    count = count.wrapping_add(1);
+                    if count >= self.factor {
+                        let (range_mm, intensity) = match best {
+                            Some((r, i)) => (Some(r), i),
+                            None => (None, None),
+                        };
+                        put(Point {
+                            step: first_step,
+                            range_mm,
+                            intensity,
+                        });
+                        (count, best) = (0, None);
+                    }
+                }
+                if count == 0 {
+                    self.clear();
+                } else {
+                    (self.count, self.first_step, self.best) = (count, first_step, best);
+                }
+            }
+            DecimationMode::Mean => {
+                for p in points {
+                    if let Some(d) = self.push(p) {
+                        put(d);
+                    }
+                }
+            }
+        }
+        n
+    }
+
     /// The end of the scan: the output point of a short last group, if one is open.
     pub fn flush(&mut self) -> Option<Point> {
         let out = if self.count > 0 { self.finish() } else { None };

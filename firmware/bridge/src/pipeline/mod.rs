@@ -380,24 +380,24 @@ impl Pipeline {
             return None;
         }
         scan.next_step = first.saturating_add(span).saturating_add(scan.cluster);
-        let (mut emitted, mut invalid_in, mut invalid_out) = (0usize, 0usize, 0usize);
-        for p in points {
+        // Each count is at most `n`: a plain add cannot wrap.
+        let mut invalid_in = 0usize;
+        let points = points.iter().map(|p| {
             let r = raw(p);
             invalid_in = invalid_in.wrapping_add(usize::from(!r.valid));
-            let point = Point {
+            Point {
                 step: r.step,
                 range_mm: r.valid.then_some(r.distance),
                 intensity: r.intensity,
-            };
-            if let Some(d) = self.decimator.push(point) {
-                if let Some(slot) = out.get_mut(emitted) {
-                    *slot = d;
-                    // Each count is at most `n`: a plain add cannot wrap.
-                    emitted = emitted.wrapping_add(1);
-                    invalid_out = invalid_out.wrapping_add(usize::from(!d.is_valid()));
-                }
             }
-        }
+        });
+        let emitted = self.decimator.push_run(points, out);
+        let invalid_out = out
+            .get(..emitted)
+            .unwrap_or(&[])
+            .iter()
+            .filter(|d| !d.is_valid())
+            .count();
         scan.emitted = scan.emitted.saturating_add(emitted);
         let st = &mut self.stats;
         add(&mut st.points_in, n);
