@@ -140,8 +140,8 @@ struct Core<const Q: usize> {
     auto_decimation: bool,
     /// The governor's last plan.
     plan: Option<crate::governor::Plan>,
-    /// A data line's points out of [`Pipeline::decimate_run`].
-    decimated: [Point; scip::MAX_READINGS],
+    /// A data line's points out of [`Pipeline::decimate_run`], as readings.
+    decimated: [scip::Reading; scip::MAX_READINGS],
 }
 
 /// The bridge. `Q` is the capacity of the CAN transmit queue, in frames (at least 4).
@@ -177,11 +177,7 @@ impl<const Q: usize> Bridge<Q> {
                 health: crate::status::Health::new(),
                 auto_decimation: true,
                 plan: None,
-                decimated: [Point {
-                    step: 0,
-                    range_mm: None,
-                    intensity: None,
-                }; scip::MAX_READINGS],
+                decimated: [scip::Reading::default(); scip::MAX_READINGS],
                 config,
             },
         })
@@ -395,24 +391,29 @@ impl<const Q: usize> Core<Q> {
         };
         if let Some(first) = first.filter(|_| !s.multi_echo) {
             if self.pipeline.pass_run(first, line.readings.len()) {
-                self.publish_run(line, width, has_aux);
+                self.publish_run(line, width);
                 return;
             }
             // Decimation the only stage: the line's output points, then one encoder run.
-            let decimated =
-                self.pipeline
-                    .decimate_run(first, line.readings, raw, &mut self.decimated);
-            if let Some(n) = decimated {
+            // Written as readings (a range, or 0 for none; the intensity as aux), so that
+            // the encoder runs the same code as for a line's readings.
+            let Self {
+                pipeline,
+                decimated,
+                ..
+            } = self;
+            let mut k = 0;
+            let n = pipeline.decimate_run(first, line.readings, raw, |p| {
+                if let Some(slot) = decimated.get_mut(k) {
+                    // A range of 0 mm is coded 1 either way.
+                    slot.distance = p.range_mm.map_or(0, |mm| mm.max(1));
+                    slot.aux = p.intensity.unwrap_or(0);
+                    // At most the line's readings.
+                    k = k.wrapping_add(1);
+                }
+            });
+            if n.is_some() {
                 if !self.overflow {
-                    let point = |p: &Point| {
-                        // Classified already: a range is at least 1 mm here (a range of
-                        // 0 mm is coded 1 either way).
-                        let d = p.range_mm.map_or(0, |mm| mm.max(1));
-                        let i = p
-                            .intensity
-                            .map_or(0, |i| u16::try_from(i).unwrap_or(u16::MAX));
-                        (d, i)
-                    };
                     let Self {
                         encoder,
                         queue,
@@ -422,7 +423,7 @@ impl<const Q: usize> Core<Q> {
                         decimated,
                         ..
                     } = self;
-                    let points = decimated.get(..n).unwrap_or(&[]);
+                    let points = decimated.get(..k).unwrap_or(&[]);
                     let mut out = Output {
                         encoder,
                         queue,
@@ -430,7 +431,7 @@ impl<const Q: usize> Core<Q> {
                         overflow,
                         filtered,
                     };
-                    out.encode_run(points, can_wire::RangeRule::at_least(1), point);
+                    out.encode_run(points, can_wire::RangeRule::at_least(1), reading_point);
                 }
                 return;
             }
@@ -452,7 +453,7 @@ impl<const Q: usize> Core<Q> {
 
     /// A line's readings, accepted by [`Pipeline::pass_run`], straight into the encoder:
     /// what [`emit_point`] does for each of them, in one loop.
-    fn publish_run(&mut self, line: &DataLine<'_>, width: u8, has_aux: bool) {
+    fn publish_run(&mut self, line: &DataLine<'_>, width: u8) {
         let test = line.limits.range_test(width);
         let is_invalid = move |r: &scip::Reading| !test.is_range(r.distance);
         if self.overflow {
@@ -465,14 +466,6 @@ impl<const Q: usize> Core<Q> {
             min: test.min(),
             except: [a, b],
         };
-        let point = move |r: &scip::Reading| {
-            let intensity = if has_aux {
-                u16::try_from(r.aux).unwrap_or(u16::MAX)
-            } else {
-                0
-            };
-            (r.distance, intensity)
-        };
         let mut out = Output {
             encoder: &mut self.encoder,
             queue: &mut self.queue,
@@ -480,7 +473,7 @@ impl<const Q: usize> Core<Q> {
             overflow: &mut self.overflow,
             filtered: &mut self.filtered,
         };
-        let (taken, mut invalid) = out.encode_run(line.readings, rule, point);
+        let (taken, mut invalid) = out.encode_run(line.readings, rule, reading_point);
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = line.readings.get(taken..).unwrap_or(&[]);
@@ -838,6 +831,14 @@ impl<const Q: usize> Core<Q> {
     fn pipeline_discard(&mut self) {
         let _ = self.pipeline.end_scan(false, &mut |_p: Point| {});
     }
+}
+
+/// A reading as the encoder takes it: its distance (range or error code, the run's rule
+/// tells) and its second value as the intensity (0 for data sets without one, as the
+/// decoder gives them), saturated to 16 bits. A plain function, so that every run of
+/// readings shares one compiled encoder loop per encoding.
+fn reading_point(r: &scip::Reading) -> (u32, u16) {
+    (r.distance, u16::try_from(r.aux).unwrap_or(u16::MAX))
 }
 
 /// The parts of the engine a run of output points goes through.

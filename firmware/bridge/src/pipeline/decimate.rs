@@ -96,19 +96,10 @@ impl Decimator {
         out
     }
 
-    /// [`Decimator::push`] for each of `points`, the output points written to `out`
-    /// (one at most per point: `out` as long as `points` is enough, more are dropped);
-    /// returns how many. `First` and `Min` run with the group's state in locals.
+    /// [`Decimator::push`] for each of `points`, the output points handed to `put`.
+    /// `First` and `Min` run with the group's state in locals.
     #[inline]
-    pub fn push_run(&mut self, points: impl Iterator<Item = Point>, out: &mut [Point]) -> usize {
-        let mut n = 0;
-        let mut put = |p: Point| {
-            if let Some(slot) = out.get_mut(n) {
-                *slot = p;
-                // At most `out.len()`.
-                n = n.wrapping_add(1);
-            }
-        };
+    pub fn push_run(&mut self, points: impl Iterator<Item = Point>, mut put: impl FnMut(Point)) {
         match self.mode {
             _ if self.factor <= 1 => points.for_each(put),
             DecimationMode::First => {
@@ -171,7 +162,6 @@ impl Decimator {
                 }
             }
         }
-        n
     }
 
     /// The end of the scan: the output point of a short last group, if one is open.

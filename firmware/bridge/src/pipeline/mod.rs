@@ -345,8 +345,8 @@ impl Pipeline {
 
     /// The direct path when angular decimation is the only stage on: `n` consecutive
     /// points from `first_step` (as for [`Pipeline::pass_run`]), turned into raw points
-    /// by `raw`, go straight through the decimator; the output points are written to
-    /// `out` (room for `n` is enough) and their number returned, with every counter as
+    /// by `raw`, go straight through the decimator; the output points go to `out` (at
+    /// most one per point) and their number is returned, with every counter as
     /// pushing them one by one would leave it. `None`, nothing changed, when the stages
     /// are otherwise or the run does not continue the open scan in sequence: push them.
     pub fn decimate_run<T>(
@@ -354,7 +354,7 @@ impl Pipeline {
         first_step: u16,
         points: &[T],
         raw: impl Fn(&T) -> RawPoint,
-        out: &mut [Point],
+        mut out: impl FnMut(Point),
     ) -> Option<usize> {
         let c = &self.config;
         let only_decimation = c.decimation.is_some()
@@ -364,7 +364,7 @@ impl Pipeline {
             && c.speckle.is_none()
             && c.median.is_none();
         let n = points.len();
-        if !only_decimation || n == 0 || out.len() < n {
+        if !only_decimation || n == 0 {
             return None;
         }
         let Open::Active(scan) = &mut self.open else {
@@ -391,13 +391,12 @@ impl Pipeline {
                 intensity: r.intensity,
             }
         });
-        let emitted = self.decimator.push_run(points, out);
-        let invalid_out = out
-            .get(..emitted)
-            .unwrap_or(&[])
-            .iter()
-            .filter(|d| !d.is_valid())
-            .count();
+        let (mut emitted, mut invalid_out) = (0usize, 0usize);
+        self.decimator.push_run(points, |d| {
+            emitted = emitted.wrapping_add(1);
+            invalid_out = invalid_out.wrapping_add(usize::from(!d.is_valid()));
+            out(d);
+        });
         scan.emitted = scan.emitted.saturating_add(emitted);
         let st = &mut self.stats;
         add(&mut st.points_in, n);
@@ -1371,14 +1370,17 @@ mod tests {
                 while !rest.is_empty() {
                     let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
                     let consecutive = a.windows(2).all(|w| w[1].step == w[0].step + cluster);
-                    let mut buf = [Point { step: 0, range_mm: None, intensity: None }; 32];
+                    let mut buf = Vec::new();
                     let done = if fast && consecutive {
-                        p.decimate_run(a[0].step, a, |r| *r, &mut buf)
+                        p.decimate_run(a[0].step, a, |r| *r, |x| buf.push(x))
                     } else {
                         None
                     };
                     match done {
-                        Some(k) => out.extend_from_slice(&buf[..k]),
+                        Some(k) => {
+                            assert_eq!(k, buf.len());
+                            out.extend_from_slice(&buf);
+                        }
                         None => p.push_batch(a, &mut |x| out.push(x)),
                     }
                     rest = b;
