@@ -411,16 +411,49 @@ impl Decoder {
     /// Copies `bytes` up to the first LF into the line buffer and returns the LF's
     /// index, or copies them all and returns `None`. One pass that also takes what
     /// [`Self::data_line`] needs: the byte sum (mod 64) and whether every byte is a
-    /// value char. Four value chars at a time go through a word test (no byte of `w -
-    /// 0x30303030` has bit 6 or 7 set exactly when all four are in `0x30..=0x6F`: a
-    /// byte below 0x30 flags itself, whatever it borrows), a store and a sum by
-    /// multiplication; a word with anything else in it (the LF, the sum char of some
-    /// lines, a damaged byte) goes byte by byte. Past the buffer's capacity the line is
+    /// value char. Words of value chars go through [`copy_value_words`]; a word with
+    /// anything else in it (the LF, the sum char of some lines, a damaged byte) goes byte
+    /// by byte. Past the buffer's capacity the line is
     /// marked overflowed and its bytes are not kept.
     #[inline]
     fn take_line_bytes(&mut self, bytes: &[u8]) -> Option<usize> {
-        const FLAGS: u32 = 0xC0C0_C0C0;
-        const CHARS: u32 = 0x3030_3030;
+        #[cfg(target_pointer_width = "32")]
+        {
+            self.take_line_bytes_fused(bytes)
+        }
+        #[cfg(not(target_pointer_width = "32"))]
+        {
+            self.take_line_bytes_plain(bytes)
+        }
+    }
+
+    /// [`Self::take_line_bytes`] as 64-bit hosts do it best: the LF found eight bytes at
+    /// a time, the bytes copied, and the sum and char check left to [`sum_and_check`]
+    /// (vectorised there) by flagging the accumulators as unusable.
+    #[cfg_attr(target_pointer_width = "32", allow(dead_code))]
+    #[inline]
+    fn take_line_bytes_plain(&mut self, bytes: &[u8]) -> Option<usize> {
+        self.bad = 0xC0;
+        let lf = find_lf(bytes);
+        let line = bytes.get(..lf.unwrap_or(bytes.len())).unwrap_or(&[]);
+        if !self.overflow {
+            match self.buf.get_mut(self.len..self.len + line.len()) {
+                Some(dst) => {
+                    dst.copy_from_slice(line);
+                    self.len += line.len();
+                }
+                None => self.overflow = true,
+            }
+        }
+        lf
+    }
+
+    /// [`Self::take_line_bytes`] as 32-bit MCUs do it best: one pass of
+    /// [`copy_value_words`] and a byte loop for the rest, the sum and char check taken
+    /// on the way.
+    #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+    #[inline]
+    fn take_line_bytes_fused(&mut self, bytes: &[u8]) -> Option<usize> {
         if self.overflow {
             return find_lf(bytes);
         }
@@ -433,24 +466,10 @@ impl Decoder {
             // Whole words of value chars, as many as the input and the buffer have.
             let input = bytes.get(at..).unwrap_or(&[]);
             let room = self.buf.get_mut(len..).unwrap_or(&mut []);
-            let mut words = 0;
-            for (src, dst) in input.chunks_exact(4).zip(room.chunks_exact_mut(4)) {
-                let Ok(four) = <[u8; 4]>::try_from(src) else {
-                    break;
-                };
-                let v = u32::from_le_bytes(four).wrapping_sub(CHARS);
-                if v & FLAGS != 0 {
-                    break;
-                }
-                dst.copy_from_slice(&four);
-                words += 1;
-                // The top byte of v·0x01010101 is the sum of v's bytes: each is below
-                // 0x40, so no partial sum carries. They are the chars less 4·0x30, a
-                // multiple of 64, so the sum mod 64 is the chars' own.
-                sum = sum.wrapping_add(v.wrapping_mul(0x0101_0101) >> 24);
-            }
-            len += 4 * words;
-            at += 4 * words;
+            let (taken, add) = copy_value_words(input, room);
+            sum = sum.wrapping_add(add);
+            len += taken;
+            at += taken;
             // Then up to four bytes one at a time.
             let Some(next) = bytes.get(at..).filter(|r| !r.is_empty()) else {
                 break None;
@@ -1097,6 +1116,34 @@ impl Decoder {
     }
 }
 
+/// Copies the longest run of whole 4-byte words of value chars (`0x30..=0x6F`) at the
+/// start of `input` into `dst` (as far as `dst` has room); returns the bytes copied and
+/// their sum less `0x30` each (so the same mod 64). A word is tested at once: no byte of
+/// `w - 0x30303030` has bit 6 or 7 set exactly when every byte is a value char (a byte
+/// below 0x30 flags itself, whatever it borrows); its four values below 0x40 are summed
+/// by one multiplication (no partial sum carries).
+#[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+#[inline(always)]
+fn copy_value_words(input: &[u8], dst: &mut [u8]) -> (usize, u32) {
+    const FLAGS: u32 = 0xC0C0_C0C0;
+    const CHARS: u32 = 0x3030_3030;
+    let (mut words, mut sum) = (0usize, 0u32);
+    for (src, out) in input.chunks_exact(4).zip(dst.chunks_exact_mut(4)) {
+        let Ok(four) = <[u8; 4]>::try_from(src) else {
+            break;
+        };
+        let v = u32::from_le_bytes(four).wrapping_sub(CHARS);
+        if v & FLAGS != 0 {
+            break;
+        }
+        out.copy_from_slice(&four);
+        words += 1;
+        // The top byte of v·0x01010101 is the sum of v's four bytes.
+        sum = sum.wrapping_add(v.wrapping_mul(0x0101_0101) >> 24);
+    }
+    (4 * words, sum)
+}
+
 /// The sum char of `bytes` (as [`checksum`]) and whether every byte is a value char
 /// (`0x30..=0x6F`), in one branch-free pass: bytewise where that vectorises, a 32-bit
 /// word at a time on 32-bit targets (a Cortex-M4 has no vectors for it).
@@ -1238,6 +1285,35 @@ mod tests {
     }
 
     #[test]
+    fn value_words_copied_agree_with_bytes() {
+        let mut x = 0x0BAD_CAFEu32;
+        let mut next = || {
+            x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            x >> 8
+        };
+        for _ in 0..20_000 {
+            let len = next() as usize % 100;
+            let mut input: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
+            if len > 0 && next() % 2 == 0 {
+                let at = next() as usize % len;
+                input[at] = next() as u8;
+            }
+            let room = next() as usize % 110;
+            let mut d = vec![0u8; room];
+            let (taken, sum) = copy_value_words(&input, &mut d);
+            assert_eq!(&d[..taken], &input[..taken]);
+            // The longest whole-word prefix of value chars that fits.
+            let valid = input
+                .iter()
+                .take_while(|&&b| (0x30..=0x6F).contains(&b))
+                .count();
+            assert_eq!(taken, valid.min(room) / 4 * 4, "{input:?} room {room}");
+            let bytes_sum: u32 = input[..taken].iter().map(|&b| u32::from(b) - 0x30).sum();
+            assert_eq!(sum, bytes_sum, "{input:?}");
+        }
+    }
+
+    #[test]
     fn sum_and_check_taken_while_copying_equals_the_bytewise_one() {
         // Lines of value chars (some with one arbitrary byte, never LF), their LF, in
         // pseudo-random pieces: what `take_line_bytes` takes must be what
@@ -1259,13 +1335,19 @@ mod tests {
             }
             let mut stream = line.clone();
             stream.push(b'\n');
+            let fused = next() % 2 == 0;
             let mut d = Decoder::new();
             let mut rest = &stream[..];
             let mut lf = None;
             let mut base = 0;
             while lf.is_none() && !rest.is_empty() {
                 let piece = (1 + next() as usize % 70).min(rest.len());
-                lf = d.take_line_bytes(&rest[..piece]).map(|i| base + i);
+                let found = if fused {
+                    d.take_line_bytes_fused(&rest[..piece])
+                } else {
+                    d.take_line_bytes_plain(&rest[..piece])
+                };
+                lf = found.map(|i| base + i);
                 base += piece;
                 rest = &rest[piece..];
             }
