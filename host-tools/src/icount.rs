@@ -35,7 +35,6 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
 use bridge::engine::{Bridge, BridgeStats};
-use embedded_can::Id;
 use scip::{Command, Event, Request, ScanMode, ScanRequest, Summary};
 use serde_json::json;
 
@@ -186,36 +185,10 @@ pub fn sim_stream(options: &SimOptions, scans: usize) -> anyhow::Result<Vec<u8>>
     Ok(out)
 }
 
-/// FNV-1a (32 bit) over frames, as the firmware computes it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct FrameHash(pub u32);
-
-impl Default for FrameHash {
-    fn default() -> Self {
-        Self(0x811C_9DC5)
-    }
-}
-
-impl FrameHash {
-    fn bytes(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 = (self.0 ^ u32::from(b)).wrapping_mul(0x0100_0193);
-        }
-    }
-
-    /// Adds one frame: raw identifier (4 bytes, little endian, bit 31 set for an
-    /// extended one), FD flag, length, data.
-    pub fn frame(&mut self, frame: &can_wire::Frame) {
-        let raw = match frame.id() {
-            Id::Standard(id) => u32::from(id.as_raw()),
-            Id::Extended(id) => id.as_raw() | 0x8000_0000,
-        };
-        self.bytes(&raw.to_le_bytes());
-        let len = u8::try_from(frame.data().len()).unwrap_or(u8::MAX);
-        self.bytes(&[u8::from(frame.is_fd()), len]);
-        self.bytes(frame.data());
-    }
-}
+/// The frame hash the firmware computes: its own code, compiled for the host.
+#[path = "../../firmware/boards/qemu-mps2/src/frame_hash.rs"]
+mod frame_hash;
+pub use frame_hash::FrameHash;
 
 /// The same core on the host, fed like the firmware feeds it.
 #[derive(Debug, Clone)]
@@ -709,7 +682,8 @@ mod tests {
     fn fnv1a_of_one_frame_by_hand() {
         // 0x123, classic, 2 bytes AA BB: FNV-1a over 23 01 00 00 00 02 AA BB.
         let id = embedded_can::StandardId::new(0x123).unwrap();
-        let frame = can_wire::Frame::new(Id::Standard(id), &[0xAA, 0xBB], false).unwrap();
+        let frame =
+            can_wire::Frame::new(embedded_can::Id::Standard(id), &[0xAA, 0xBB], false).unwrap();
         let mut h = FrameHash::default();
         h.frame(&frame);
         let mut want: u32 = 0x811C_9DC5;

@@ -368,6 +368,35 @@ impl<const Q: usize> Core<Q> {
         }
     }
 
+    /// The pipeline, the decimated-line buffer and the parts output points go through,
+    /// borrowed apart.
+    fn split(
+        &mut self,
+    ) -> (
+        &mut Pipeline,
+        &mut [scip::Reading; scip::MAX_READINGS],
+        Output<'_, Q>,
+    ) {
+        let Self {
+            pipeline,
+            decimated,
+            encoder,
+            queue,
+            stats,
+            overflow,
+            filtered,
+            ..
+        } = self;
+        let out = Output {
+            encoder,
+            queue,
+            stats,
+            overflow,
+            filtered,
+        };
+        (pipeline, decimated, out)
+    }
+
     /// One data line of the scan being published. With every pipeline stage off, the
     /// line's readings go straight to the encoder in one run (the pipeline only counts
     /// them); otherwise they go through the pipeline point by point.
@@ -397,11 +426,7 @@ impl<const Q: usize> Core<Q> {
             // Decimation the only stage: the line's output points, then one encoder run.
             // Written as readings (a range, or 0 for none; the intensity as aux), so that
             // the encoder runs the same code as for a line's readings.
-            let Self {
-                pipeline,
-                decimated,
-                ..
-            } = self;
+            let (pipeline, decimated, mut out) = self.split();
             let mut k = 0;
             let n = pipeline.decimate_run(first, line.readings, raw, |p| {
                 if let Some(slot) = decimated.get_mut(k) {
@@ -413,46 +438,20 @@ impl<const Q: usize> Core<Q> {
                 }
             });
             if n.is_some() {
-                if !self.overflow {
-                    let Self {
-                        encoder,
-                        queue,
-                        stats,
-                        overflow,
-                        filtered,
-                        decimated,
-                        ..
-                    } = self;
+                if !*out.overflow {
                     let points = decimated.get(..k).unwrap_or(&[]);
-                    let mut out = Output {
-                        encoder,
-                        queue,
-                        stats,
-                        overflow,
-                        filtered,
-                    };
                     out.encode_run(points, can_wire::RangeRule::at_least(1), reading_point);
                 }
                 return;
             }
         }
         let points = line.readings.iter().filter(|r| r.echo == 0).map(raw);
-        let Self {
-            pipeline,
-            encoder,
-            queue,
-            overflow,
-            filtered,
-            stats,
-            ..
-        } = self;
-        pipeline.push_iter(points, &mut |p: Point| {
-            emit_point(p, encoder, queue, overflow, filtered, stats)
-        });
+        let (pipeline, _, mut out) = self.split();
+        pipeline.push_iter(points, &mut |p: Point| out.emit(p));
     }
 
     /// A line's readings, accepted by [`Pipeline::pass_run`], straight into the encoder:
-    /// what [`emit_point`] does for each of them, in one loop.
+    /// what [`Output::emit`] does for each of them, in one loop.
     fn publish_run(&mut self, line: &DataLine<'_>, width: u8) {
         let test = line.limits.range_test(width);
         let is_invalid = move |r: &scip::Reading| !test.is_range(r.distance);
@@ -466,14 +465,10 @@ impl<const Q: usize> Core<Q> {
             min: test.min(),
             except: [a, b],
         };
-        let mut out = Output {
-            encoder: &mut self.encoder,
-            queue: &mut self.queue,
-            stats: &mut self.stats,
-            overflow: &mut self.overflow,
-            filtered: &mut self.filtered,
-        };
-        let (taken, mut invalid) = out.encode_run(line.readings, rule, reading_point);
+        let (taken, mut invalid) = self
+            .split()
+            .2
+            .encode_run(line.readings, rule, reading_point);
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = line.readings.get(taken..).unwrap_or(&[]);
@@ -777,18 +772,8 @@ impl<const Q: usize> Core<Q> {
     }
 
     fn finish_scan(&mut self) {
-        let Self {
-            pipeline,
-            encoder,
-            queue,
-            overflow,
-            filtered,
-            stats,
-            ..
-        } = self;
-        let _ = pipeline.end_scan(true, &mut |p: Point| {
-            emit_point(p, encoder, queue, overflow, filtered, stats)
-        });
+        let (pipeline, _, mut out) = self.split();
+        let _ = pipeline.end_scan(true, &mut |p: Point| out.emit(p));
         self.phase = Phase::None;
         if self.overflow {
             self.abort_scan_now(AbortReason::QueueOverflow);
@@ -851,7 +836,44 @@ struct Output<'a, const Q: usize> {
 }
 
 impl<const Q: usize> Output<'_, Q> {
-    /// Points the pipeline emitted, into the encoder in one run (what [`emit_point`]
+    /// One output point into the encoder; a full data frame into the queue, if two slots
+    /// are free (one stays for the trailer or abort).
+    fn emit(&mut self, p: Point) {
+        if *self.overflow {
+            return;
+        }
+        let distance = match p.range_mm {
+            Some(mm) => Distance::Mm(mm),
+            None => Distance::Invalid,
+        };
+        let intensity = p
+            .intensity
+            .map_or(0, |i| u16::try_from(i).unwrap_or(u16::MAX));
+        // A due data frame is built in a new back slot of the queue, not moved into it.
+        let mut queued = false;
+        let queue = &mut *self.queue;
+        let result = self.encoder.push_point_into(distance, intensity, || {
+            let slot = data_slot(queue);
+            queued = slot.is_some();
+            slot
+        });
+        match result {
+            Ok(true) if queued => self.stats.frames += 1,
+            Ok(true) => {
+                *self.overflow = true;
+                self.stats.queue_overflows += 1;
+            }
+            Ok(false) => {}
+            Err(_) => {
+                if queued {
+                    self.queue.pop_back();
+                }
+                *self.filtered = true;
+            }
+        }
+    }
+
+    /// Points the pipeline emitted, into the encoder in one run (what [`Output::emit`]
     /// does for each of them); returns how many it took and how many of those were no
     /// range.
     fn encode_run<T>(
@@ -915,48 +937,5 @@ fn data_slot<const Q: usize>(queue: &mut FrameQueue<Q>) -> Option<&mut Frame> {
 fn push<const Q: usize>(queue: &mut FrameQueue<Q>, f: Frame, stats: &mut BridgeStats) {
     if queue.push_back(f).is_ok() {
         stats.frames += 1;
-    }
-}
-
-/// One output point into the encoder; a full data frame into the queue, if two slots are
-/// free (one stays for the trailer or abort).
-fn emit_point<const Q: usize>(
-    p: Point,
-    encoder: &mut ScanEncoder,
-    queue: &mut FrameQueue<Q>,
-    overflow: &mut bool,
-    filtered: &mut bool,
-    stats: &mut BridgeStats,
-) {
-    if *overflow {
-        return;
-    }
-    let distance = match p.range_mm {
-        Some(mm) => Distance::Mm(mm),
-        None => Distance::Invalid,
-    };
-    let intensity = p
-        .intensity
-        .map_or(0, |i| u16::try_from(i).unwrap_or(u16::MAX));
-    // A due data frame is built in a new back slot of the queue, not moved into it.
-    let mut queued = false;
-    let result = encoder.push_point_into(distance, intensity, || {
-        let slot = data_slot(queue);
-        queued = slot.is_some();
-        slot
-    });
-    match result {
-        Ok(true) if queued => stats.frames += 1,
-        Ok(true) => {
-            *overflow = true;
-            stats.queue_overflows += 1;
-        }
-        Ok(false) => {}
-        Err(_) => {
-            if queued {
-                queue.pop_back();
-            }
-            *filtered = true;
-        }
     }
 }

@@ -378,34 +378,33 @@ impl ScanEncoder {
         // D16 and D12 without intensity get loops compiled for their widths; the other
         // encodings share one with the widths as values (smaller, a bit slower).
         match (classic, db, ib) {
-            (false, 16, 0) => self.run_fixed::<16, 0, _, _, _>(points, rule, &point, sink),
-            (false, 12, 0) => self.run_fixed::<12, 0, _, _, _>(points, rule, &point, sink),
-            (false, _, _) => self.run_any(db, ib, points, rule, &point, sink),
-            (true, 16, 0) => self.run_classic_fixed::<16, 0, _, _, _>(points, rule, &point, sink),
-            (true, 12, 0) => self.run_classic_fixed::<12, 0, _, _, _>(points, rule, &point, sink),
-            (true, _, _) => self.run_classic_any(db, ib, points, rule, &point, sink),
+            (false, 16, 0) => {
+                self.run_fixed::<false, 16, 0, _, _, _>(db, ib, points, rule, &point, sink)
+            }
+            (false, 12, 0) => {
+                self.run_fixed::<false, 12, 0, _, _, _>(db, ib, points, rule, &point, sink)
+            }
+            (false, _, _) => {
+                self.run_fixed::<false, 0, 0, _, _, _>(db, ib, points, rule, &point, sink)
+            }
+            (true, 16, 0) => {
+                self.run_fixed::<true, 16, 0, _, _, _>(db, ib, points, rule, &point, sink)
+            }
+            (true, 12, 0) => {
+                self.run_fixed::<true, 12, 0, _, _, _>(db, ib, points, rule, &point, sink)
+            }
+            (true, _, _) => {
+                self.run_fixed::<true, 0, 0, _, _, _>(db, ib, points, rule, &point, sink)
+            }
         }
     }
 
-    /// [`Self::run_with`] for `DB`-bit distances and `IB`-bit intensities.
+    /// [`Self::run_with`] (CAN FD, `CLASSIC` false) or [`Self::run_classic_with`] for
+    /// `DB`-bit distances and `IB`-bit intensities compiled in; `DB` = 0 takes the widths
+    /// `db` and `ib` as values instead (one loop for the rarer encodings).
     #[inline(never)]
-    fn run_fixed<const DB: u32, const IB: u32, T, F, S>(
-        &mut self,
-        points: &[T],
-        rule: RangeRule,
-        point: &F,
-        sink: &mut S,
-    ) -> Result<Run, Error>
-    where
-        F: Fn(&T) -> (u32, u16),
-        S: FrameSink + ?Sized,
-    {
-        self.run_with(DB, IB, points, rule, point, sink)
-    }
-
-    /// [`Self::run_with`] for any widths.
-    #[inline(never)]
-    fn run_any<T, F, S>(
+    #[allow(clippy::too_many_arguments)]
+    fn run_fixed<const CLASSIC: bool, const DB: u32, const IB: u32, T, F, S>(
         &mut self,
         db: u32,
         ib: u32,
@@ -418,41 +417,12 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        self.run_with(db, ib, points, rule, point, sink)
-    }
-
-    /// [`Self::run_classic_with`] for `DB`-bit distances and `IB`-bit intensities.
-    #[inline(never)]
-    fn run_classic_fixed<const DB: u32, const IB: u32, T, F, S>(
-        &mut self,
-        points: &[T],
-        rule: RangeRule,
-        point: &F,
-        sink: &mut S,
-    ) -> Result<Run, Error>
-    where
-        F: Fn(&T) -> (u32, u16),
-        S: FrameSink + ?Sized,
-    {
-        self.run_classic_with(DB, IB, points, rule, point, sink)
-    }
-
-    /// [`Self::run_classic_with`] for any widths.
-    #[inline(never)]
-    fn run_classic_any<T, F, S>(
-        &mut self,
-        db: u32,
-        ib: u32,
-        points: &[T],
-        rule: RangeRule,
-        point: &F,
-        sink: &mut S,
-    ) -> Result<Run, Error>
-    where
-        F: Fn(&T) -> (u32, u16),
-        S: FrameSink + ?Sized,
-    {
-        self.run_classic_with(db, ib, points, rule, point, sink)
+        let (db, ib) = if DB == 0 { (db, ib) } else { (DB, IB) };
+        if CLASSIC {
+            self.run_classic_with(db, ib, points, rule, point, sink)
+        } else {
+            self.run_with(db, ib, points, rule, point, sink)
+        }
     }
 
     /// [`ScanEncoder::push_run`] for CAN FD frames with `DB`-bit distances and `IB`-bit
@@ -636,16 +606,10 @@ impl ScanEncoder {
                 // A frame begun by `push_point`, in the packer (then nothing is pending):
                 // its next points one by one, sent if that makes it due.
                 let k = (cap - before).min(block);
-                let mut at = 16 + before as u32 * bits;
-                let mut word = s.packer.word64() & !0xFFFF & (u64::MAX >> (64 - at.min(64)));
-                for &code in codes.iter().take(k) {
-                    crc.code(code as u16);
-                    if ib > 0 {
-                        crc.code((code >> 16) as u16);
-                    }
-                    word |= (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (at & 63);
-                    at += bits;
-                }
+                let at = 16 + before as u32 * bits;
+                let word = s.packer.word64() & !0xFFFF & (u64::MAX >> (64 - at.min(64)));
+                let taking = codes.get(..k).unwrap_or(&[]);
+                let (mut word, at) = place_points(db, ib, taking, word, at, &mut crc);
                 j = k;
                 let n = before + k;
                 if n == cap || usize::from(s.sent) + n == usize::from(count) {
@@ -699,17 +663,9 @@ impl ScanEncoder {
             // (A frame begun in the packer and not yet due took the whole block: r = 0.)
             if !lost && r > 0 {
                 if usize::from(s.sent) + r == usize::from(count) {
-                    let mut word = u64::from(s.sent & 0x0FFF) | seq_bits;
-                    let mut at = 16;
-                    for &code in codes.get(j..end).unwrap_or(&[]) {
-                        crc.code(code as u16);
-                        if ib > 0 {
-                            crc.code((code >> 16) as u16);
-                        }
-                        word |=
-                            (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (at & 63);
-                        at += bits;
-                    }
+                    let header = u64::from(s.sent & 0x0FFF) | seq_bits;
+                    let last = codes.get(j..end).unwrap_or(&[]);
+                    let (word, _) = place_points(db, ib, last, header, 16, &mut crc);
                     let len = data_frame_len(&s.header.encoding, r).ok_or(Error::FrameTooLong)?;
                     s.sent += r as u16;
                     s.buffered = 0;
@@ -924,6 +880,28 @@ fn untake(s: &InProgress, codes: &[u32]) -> (u16, u32) {
         invalid += u32::from(dc == 0);
     }
     (valid, invalid)
+}
+
+/// `codes` (distance code in the low 16 bits, intensity above) put one by one into the
+/// classic payload `word` from bit `at` on, their codes into `crc`; returns the word and
+/// the bit after them.
+fn place_points(
+    db: u32,
+    ib: u32,
+    codes: &[u32],
+    mut word: u64,
+    mut at: u32,
+    crc: &mut ScanCrc,
+) -> (u64, u32) {
+    for &code in codes {
+        crc.code(code as u16);
+        if ib > 0 {
+            crc.code((code >> 16) as u16);
+        }
+        word |= (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (at & 63);
+        at += db + ib;
+    }
+    (word, at)
 }
 
 /// The payload word of a whole classic frame of `n` points (1 to 4; `header` in its

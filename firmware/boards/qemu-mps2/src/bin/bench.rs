@@ -30,13 +30,14 @@
 #[path = "../config.rs"]
 #[allow(dead_code)] // the SLCAN and watchdog settings are the bridge binary's
 mod config;
+#[path = "../frame_hash.rs"]
+mod frame_hash;
 #[path = "../hw.rs"]
 #[allow(dead_code)] // shared with the bridge binary
 mod hw;
 
 use bridge::engine::Bridge;
 use cortex_m_rt::entry;
-use embedded_can::Id;
 use embedded_io::{Read, Write};
 
 /// Bytes given to the core per call (a DMA half-buffer of the STM32 boards).
@@ -44,28 +45,6 @@ const CHUNK: usize = 64;
 
 /// The byte that ends the stream.
 const EOT: u8 = 0x04;
-
-/// FNV-1a, 32 bit.
-struct Fnv(u32);
-
-impl Fnv {
-    fn bytes(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 = (self.0 ^ u32::from(b)).wrapping_mul(0x0100_0193);
-        }
-    }
-
-    fn frame(&mut self, frame: &can_wire::Frame) {
-        let raw = match frame.id() {
-            Id::Standard(id) => u32::from(id.as_raw()),
-            Id::Extended(id) => id.as_raw() | 0x8000_0000,
-        };
-        self.bytes(&raw.to_le_bytes());
-        let len = u8::try_from(frame.data().len()).unwrap_or(u8::MAX);
-        self.bytes(&[u8::from(frame.is_fd()), len]);
-        self.bytes(frame.data());
-    }
-}
 
 #[entry]
 fn main() -> ! {
@@ -85,7 +64,7 @@ fn main() -> ! {
     };
     let _ = write!(output, "{BANNER}\r\n");
 
-    let mut hash = Fnv(0x811C_9DC5);
+    let mut hash = frame_hash::FrameHash::default();
     let (mut bytes, mut chunks, mut ticks, mut max_ticks) = (0u64, 0u32, 0u64, 0u32);
     let (mut frames, mut overruns, mut pop_ticks) = (0u32, 0u32, 0u64);
     let mut chunk = [0u8; CHUNK];
