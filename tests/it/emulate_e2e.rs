@@ -28,28 +28,14 @@ use scip2can_host::sim::SimOptions;
 use slcan::{Command, FrameKind, Reply};
 
 /// The firmware's own configuration, compiled for the host.
-#[allow(dead_code)]
-#[path = "../../firmware/boards/qemu-mps2/src/config.rs"]
-mod qemu_config;
+use scip2can_host::icount::qemu_config;
 
-const QEMU: &str = "qemu-system-arm";
+use crate::qemu::QEMU;
 
 /// The firmware ELF, built once per test run; `None` (test skipped) without QEMU.
 fn firmware() -> Option<PathBuf> {
     static ELF: OnceLock<Result<PathBuf, String>> = OnceLock::new();
-    if !emulate::qemu_available(QEMU) {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "{QEMU} is missing (CI=true): apt-get install qemu-system-arm"
-        );
-        eprintln!("skipped: {QEMU} is not installed (apt-get install qemu-system-arm)");
-        return None;
-    }
-    let elf = ELF.get_or_init(|| emulate::build_firmware().map_err(|e| format!("{e:#}")));
-    match elf {
-        Ok(p) => Some(p.clone()),
-        Err(e) => panic!("building the firmware: {e}"),
-    }
+    crate::qemu::firmware(&ELF, emulate::build_firmware)
 }
 
 fn start(firmware: PathBuf, sim: &str) -> Emulation {

@@ -17,29 +17,16 @@ use std::sync::OnceLock;
 use bridge::engine::Bridge;
 use embedded_can::Id;
 use scip::{Command, Event, ScanMode, ScanRequest, Status};
-use scip2can_host::emulate;
 use scip2can_host::icount::{self, qemu_config};
 use scip2can_host::sim::model::ModelKind;
 use scip2can_host::sim::SimOptions;
 
-const QEMU: &str = "qemu-system-arm";
+use crate::qemu::QEMU;
 
 /// The benchmark ELF, built once per test run; `None` (test skipped) without QEMU.
 fn bench_firmware() -> Option<PathBuf> {
     static ELF: OnceLock<Result<PathBuf, String>> = OnceLock::new();
-    if !emulate::qemu_available(QEMU) {
-        assert!(
-            std::env::var("CI").as_deref() != Ok("true"),
-            "{QEMU} is missing (CI=true): apt-get install qemu-system-arm"
-        );
-        eprintln!("skipped: {QEMU} is not installed (apt-get install qemu-system-arm)");
-        return None;
-    }
-    let elf = ELF.get_or_init(|| icount::bench_firmware(None).map_err(|e| format!("{e:#}")));
-    match elf {
-        Ok(p) => Some(p.clone()),
-        Err(e) => panic!("building the firmware: {e}"),
-    }
+    crate::qemu::firmware(&ELF, || icount::bench_firmware(None))
 }
 
 fn stream(model: ModelKind, seed: u64, scans: usize) -> Vec<u8> {
