@@ -195,12 +195,21 @@ impl PipelineConfig {
     /// threshold, speckle, median, nor a decimation factor above 1): points then go
     /// straight from input to output.
     pub(crate) fn is_passthrough(&self) -> bool {
+        self.filters_off() && self.decimation.is_none_or(|d| d.factor <= 1)
+    }
+
+    /// Whether angular decimation is the only stage on.
+    pub(crate) fn is_decimation_only(&self) -> bool {
+        self.filters_off() && self.decimation.is_some()
+    }
+
+    /// No region, range window, intensity threshold, speckle filter nor median.
+    fn filters_off(&self) -> bool {
         self.roi.is_none()
             && self.range_window.is_none()
             && self.min_intensity.is_none()
             && self.speckle.is_none()
             && self.median.is_none()
-            && self.decimation.is_none_or(|d| d.factor <= 1)
     }
 
     /// Checks every parameter; the pipeline only ever runs validated settings.

@@ -319,24 +319,12 @@ impl Pipeline {
     /// `false` is returned: push the points instead.
     #[inline]
     pub fn pass_run(&mut self, first_step: u16, n: usize) -> bool {
-        if !self.config.is_passthrough() || n == 0 {
+        if !self.config.is_passthrough() {
             return false;
         }
-        let Open::Active(scan) = &mut self.open else {
+        let Some(scan) = self.take_run(first_step, n) else {
             return false;
         };
-        let Ok(n32) = u32::try_from(n) else {
-            return false;
-        };
-        let span = n32.saturating_sub(1).saturating_mul(scan.cluster);
-        let first = u32::from(first_step);
-        if scan.broken
-            || first != scan.next_step
-            || first.saturating_add(span) > scan.last_point_step
-        {
-            return false;
-        }
-        scan.next_step = first.saturating_add(span).saturating_add(scan.cluster);
         scan.emitted = scan.emitted.saturating_add(n);
         add(&mut self.stats.points_in, n);
         add(&mut self.stats.points_out, n);
@@ -356,30 +344,11 @@ impl Pipeline {
         raw: impl Fn(&T) -> RawPoint,
         mut out: impl FnMut(Point),
     ) -> Option<usize> {
-        let c = &self.config;
-        let only_decimation = c.decimation.is_some()
-            && c.roi.is_none()
-            && c.range_window.is_none()
-            && c.min_intensity.is_none()
-            && c.speckle.is_none()
-            && c.median.is_none();
         let n = points.len();
-        if !only_decimation || n == 0 {
+        if !self.config.is_decimation_only() {
             return None;
         }
-        let Open::Active(scan) = &mut self.open else {
-            return None;
-        };
-        let n32 = u32::try_from(n).ok()?;
-        let span = n32.saturating_sub(1).saturating_mul(scan.cluster);
-        let first = u32::from(first_step);
-        if scan.broken
-            || first != scan.next_step
-            || first.saturating_add(span) > scan.last_point_step
-        {
-            return None;
-        }
-        scan.next_step = first.saturating_add(span).saturating_add(scan.cluster);
+        self.take_run(first_step, n)?;
         // Each count is at most `n`: a plain add cannot wrap.
         let mut invalid_in = 0usize;
         let points = points.iter().map(|p| {
@@ -397,13 +366,35 @@ impl Pipeline {
             invalid_out = invalid_out.wrapping_add(usize::from(!d.is_valid()));
             out(d);
         });
-        scan.emitted = scan.emitted.saturating_add(emitted);
+        if let Open::Active(scan) = &mut self.open {
+            scan.emitted = scan.emitted.saturating_add(emitted);
+        }
         let st = &mut self.stats;
         add(&mut st.points_in, n);
         add(&mut st.invalid_error_code, invalid_in);
         add(&mut st.points_out, emitted);
         add(&mut st.points_out_invalid, invalid_out);
         Some(emitted)
+    }
+
+    /// The open scan, moved past a run of `n` (at least 1) consecutive points from
+    /// `first_step`, when they continue it in sequence and fit it; `None`, nothing
+    /// changed, otherwise (the points must then be pushed, which counts the error).
+    fn take_run(&mut self, first_step: u16, n: usize) -> Option<&mut ActiveScan> {
+        let Open::Active(scan) = &mut self.open else {
+            return None;
+        };
+        let n32 = u32::try_from(n).ok().filter(|&n| n > 0)?;
+        let span = n32.saturating_sub(1).saturating_mul(scan.cluster);
+        let first = u32::from(first_step);
+        if scan.broken
+            || first != scan.next_step
+            || first.saturating_add(span) > scan.last_point_step
+        {
+            return None;
+        }
+        scan.next_step = first.saturating_add(span).saturating_add(scan.cluster);
+        Some(scan)
     }
 
     /// Counts `n` points of a [`Pipeline::pass_run`] run that had no range.
