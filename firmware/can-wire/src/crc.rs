@@ -81,6 +81,16 @@ impl ScanCrc {
         self.reg = entry(t1, x >> 8) ^ entry(t0, x);
     }
 
+    /// Add one point's codes packed in a word: the distance code in the low 16 bits,
+    /// then the intensity code above if the channel is present (`intensity`).
+    #[inline(always)]
+    pub fn point_code(&mut self, code: u32, intensity: bool) {
+        self.code(code as u16);
+        if intensity {
+            self.code((code >> 16) as u16);
+        }
+    }
+
     /// Add one point's codes (`intensity` only if the channel is present).
     #[inline]
     pub fn point(&mut self, distance: u16, intensity: Option<u16>) {

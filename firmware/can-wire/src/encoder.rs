@@ -93,6 +93,21 @@ const BLOCK: usize = 36;
 /// frame's 4 points at most).
 const CODES: usize = BLOCK + 4;
 
+impl InProgress {
+    /// One point's codes (distance in the low 16 bits, intensity above) into the CRC
+    /// and the packer, at the scan's widths.
+    #[inline(always)]
+    fn take_code(&mut self, code: u32) {
+        self.crc.point_code(code, self.intensity_bits > 0);
+        self.packer.put_point(
+            code & 0xFFFF,
+            code >> 16,
+            self.distance_bits,
+            self.intensity_bits,
+        );
+    }
+}
+
 /// Where [`ScanEncoder::push_run`] puts data frames as they fill: typically a transmit
 /// queue, whose new back slot the frame is written into in place (on a 32-bit MCU a
 /// frame moved by value is a 76-byte copy).
@@ -160,7 +175,7 @@ impl RangeRule {
 }
 
 /// What [`ScanEncoder::push_run`] did.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Run {
     /// Points taken: the first `points` of the run.
@@ -304,20 +319,7 @@ impl ScanEncoder {
         };
         let n = core::mem::take(&mut s.pending);
         for &code in self.codes.get(..n).unwrap_or(&[]) {
-            let (dc, ic) = (code & 0xFFFF, code >> 16);
-            s.crc.code(dc as u16);
-            if s.intensity_bits > 0 {
-                s.crc.code(ic as u16);
-            }
-            if s.distance_bits + s.intensity_bits <= 24 {
-                s.packer.put(
-                    dc | ic << s.distance_bits,
-                    s.distance_bits + s.intensity_bits,
-                );
-            } else {
-                s.packer.put(dc, s.distance_bits);
-                s.packer.put(ic, s.intensity_bits);
-            }
+            s.take_code(code);
         }
     }
 
@@ -332,21 +334,8 @@ impl ScanEncoder {
             return Err(Error::TooManyPoints);
         }
         let dc = s.coder.code(distance);
-        let ic = (u32::from(intensity) >> s.intensity_shift) as u16;
-        s.crc.code(dc);
-        if s.intensity_bits > 0 {
-            s.crc.code(ic);
-        }
-        let (dc32, ic32) = (u32::from(dc), u32::from(ic));
-        if s.distance_bits + s.intensity_bits <= 24 {
-            s.packer.put(
-                dc32 | ic32 << s.distance_bits,
-                s.distance_bits + s.intensity_bits,
-            );
-        } else {
-            s.packer.put(dc32, s.distance_bits);
-            s.packer.put(ic32, s.intensity_bits);
-        }
+        let ic = u32::from(intensity) >> s.intensity_shift;
+        s.take_code(u32::from(dc) | ic << 16);
         s.valid += u16::from(s.coder.is_valid(dc));
         s.pushed += 1;
         s.buffered += 1;
@@ -445,12 +434,7 @@ impl ScanEncoder {
         let fd = self.format.is_fd();
         let codes_buf = &mut self.codes;
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
-        let mut run = Run {
-            points: 0,
-            invalid: 0,
-            frames: 0,
-            stop: None,
-        };
+        let mut run = Run::default();
         let (count, capacity) = (s.header.point_count, s.capacity);
         let mut rest = points;
         loop {
@@ -476,10 +460,7 @@ impl ScanEncoder {
                 let codes = codes_buf.get(j..j + k).unwrap_or(&[]);
                 let mut crc = s.crc;
                 for &code in codes {
-                    crc.code(code as u16);
-                    if ib > 0 {
-                        crc.code((code >> 16) as u16);
-                    }
+                    crc.point_code(code, ib > 0);
                 }
                 s.crc = crc;
                 let whole = ((db + ib) / 8) as usize;
@@ -496,13 +477,7 @@ impl ScanEncoder {
                     }
                 } else {
                     for &code in codes {
-                        let (dc, ic) = (code & 0xFFFF, code >> 16);
-                        if db + ib <= 24 {
-                            s.packer.put(dc | ic << db, db + ib);
-                        } else {
-                            s.packer.put(dc, db);
-                            s.packer.put(ic, ib);
-                        }
+                        s.packer.put_point(code & 0xFFFF, code >> 16, db, ib);
                     }
                 }
                 // k <= room, a u16.
@@ -563,12 +538,7 @@ impl ScanEncoder {
         let id = self.ids.id(Kind::Data);
         let codes_buf = &mut self.codes;
         let s = self.scan.as_mut().ok_or(Error::NoScan)?;
-        let mut run = Run {
-            points: 0,
-            invalid: 0,
-            frames: 0,
-            stop: None,
-        };
+        let mut run = Run::default();
         let bits = db + ib;
         // Points in a full classic frame: 48 bits after the data header.
         let cap = (48 / bits) as usize;
@@ -894,10 +864,7 @@ fn place_points(
     crc: &mut ScanCrc,
 ) -> (u64, u32) {
     for &code in codes {
-        crc.code(code as u16);
-        if ib > 0 {
-            crc.code((code >> 16) as u16);
-        }
+        crc.point_code(code, ib > 0);
         word |= (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (at & 63);
         at += db + ib;
     }
@@ -917,12 +884,7 @@ fn whole_frame(
     header: u64,
     crc: &mut ScanCrc,
 ) -> Option<u64> {
-    let mut add = |code: u32| {
-        crc.code(code as u16);
-        if ib > 0 {
-            crc.code((code >> 16) as u16);
-        }
-    };
+    let mut add = |code: u32| crc.point_code(code, ib > 0);
     // Point `i` of the frame, in place.
     let place = |code: u32, i: u32| {
         (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (16 + i * (db + ib))

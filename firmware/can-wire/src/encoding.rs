@@ -360,6 +360,18 @@ impl Packer {
         self.acc = (word >> (self.pos * 8).min(63)) as u32 & ((1u32 << self.nbits) - 1);
     }
 
+    /// Put one point: its `db`-bit distance code and `ib`-bit intensity code (0 bits
+    /// without the channel), in one field when they fit one put.
+    #[inline(always)]
+    pub(crate) fn put_point(&mut self, dc: u32, ic: u32, db: u32, ib: u32) {
+        if db + ib <= 24 {
+            self.put(dc | ic << db, db + ib);
+        } else {
+            self.put(dc, db);
+            self.put(ic, ib);
+        }
+    }
+
     /// The next `len` bytes, for fields of whole bytes written directly (no bits may be
     /// waiting), and the position moved past them; `None` (nothing moved) if they do not
     /// fit the buffer.
