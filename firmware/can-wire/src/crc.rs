@@ -55,6 +55,24 @@ pub struct ScanCrc {
 }
 
 impl ScanCrc {
+    /// A CRC over nothing yet (the initial register), for a CRC over other bytes than a
+    /// scan's (the lossless coding's segment check).
+    pub const fn start() -> ScanCrc {
+        ScanCrc { reg: INIT }
+    }
+
+    /// Add one byte.
+    #[inline(always)]
+    pub fn byte(&mut self, b: u8) {
+        let [t0, _] = &TABLES;
+        self.reg = (self.reg << 8) ^ entry(t0, (self.reg >> 8) ^ u16::from(b));
+    }
+
+    /// The CRC of the bytes added so far.
+    pub const fn value(&self) -> u16 {
+        self.reg
+    }
+
     /// Start a scan's CRC with its two header frames.
     pub fn new(header_a: &[u8], header_b: &[u8]) -> ScanCrc {
         let mut c = ScanCrc { reg: INIT };

@@ -13,10 +13,13 @@ pub enum DistanceEncoding {
     D14 = 2,
     /// 12 bits per distance.
     D12 = 3,
+    /// The lossless predictive coding (SPEC 4.2): variable bits per distance, every
+    /// sensor value exact (protocol version 2).
+    Lossless = 4,
 }
 
 impl DistanceEncoding {
-    /// All distance encodings.
+    /// The fixed-width distance encodings.
     pub const ALL: [DistanceEncoding; 3] = [
         DistanceEncoding::D16,
         DistanceEncoding::D14,
@@ -29,6 +32,7 @@ impl DistanceEncoding {
             1 => Ok(DistanceEncoding::D16),
             2 => Ok(DistanceEncoding::D14),
             3 => Ok(DistanceEncoding::D12),
+            4 => Ok(DistanceEncoding::Lossless),
             other => Err(Error::UnknownEncoding(other)),
         }
     }
@@ -38,13 +42,20 @@ impl DistanceEncoding {
         self as u8
     }
 
-    /// Bits per distance.
+    /// Bits per distance; for [`DistanceEncoding::Lossless`] the width of a value field
+    /// (the most a verbatim value takes).
     pub const fn bits(self) -> u32 {
         match self {
             DistanceEncoding::D16 => 16,
             DistanceEncoding::D14 => 14,
             DistanceEncoding::D12 => 12,
+            DistanceEncoding::Lossless => crate::lossless::VALUE_BITS,
         }
+    }
+
+    /// Whether this is the lossless predictive coding (variable bits per point).
+    pub const fn is_lossless(self) -> bool {
+        matches!(self, DistanceEncoding::Lossless)
     }
 
     /// The "out of range" code (all ones).
@@ -128,8 +139,13 @@ impl IntensityEncoding {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Distance {
-    /// No valid measurement (sensor error code, no return, filtered out).
+    /// No valid measurement (no return, filtered out, or a sensor error code the
+    /// encoding does not keep).
     Invalid,
+    /// The sensor's error code (a SCIP distance below DMIN, or 65533..=65535 of the
+    /// Ethernet models), kept by the lossless encoding; the fixed-width encodings send
+    /// it as invalid.
+    SensorError(u32),
     /// A range in millimetres.
     Mm(u32),
     /// Beyond what the encoding and unit can express.
@@ -232,7 +248,7 @@ impl DistanceCoder {
     #[inline(always)]
     pub(crate) const fn code(&self, d: Distance) -> u16 {
         let code = match d {
-            Distance::Invalid => 0,
+            Distance::Invalid | Distance::SensorError(_) => 0,
             Distance::OutOfRange => self.max,
             Distance::Mm(mm) => {
                 // Saturating: a range near u32::MAX is out of range in any unit.
@@ -254,7 +270,7 @@ impl DistanceCoder {
     #[inline(always)]
     pub(crate) const fn code_valid(&self, d: Distance) -> (u16, bool) {
         match d {
-            Distance::Invalid => (0, false),
+            Distance::Invalid | Distance::SensorError(_) => (0, false),
             Distance::OutOfRange => (self.max as u16, false),
             Distance::Mm(mm) => {
                 let q = mm.saturating_add(self.half) >> self.exp;

@@ -14,6 +14,7 @@ mod error;
 pub mod frame;
 pub mod header;
 pub mod id;
+pub mod lossless;
 pub mod reassembly;
 pub mod status;
 pub mod trailer;

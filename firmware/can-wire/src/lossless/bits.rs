@@ -1,0 +1,382 @@
+//! Bits of a segment's stream: the sender's writer, which cuts the stream into data
+//! frames as they fill, and the receiver's reader.
+
+use super::{ESCAPE_ONES, SEGMENT_HEADER_BITS};
+use crate::crc::ScanCrc;
+use crate::encoder::FrameSink;
+use crate::frame::{padded_len, Frame, MAX_LEN};
+use embedded_can::Id;
+
+/// Flag of the framing byte: the frame begins a segment.
+pub const SEGMENT_START: u8 = 0x80;
+/// The frame counter's bits in the framing byte.
+pub const COUNTER_MASK: u8 = 0x7F;
+
+/// Where the frames of a scan go, and what happened to them.
+pub struct Out<'a, S: ?Sized> {
+    /// The frames' destination.
+    pub sink: &'a mut S,
+    /// The data frames' identifier.
+    pub id: Id,
+    /// Whether frames are CAN FD frames.
+    pub fd: bool,
+    /// Frames written into the sink.
+    pub frames: u32,
+    /// Frames the sink had no slot for.
+    pub lost: u32,
+}
+
+/// Writes a scan's segments into data frames: a framing byte, then the stream's bytes,
+/// LSB first (stream bit `k` of a frame's payload is bit `k % 8` of byte `1 + k / 8`).
+#[derive(Debug, Clone)]
+pub struct Writer {
+    /// Bits not yet in a whole byte (`nbits` of them, fewer than 8 between calls).
+    acc: u64,
+    nbits: u32,
+    /// The frame being filled: the framing byte, then `len - 1` stream bytes.
+    buf: [u8; MAX_LEN],
+    len: usize,
+    /// Length of a full frame.
+    full: usize,
+    /// Counter of the next data frame of the scan.
+    counter: u8,
+    /// The open segment's CRC.
+    crc: ScanCrc,
+}
+
+impl Writer {
+    /// A writer for a scan whose full data frames are `full` bytes long (8 on classic
+    /// CAN; 9..=64 would be accepted, the CAN FD lengths are the sensible ones).
+    pub fn new(full: usize) -> Writer {
+        Writer {
+            acc: 0,
+            nbits: 0,
+            buf: [0; MAX_LEN],
+            len: 1,
+            full: full.clamp(2, MAX_LEN),
+            counter: 0,
+            crc: ScanCrc::start(),
+        }
+    }
+
+    /// Data frames begun so far (the counter before it wraps).
+    pub fn frames_begun(&self) -> u8 {
+        self.counter
+    }
+
+    /// Start a segment in a fresh frame: its header fields.
+    pub fn begin_segment<S: FrameSink + ?Sized>(
+        &mut self,
+        seq_low: u8,
+        segment: u8,
+        out: &mut Out<'_, S>,
+    ) {
+        if self.len > 1 || self.nbits > 0 {
+            // A segment always ends its frame; this only happens after misuse.
+            self.end_segment(out);
+        }
+        if let Some(b) = self.buf.first_mut() {
+            *b = SEGMENT_START | (self.counter & COUNTER_MASK);
+        }
+        self.crc = ScanCrc::start();
+        let fields = u64::from(seq_low & 0xF) | u64::from(segment & 0x1F) << 4;
+        self.put(fields, SEGMENT_HEADER_BITS, out);
+    }
+
+    /// Put the `bits` low bits of `value` (at most 56; higher bits of `value` must be 0).
+    #[inline(always)]
+    pub fn put<S: FrameSink + ?Sized>(&mut self, value: u64, bits: u32, out: &mut Out<'_, S>) {
+        self.acc |= value.wrapping_shl(self.nbits);
+        self.nbits = self.nbits.wrapping_add(bits);
+        while self.nbits >= 8 {
+            let b = self.acc as u8;
+            self.crc.byte(b);
+            self.byte(b, out);
+            self.acc >>= 8;
+            self.nbits -= 8;
+        }
+    }
+
+    /// Put one value's Rice code with parameter `k`: the quotient `u >> k` in unary
+    /// (that many ones and a zero) and the `k` low bits, or, for a quotient of at least
+    /// [`ESCAPE_ONES`], that many ones and `value` itself in `value_bits` bits.
+    #[inline(always)]
+    pub fn put_rice<S: FrameSink + ?Sized>(
+        &mut self,
+        u: u32,
+        k: u32,
+        value: u32,
+        value_bits: u32,
+        out: &mut Out<'_, S>,
+    ) {
+        let q = u >> k;
+        if q < ESCAPE_ONES {
+            let ones = (1u64 << q) - 1;
+            let low = u64::from(u) & ((1u64 << k) - 1);
+            self.put(ones | low << (q + 1), q + 1 + k, out);
+        } else {
+            let ones = (1u64 << ESCAPE_ONES) - 1;
+            self.put(
+                ones | u64::from(value) << ESCAPE_ONES,
+                ESCAPE_ONES + value_bits,
+                out,
+            );
+        }
+    }
+
+    /// End the segment: zero bits to a byte boundary, the segment's CRC (2 bytes, little
+    /// endian), and its last frame sent at the shortest length that holds it. Returns
+    /// the segment's CRC.
+    pub fn end_segment<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) -> u16 {
+        if self.nbits > 0 {
+            self.put(0, 8 - self.nbits, out);
+        }
+        let crc = self.crc.value().to_le_bytes();
+        for b in crc {
+            self.byte(b, out);
+        }
+        if self.len > 1 {
+            self.emit(out);
+        }
+        u16::from_le_bytes(crc)
+    }
+
+    #[inline(always)]
+    fn byte<S: FrameSink + ?Sized>(&mut self, b: u8, out: &mut Out<'_, S>) {
+        if let Some(slot) = self.buf.get_mut(self.len) {
+            *slot = b;
+        }
+        self.len = self.len.wrapping_add(1);
+        if self.len >= self.full {
+            self.emit(out);
+        }
+    }
+
+    /// Send the frame being filled and begin the next one (not a segment start).
+    #[cold]
+    fn emit<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+        let len = if out.fd {
+            padded_len(self.len).unwrap_or(MAX_LEN)
+        } else {
+            self.len
+        };
+        if let Some(pad) = self.buf.get_mut(self.len..len) {
+            pad.fill(0);
+        }
+        match out.sink.data_slot() {
+            Some(frame) => {
+                let data = self.buf.get(..len).unwrap_or(&[]);
+                // Lengths are valid by construction; a failure leaves an empty frame.
+                if frame.set(out.id, data, out.fd).is_err() {
+                    *frame = Frame::default();
+                }
+                out.frames = out.frames.wrapping_add(1);
+            }
+            None => out.lost = out.lost.wrapping_add(1),
+        }
+        self.counter = self.counter.wrapping_add(1);
+        self.len = 1;
+        if let Some(b) = self.buf.first_mut() {
+            *b = self.counter & COUNTER_MASK;
+        }
+    }
+}
+
+/// Reads a segment's stream; reading past its end is "need more bytes" (`None`).
+#[derive(Debug, Clone)]
+pub struct Reader<'a> {
+    buf: &'a [u8],
+    bit: usize,
+}
+
+impl<'a> Reader<'a> {
+    /// A reader at the start of `buf`.
+    pub fn new(buf: &'a [u8]) -> Reader<'a> {
+        Reader { buf, bit: 0 }
+    }
+
+    /// Bits read so far.
+    pub fn position(&self) -> usize {
+        self.bit
+    }
+
+    fn available(&self) -> usize {
+        self.buf.len().saturating_mul(8).saturating_sub(self.bit)
+    }
+
+    /// The next 57 or more bits (zero past the end), not consumed.
+    fn peek(&self) -> u64 {
+        let first = self.bit / 8;
+        let mut word = [0u8; 8];
+        if let Some(src) = self.buf.get(first..) {
+            for (d, s) in word.iter_mut().zip(src) {
+                *d = *s;
+            }
+        }
+        u64::from_le_bytes(word) >> (self.bit % 8)
+    }
+
+    /// Read `bits` bits (at most 32).
+    pub fn read(&mut self, bits: u32) -> Option<u32> {
+        let bits = bits.min(32);
+        if self.available() < bits as usize {
+            return None;
+        }
+        let v = self.peek() & ((1u64 << bits) - 1);
+        self.bit += bits as usize;
+        Some(v as u32)
+    }
+
+    /// Read a Rice code with parameter `k` (the inverse of [`Writer::put_rice`]):
+    /// `Ok(u)`, or `Err(value)` for an escaped value.
+    pub fn read_rice(&mut self, k: u32, value_bits: u32) -> Option<Result<u32, u32>> {
+        let ones = (!self.peek()).trailing_zeros().min(ESCAPE_ONES);
+        if ones >= ESCAPE_ONES {
+            if self.available() < (ESCAPE_ONES + value_bits) as usize {
+                return None;
+            }
+            self.bit += ESCAPE_ONES as usize;
+            return self.read(value_bits).map(Err);
+        }
+        if self.available() < (ones + 1 + k) as usize {
+            return None;
+        }
+        self.bit += ones as usize + 1;
+        let low = self.read(k)?;
+        Some(Ok(ones << k | low))
+    }
+
+    /// Skip to the next byte boundary.
+    pub fn align(&mut self) {
+        self.bit = self.bit.div_ceil(8) * 8;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::encoder::FrameSink;
+    use crate::id::{IdWindow, Kind};
+
+    struct Frames(std::vec::Vec<Frame>);
+    impl FrameSink for Frames {
+        fn data_slot(&mut self) -> Option<&mut Frame> {
+            self.0.push(Frame::default());
+            self.0.last_mut()
+        }
+    }
+
+    fn id() -> Id {
+        IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data)
+    }
+
+    /// Golden bytes written by hand from SPEC 4.2: segment 2 of a scan with sequence
+    /// 0x25, then the fields 0b101 (3 bits) and 0x3FF (10 bits), on classic CAN.
+    #[test]
+    fn a_segment_on_classic_can() {
+        let mut sink = Frames(vec![]);
+        let mut out = Out {
+            sink: &mut sink,
+            id: id(),
+            fd: false,
+            frames: 0,
+            lost: 0,
+        };
+        let mut w = Writer::new(8);
+        w.begin_segment(0x25, 2, &mut out);
+        w.put(0b101, 3, &mut out);
+        w.put(0x3FF, 10, &mut out);
+        w.end_segment(&mut out);
+        // Stream bits: seq_low 5 = 0101, segment 2 = 00010, 101, 1111111111, then 3 zero
+        // bits: 0b0010_0101 = 0x25, then bit 0 = 0 (segment's high bit), bits 1-3 = 101,
+        // bits 4-7 = 1111: 0xFA; then 111111 and two zero bits: 0x3F.
+        let crc = {
+            let mut c = ScanCrc::start();
+            c.bytes(&[0x25, 0xFA, 0x3F]);
+            c.value().to_le_bytes()
+        };
+        assert_eq!(sink.0.len(), 1);
+        assert_eq!(sink.0[0].data(), &[0x80, 0x25, 0xFA, 0x3F, crc[0], crc[1]]);
+    }
+
+    #[test]
+    fn frames_are_cut_and_counted() {
+        let mut sink = Frames(vec![]);
+        let mut out = Out {
+            sink: &mut sink,
+            id: id(),
+            fd: true,
+            frames: 0,
+            lost: 0,
+        };
+        let mut w = Writer::new(12);
+        w.begin_segment(1, 0, &mut out);
+        for i in 0..20u64 {
+            w.put(i, 8, &mut out);
+        }
+        w.end_segment(&mut out);
+        w.begin_segment(1, 1, &mut out);
+        w.end_segment(&mut out);
+        let f = &sink.0;
+        // 9 + 160 bits + 7 padding = 22 bytes + 2 CRC = 24 stream bytes: 11 + 11 + 2.
+        assert_eq!(f.len(), 4);
+        assert_eq!(f[0].data()[0], 0x80);
+        assert_eq!(f[1].data()[0], 0x01);
+        assert_eq!(f[2].data()[0], 0x02);
+        assert_eq!(f[2].len(), 3);
+        assert_eq!(f[3].data()[0], 0x83);
+        assert_eq!(f[3].len(), 5, "header bits, padding and CRC");
+        let mut stream = vec![];
+        for fr in &f[..3] {
+            stream.extend_from_slice(&fr.data()[1..]);
+        }
+        let mut r = Reader::new(&stream);
+        assert_eq!(r.read(4), Some(1));
+        assert_eq!(r.read(5), Some(0));
+        for i in 0..20 {
+            assert_eq!(r.read(8), Some(i));
+        }
+    }
+
+    #[test]
+    fn rice_codes_read_back() {
+        let mut sink = Frames(vec![]);
+        let mut out = Out {
+            sink: &mut sink,
+            id: id(),
+            fd: true,
+            frames: 0,
+            lost: 0,
+        };
+        let mut w = Writer::new(64);
+        w.begin_segment(0, 0, &mut out);
+        let cases = [
+            (0u32, 0u32),
+            (5, 0),
+            (5, 2),
+            (15, 0),
+            (16, 0),
+            (1000, 3),
+            (7, 15),
+        ];
+        for &(u, k) in &cases {
+            w.put_rice(u, k, u + 7, 20, &mut out);
+        }
+        w.end_segment(&mut out);
+        let data = sink.0[0].data()[1..].to_vec();
+        let mut r = Reader::new(&data);
+        r.read(9);
+        for &(u, k) in &cases {
+            let expect = if (u >> k) < ESCAPE_ONES {
+                Ok(u)
+            } else {
+                Err(u + 7)
+            };
+            assert_eq!(r.read_rice(k, 20), Some(expect), "u {u} k {k}");
+        }
+        // Past the end: need more.
+        let mut r = Reader::new(&[0xFF]);
+        assert_eq!(r.read_rice(0, 20), None);
+        assert_eq!(r.read(9), None);
+    }
+}

@@ -1,0 +1,272 @@
+//! One block of values of one channel: the sender chooses the cheapest of the four
+//! modes and writes it; the receiver reads it back.
+//!
+//! Every block is preceded by the history of its channel in the segment: the previous
+//! value `h1` and the one before it `h2` (both the anchor at the segment's start).
+//! Order 1 predicts `h1`, order 2 predicts `2·h1 − h2`; a residual `e` is zig-zagged to
+//! `u` and Rice-coded with the block's parameter `k`.
+
+use super::bits::{Out, Reader, Writer};
+use super::{
+    unzigzag, zigzag, Mode, BLOCK_POINTS, ESCAPE_ONES, K_BITS, MAX_VALUE, MODE_BITS, VALUE_BITS,
+    WIDTH_BITS,
+};
+use crate::encoder::FrameSink;
+
+/// The previous two values of a channel.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct History {
+    /// The last value.
+    pub h1: u32,
+    /// The value before it.
+    pub h2: u32,
+}
+
+impl History {
+    /// The history at a segment's start: the anchor twice.
+    pub const fn anchor(v: u32) -> History {
+        History { h1: v, h2: v }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, v: u32) {
+        self.h2 = self.h1;
+        self.h1 = v;
+    }
+}
+
+/// Width of a value: bits up to its highest one bit (0 for 0).
+#[inline(always)]
+pub const fn width(v: u32) -> u32 {
+    32 - v.leading_zeros()
+}
+
+/// The Rice parameter for `n` residuals summing to `sum`: about log2 of their mean.
+#[inline(always)]
+fn rice_k(sum: u32, n: u32) -> u32 {
+    let mean = sum / n.max(1);
+    width(mean).saturating_sub(1).min((1 << K_BITS) - 1)
+}
+
+/// Bits of the residuals `u` Rice-coded with parameter `k`, escapes counted.
+#[inline(always)]
+fn rice_bits(u: &[u32], k: u32) -> u32 {
+    let mut bits = 0u32;
+    for &x in u {
+        let q = x >> k;
+        bits += if q < ESCAPE_ONES {
+            q + 1 + k
+        } else {
+            ESCAPE_ONES + VALUE_BITS
+        };
+    }
+    bits
+}
+
+/// Write the block `values` (at most [`BLOCK_POINTS`], each at most [`MAX_VALUE`]) of a
+/// channel whose history is `h`, in its cheapest mode; returns the mode.
+#[inline(always)]
+pub fn put_block<S: FrameSink + ?Sized>(
+    values: &[u32],
+    h: &mut History,
+    w: &mut Writer,
+    out: &mut Out<'_, S>,
+) -> Mode {
+    let values = values.get(..values.len().min(BLOCK_POINTS)).unwrap_or(&[]);
+    let n = values.len();
+    let mut u1 = [0u32; BLOCK_POINTS];
+    let mut u2 = [0u32; BLOCK_POINTS];
+    let (mut s1, mut s2, mut any) = (0u32, 0u32, 0u32);
+    let (mut a, mut b) = (h.h1 as i32, h.h2 as i32);
+    for ((&v, x1), x2) in values.iter().zip(u1.iter_mut()).zip(u2.iter_mut()) {
+        let v = v.min(MAX_VALUE) as i32;
+        *x1 = zigzag(v - a);
+        *x2 = zigzag(v - (2 * a - b));
+        s1 = s1.saturating_add(*x1);
+        s2 = s2.saturating_add(*x2);
+        any |= v as u32;
+        b = a;
+        a = v;
+    }
+    // The history after the block, whatever its mode.
+    h.h1 = a as u32;
+    h.h2 = b as u32;
+    let n32 = n as u32;
+    if s1 == 0 {
+        w.put(Mode::Constant as u64, MODE_BITS, out);
+        return Mode::Constant;
+    }
+    let (mode, u, sum) = if s2 < s1 {
+        (Mode::Order2, &u2, s2)
+    } else {
+        (Mode::Order1, &u1, s1)
+    };
+    let u = u.get(..n).unwrap_or(&[]);
+    let k0 = rice_k(sum, n32);
+    let k1 = (k0 + 1).min((1 << K_BITS) - 1);
+    let (c0, c1) = (rice_bits(u, k0), rice_bits(u, k1));
+    let (k, rice) = if c1 < c0 { (k1, c1) } else { (k0, c0) };
+    let wv = width(any);
+    let verbatim = WIDTH_BITS + n32 * wv;
+    if verbatim <= K_BITS + rice {
+        w.put(
+            Mode::Verbatim as u64 | u64::from(wv) << MODE_BITS,
+            MODE_BITS + WIDTH_BITS,
+            out,
+        );
+        for &v in values {
+            w.put(u64::from(v.min(MAX_VALUE)), wv, out);
+        }
+        return Mode::Verbatim;
+    }
+    w.put(
+        mode as u64 | u64::from(k) << MODE_BITS,
+        MODE_BITS + K_BITS,
+        out,
+    );
+    for (&v, &x) in values.iter().zip(u) {
+        w.put_rice(x, k, v.min(MAX_VALUE), VALUE_BITS, out);
+    }
+    mode
+}
+
+/// Why a block could not be read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReadError {
+    /// The stream ends before the block does: more frames are needed.
+    NeedMore,
+    /// The block is malformed (a width above 20, a value out of range).
+    Corrupt,
+}
+
+/// Read a block of `out.len()` values of a channel whose history is `h`.
+pub fn read_block(r: &mut Reader<'_>, h: &mut History, out: &mut [u32]) -> Result<Mode, ReadError> {
+    let mode = Mode::from_bits(r.read(MODE_BITS).ok_or(ReadError::NeedMore)?);
+    match mode {
+        Mode::Constant => {
+            for v in out.iter_mut() {
+                *v = h.h1;
+            }
+            if !out.is_empty() {
+                h.push(h.h1);
+            }
+        }
+        Mode::Verbatim => {
+            let wv = r.read(WIDTH_BITS).ok_or(ReadError::NeedMore)?;
+            if wv > VALUE_BITS {
+                return Err(ReadError::Corrupt);
+            }
+            for v in out.iter_mut() {
+                *v = r.read(wv).ok_or(ReadError::NeedMore)?;
+                h.push(*v);
+            }
+        }
+        Mode::Order1 | Mode::Order2 => {
+            let k = r.read(K_BITS).ok_or(ReadError::NeedMore)?;
+            for v in out.iter_mut() {
+                let value = match r.read_rice(k, VALUE_BITS).ok_or(ReadError::NeedMore)? {
+                    Err(escaped) => escaped,
+                    Ok(u) => {
+                        let (a, b) = (i64::from(h.h1), i64::from(h.h2));
+                        let p = if mode == Mode::Order1 { a } else { 2 * a - b };
+                        let x = p + i64::from(unzigzag(u));
+                        if !(0..=i64::from(MAX_VALUE)).contains(&x) {
+                            return Err(ReadError::Corrupt);
+                        }
+                        x as u32
+                    }
+                };
+                *v = value;
+                h.push(value);
+            }
+        }
+    }
+    Ok(mode)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::Frame;
+    use crate::id::{IdWindow, Kind};
+
+    struct Frames(std::vec::Vec<Frame>);
+    impl FrameSink for Frames {
+        fn data_slot(&mut self) -> Option<&mut Frame> {
+            self.0.push(Frame::default());
+            self.0.last_mut()
+        }
+    }
+
+    /// Writes the blocks into one long frame's stream and reads them back.
+    fn round_trip(blocks: &[std::vec::Vec<u32>], anchor: u32) -> std::vec::Vec<Mode> {
+        let mut sink = Frames(vec![]);
+        let id = IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data);
+        let mut out = Out {
+            sink: &mut sink,
+            id,
+            fd: true,
+            frames: 0,
+            lost: 0,
+        };
+        let mut w = Writer::new(64);
+        w.begin_segment(0, 0, &mut out);
+        let mut h = History::anchor(anchor);
+        let mut modes = vec![];
+        for b in blocks {
+            modes.push(put_block(b, &mut h, &mut w, &mut out));
+        }
+        w.end_segment(&mut out);
+        let mut stream = vec![];
+        for f in &sink.0 {
+            stream.extend_from_slice(&f.data()[1..]);
+        }
+        let mut r = Reader::new(&stream);
+        r.read(9);
+        let mut h = History::anchor(anchor);
+        for (b, m) in blocks.iter().zip(&modes) {
+            let mut got = vec![0; b.len()];
+            assert_eq!(read_block(&mut r, &mut h, &mut got), Ok(*m));
+            assert_eq!(&got, b);
+        }
+        modes
+    }
+
+    #[test]
+    fn each_mode_is_chosen_where_it_is_cheapest() {
+        let flat = vec![1000; 16];
+        let ramp: std::vec::Vec<u32> = (0..16).map(|i| 1000 + 7 * i).collect();
+        let noisy: std::vec::Vec<u32> = (0..16).map(|i| 1000 + (i * 37 % 11)).collect();
+        let wild: std::vec::Vec<u32> = (0..16).map(|i| (i * 0x9E37 + 11) % 60000).collect();
+        let modes = round_trip(&[flat, ramp, noisy, wild], 1000);
+        assert_eq!(
+            modes,
+            [Mode::Constant, Mode::Order2, Mode::Order1, Mode::Verbatim]
+        );
+    }
+
+    #[test]
+    fn extremes_and_short_blocks() {
+        round_trip(
+            &[
+                vec![MAX_VALUE, 0, MAX_VALUE, 0],
+                vec![0],
+                vec![],
+                vec![5, 5],
+            ],
+            0,
+        );
+        round_trip(&[vec![0; 16], vec![MAX_VALUE; 16]], MAX_VALUE);
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn any_blocks_round_trip(
+            anchor in 0..=MAX_VALUE,
+            blocks in proptest::collection::vec(
+                proptest::collection::vec(proptest::prop_oneof![0..=MAX_VALUE, 900u32..1100, proptest::strategy::Just(0u32)], 0..=16), 0..6)
+        ) {
+            round_trip(&blocks, anchor);
+        }
+    }
+}

@@ -1,0 +1,185 @@
+//! The sender's state for one scan in the lossless coding: points in, segments of data
+//! frames out, and the scan CRC over the headers and the segments' CRCs.
+
+use super::bits::{Out, Writer};
+use super::block::{put_block, width, History};
+use super::code;
+use super::{segment_points, BLOCK_POINTS, MAX_VALUE, SEGMENT_POINTS, WIDTH_BITS};
+use crate::crc::ScanCrc;
+use crate::encoder::FrameSink;
+use crate::Error;
+
+/// One scan being coded.
+#[derive(Debug, Clone)]
+pub struct ScanStream {
+    w: Writer,
+    seq_low: u8,
+    point_count: u16,
+    intensity: bool,
+    /// Points taken so far.
+    pushed: u16,
+    /// Points of the segments ended so far (sent whole).
+    sent: u16,
+    /// Range codes among the points taken, and among those sent.
+    valid: u16,
+    valid_sent: u16,
+    /// Position of the next point in its segment (0: the next point is an anchor).
+    in_segment: usize,
+    /// Points in the segment being coded.
+    segment_len: usize,
+    /// The block being gathered.
+    d: [u32; BLOCK_POINTS],
+    i: [u32; BLOCK_POINTS],
+    gathered: usize,
+    hd: History,
+    hi: History,
+    /// Headers, then each segment's CRC.
+    crc: ScanCrc,
+}
+
+impl ScanStream {
+    /// A scan of `point_count` points with sequence `seq`, whose header frames were
+    /// `a` and `b`, sent in data frames of `full_len` bytes.
+    pub fn new(
+        seq: u16,
+        point_count: u16,
+        intensity: bool,
+        full_len: usize,
+        a: &[u8],
+        b: &[u8],
+    ) -> ScanStream {
+        ScanStream {
+            w: Writer::new(full_len),
+            seq_low: (seq & 0xF) as u8,
+            point_count,
+            intensity,
+            pushed: 0,
+            sent: 0,
+            valid: 0,
+            valid_sent: 0,
+            in_segment: 0,
+            segment_len: 0,
+            d: [0; BLOCK_POINTS],
+            i: [0; BLOCK_POINTS],
+            gathered: 0,
+            hd: History::default(),
+            hi: History::default(),
+            crc: ScanCrc::new(a, b),
+        }
+    }
+
+    /// Points taken so far.
+    pub fn pushed(&self) -> u16 {
+        self.pushed
+    }
+
+    /// Points in segments sent whole: the trailer's `points_sent`.
+    pub fn sent(&self) -> u16 {
+        self.sent
+    }
+
+    /// Range codes among the points sent: the trailer's `points_valid`.
+    pub fn valid_sent(&self) -> u16 {
+        self.valid_sent
+    }
+
+    /// Whether every point of the scan was taken.
+    pub fn is_full(&self) -> bool {
+        self.pushed >= self.point_count
+    }
+
+    /// The scan CRC, finished with the trailer's first six bytes.
+    pub fn crc(&self, trailer_head: &[u8]) -> u16 {
+        self.crc.finish(trailer_head)
+    }
+
+    /// Take the next point: its distance code and intensity code (0 without the
+    /// channel). Frames that fill go into `out`.
+    #[inline(always)]
+    pub fn push<S: FrameSink + ?Sized>(
+        &mut self,
+        distance: u32,
+        intensity: u32,
+        out: &mut Out<'_, S>,
+    ) -> Result<(), Error> {
+        if self.pushed >= self.point_count {
+            return Err(Error::TooManyPoints);
+        }
+        let (distance, intensity) = (distance.min(MAX_VALUE), intensity.min(MAX_VALUE));
+        self.valid += u16::from(code::is_range(distance));
+        self.pushed += 1;
+        if self.in_segment == 0 {
+            self.begin_segment(distance, intensity, out);
+        } else {
+            if let (Some(d), Some(i)) =
+                (self.d.get_mut(self.gathered), self.i.get_mut(self.gathered))
+            {
+                *d = distance;
+                *i = intensity;
+            }
+            self.gathered += 1;
+            self.in_segment += 1;
+            if self.gathered == BLOCK_POINTS {
+                self.put_blocks(out);
+            }
+        }
+        if self.in_segment >= self.segment_len {
+            self.end_segment(out);
+        }
+        Ok(())
+    }
+
+    #[cold]
+    fn begin_segment<S: FrameSink + ?Sized>(&mut self, d: u32, i: u32, out: &mut Out<'_, S>) {
+        let index = usize::from(self.pushed - 1) / SEGMENT_POINTS;
+        self.segment_len = segment_points(usize::from(self.point_count), index);
+        self.w.begin_segment(self.seq_low, index as u8, out);
+        self.w.put(
+            u64::from(width(d)) | u64::from(d) << WIDTH_BITS,
+            WIDTH_BITS + width(d),
+            out,
+        );
+        self.hd = History::anchor(d);
+        if self.intensity {
+            self.w.put(
+                u64::from(width(i)) | u64::from(i) << WIDTH_BITS,
+                WIDTH_BITS + width(i),
+                out,
+            );
+            self.hi = History::anchor(i);
+        }
+        self.in_segment = 1;
+        self.gathered = 0;
+    }
+
+    fn put_blocks<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+        let n = self.gathered;
+        put_block(
+            self.d.get(..n).unwrap_or(&[]),
+            &mut self.hd,
+            &mut self.w,
+            out,
+        );
+        if self.intensity {
+            put_block(
+                self.i.get(..n).unwrap_or(&[]),
+                &mut self.hi,
+                &mut self.w,
+                out,
+            );
+        }
+        self.gathered = 0;
+    }
+
+    fn end_segment<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+        if self.gathered > 0 {
+            self.put_blocks(out);
+        }
+        let crc = self.w.end_segment(out);
+        self.crc.bytes(&crc.to_le_bytes());
+        self.sent = self.pushed;
+        self.valid_sent = self.valid;
+        self.in_segment = 0;
+        self.segment_len = 0;
+    }
+}
