@@ -8,6 +8,9 @@ use crate::encoding::{Distance, DistanceCoder, Packer};
 use crate::frame::{is_valid_len, Frame, CLASSIC_LEN, MAX_LEN};
 use crate::header::{put, ScanHeader};
 use crate::id::{Kind, NodeIds};
+use crate::lossless::bits::Out;
+use crate::lossless::code;
+use crate::lossless::stream::ScanStream;
 use crate::trailer::{Trailer, TrailerFlags};
 use crate::Error;
 
@@ -108,6 +111,13 @@ impl InProgress {
     }
 }
 
+/// A scan in the lossless coding: its header and its segment stream.
+#[derive(Debug, Clone)]
+struct Lossless {
+    header: ScanHeader,
+    stream: ScanStream,
+}
+
 /// Where [`ScanEncoder::push_run`] puts data frames as they fill: typically a transmit
 /// queue, whose new back slot the frame is written into in place (on a 32-bit MCU a
 /// frame moved by value is a 76-byte copy).
@@ -194,6 +204,8 @@ pub struct ScanEncoder {
     ids: NodeIds,
     format: FrameFormat,
     scan: Option<InProgress>,
+    /// A scan in the lossless coding (then `scan` is `None`).
+    lossless: Option<Lossless>,
     /// The codes of the block of points a run is framing (see [`code_block`]), after
     /// the pending codes of a classic frame begun by the last run.
     codes: [u32; CODES],
@@ -207,13 +219,14 @@ impl ScanEncoder {
             ids,
             format,
             scan: None,
+            lossless: None,
             codes: [0; CODES],
         })
     }
 
     /// Change the frame format (between scans only).
     pub fn set_format(&mut self, format: FrameFormat) -> Result<(), Error> {
-        if self.scan.is_some() {
+        if self.in_progress() {
             return Err(Error::ScanInProgress);
         }
         format.validate()?;
@@ -228,7 +241,7 @@ impl ScanEncoder {
 
     /// Whether a scan is in progress.
     pub fn in_progress(&self) -> bool {
-        self.scan.is_some()
+        self.scan.is_some() || self.lossless.is_some()
     }
 
     fn frame(&self, kind: Kind, data: &[u8]) -> Result<Frame, Error> {
@@ -237,7 +250,7 @@ impl ScanEncoder {
 
     /// Start a scan: returns header A and header B, to be sent in that order.
     pub fn begin(&mut self, header: &ScanHeader) -> Result<[Frame; 2], Error> {
-        if self.scan.is_some() {
+        if self.in_progress() {
             return Err(Error::ScanInProgress);
         }
         let a = header.emit_a()?;
@@ -247,6 +260,20 @@ impl ScanEncoder {
             self.frame(Kind::HeaderB, &b)?,
         ];
         let enc = header.encoding;
+        if enc.distance.is_lossless() {
+            self.lossless = Some(Lossless {
+                header: *header,
+                stream: ScanStream::new(
+                    header.seq,
+                    header.point_count,
+                    enc.intensity.is_present(),
+                    self.format.max_len(),
+                    &a,
+                    &b,
+                ),
+            });
+            return Ok(frames);
+        }
         let distance_bits = enc.distance.bits();
         let intensity_bits = enc.intensity.bits();
         let capacity = u16::try_from(enc.capacity(self.format.max_len()))
@@ -279,6 +306,9 @@ impl ScanEncoder {
         distance: Distance,
         intensity: u16,
     ) -> Result<Option<Frame>, Error> {
+        if self.lossless.is_some() {
+            return Err(Error::NeedsSink);
+        }
         if !self.add(distance, intensity)? {
             return Ok(None);
         }
@@ -300,6 +330,9 @@ impl ScanEncoder {
         intensity: u16,
         slot: impl FnOnce() -> Option<&'f mut Frame>,
     ) -> Result<bool, Error> {
+        if self.lossless.is_some() {
+            return Err(Error::NeedsSink);
+        }
         if !self.add(distance, intensity)? {
             return Ok(false);
         }
@@ -361,6 +394,9 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
+        if self.lossless.is_some() {
+            return self.run_lossless(points, rule, &point, sink);
+        }
         let s = self.scan.as_ref().ok_or(Error::NoScan)?;
         let classic = !self.format.is_fd();
         let (db, ib) = (s.distance_bits, s.intensity_bits);
@@ -680,9 +716,130 @@ impl ScanEncoder {
         flush(s, id, fd, out)
     }
 
+    /// Add the next point like [`ScanEncoder::push_point_into`], with due data frames
+    /// written into slots of `sink`; the one form that takes points of every encoding
+    /// one by one (a point of a lossless scan can make several frames due).
+    pub fn push_point_to<S: FrameSink + ?Sized>(
+        &mut self,
+        distance: Distance,
+        intensity: u16,
+        sink: &mut S,
+    ) -> Result<Run, Error> {
+        if let Some(l) = self.lossless.as_mut() {
+            let enc = l.header.encoding;
+            let mut out = Out {
+                sink,
+                id: self.ids.id(Kind::Data),
+                fd: self.format.is_fd(),
+                frames: 0,
+                lost: 0,
+            };
+            let d = code::distance_code(distance, enc.unit_exp);
+            let i = u32::from(enc.intensity.encode(intensity));
+            l.stream.push(d, i, &mut out)?;
+            return Ok(Run {
+                points: 1,
+                invalid: u32::from(!code::is_range(d)),
+                frames: out.frames,
+                stop: (out.lost > 0).then_some(RunStop::NoSlot),
+            });
+        }
+        let mut frames = 0;
+        let mut lost = false;
+        let due = self.push_point_into(distance, intensity, || {
+            let slot = sink.data_slot();
+            lost = slot.is_none();
+            frames = u32::from(!lost);
+            slot
+        })?;
+        let valid = matches!(distance, Distance::Mm(_))
+            && self
+                .scan
+                .as_ref()
+                .is_some_and(|s| s.coder.code_valid(distance).1);
+        Ok(Run {
+            points: 1,
+            invalid: u32::from(!valid),
+            frames,
+            stop: (due && lost).then_some(RunStop::NoSlot),
+        })
+    }
+
+    /// [`ScanEncoder::push_run`] of a lossless scan: each point's codes into the scan's
+    /// segment stream.
+    fn run_lossless<T, F, S>(
+        &mut self,
+        points: &[T],
+        rule: RangeRule,
+        point: &F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        let l = self.lossless.as_mut().ok_or(Error::NoScan)?;
+        let enc = l.header.encoding;
+        let mut out = Out {
+            sink,
+            id: self.ids.id(Kind::Data),
+            fd: self.format.is_fd(),
+            frames: 0,
+            lost: 0,
+        };
+        let mut run = Run::default();
+        for p in points {
+            if l.stream.is_full() {
+                run.stop = Some(RunStop::TooManyPoints);
+                break;
+            }
+            let (d, i) = point(p);
+            let range = rule.is_range(d);
+            let dc = if range {
+                code::range_code(d, enc.unit_exp)
+            } else {
+                code::error_code(d)
+            };
+            l.stream
+                .push(dc, u32::from(enc.intensity.encode(i)), &mut out)?;
+            run.points += 1;
+            run.invalid += u32::from(!code::is_range(dc));
+            if out.lost > 0 {
+                run.stop = Some(RunStop::NoSlot);
+                break;
+            }
+        }
+        run.frames = out.frames;
+        Ok(run)
+    }
+
+    /// The trailer of a lossless scan: the points of its whole segments count as sent.
+    fn finish_lossless(&mut self, l: Lossless, flags: TrailerFlags) -> Result<Emitted, Error> {
+        let sent = l.stream.sent();
+        let mut t = Trailer {
+            seq: l.header.seq,
+            points_sent: sent,
+            points_valid: l.stream.valid_sent(),
+            flags: TrailerFlags {
+                truncated: sent < l.header.point_count,
+                ..flags
+            },
+            crc: 0,
+        };
+        t.crc = l.stream.crc(&t.emit_head()?);
+        let mut out = Emitted::new();
+        let f = self.frame(Kind::Trailer, &t.emit()?)?;
+        out.push(f).map_err(|_| Error::FrameTooLong)?;
+        Ok(out)
+    }
+
     /// End the scan: returns the last data frame if points are still buffered (only when
     /// the scan is truncated) and the trailer. `flags.truncated` is set from the counts.
+    /// A truncated lossless scan sends the points of its whole segments only.
     pub fn finish(&mut self, flags: TrailerFlags) -> Result<Emitted, Error> {
+        if let Some(l) = self.lossless.take() {
+            return self.finish_lossless(l, flags);
+        }
         self.settle_pending();
         let mut out = Emitted::new();
         let buffered = self.scan.as_ref().ok_or(Error::NoScan)?.buffered;
@@ -710,12 +867,16 @@ impl ScanEncoder {
 
     /// Abandon the scan: buffered points are dropped; returns the abort frame.
     pub fn abort(&mut self, reason: AbortReason, detail: u8) -> Result<Frame, Error> {
-        let s = self.scan.take().ok_or(Error::NoScan)?;
+        let (seq, sent) = match (self.lossless.take(), self.scan.take()) {
+            (Some(l), _) => (l.header.seq, l.stream.sent()),
+            (None, Some(s)) => (s.header.seq, s.sent),
+            (None, None) => return Err(Error::NoScan),
+        };
         let a = Abort {
-            seq: s.header.seq,
+            seq,
             reason,
             detail,
-            points_sent: s.sent,
+            points_sent: sent,
         };
         self.frame(Kind::Abort, &a.emit()?)
     }

@@ -43,6 +43,10 @@ pub enum Error {
     TooManyPoints,
     /// The decoder already tracks as many bridges as it has room for.
     TooManyBridges,
+    /// The operation is not available for the scan's encoding: the points of a lossless
+    /// scan can make several data frames due at once, so they need a frame sink
+    /// ([`crate::ScanEncoder::push_point_to`], [`crate::ScanEncoder::push_run`]).
+    NeedsSink,
 }
 
 impl fmt::Display for Error {
@@ -64,6 +68,7 @@ impl fmt::Display for Error {
             Error::ScanInProgress => f.write_str("a scan is already in progress"),
             Error::TooManyPoints => f.write_str("more points than the header announced"),
             Error::TooManyBridges => f.write_str("too many bridges to track"),
+            Error::NeedsSink => f.write_str("a lossless scan's points need a frame sink"),
         }
     }
 }

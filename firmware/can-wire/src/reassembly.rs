@@ -11,6 +11,8 @@ use crate::encoding::Distance;
 use crate::frame::Frame;
 use crate::header::{HeaderA, HeaderB, ScanHeader, HEADER_LEN};
 use crate::id::{IdWindow, Kind, NODES};
+use crate::lossless::code as lossless_code;
+use crate::lossless::receive::{Received, Receiver};
 use crate::status::Status;
 use crate::trailer::{Trailer, TRAILER_CRC_PREFIX};
 use crate::Error;
@@ -101,12 +103,15 @@ pub struct Scan<const P: usize> {
     trailer: Option<Trailer>,
     trailer_bytes: [u8; 8],
     completeness: Completeness,
-    distance: [u16; P],
+    /// Distance codes (16 bits at most, except in the lossless coding).
+    distance: [u32; P],
     intensity: [u16; P],
     present: [bool; P],
     received: u16,
     frame_capacity: u16,
     conflict: bool,
+    /// The data frames of a lossless scan.
+    lossless: Receiver,
 }
 
 impl<const P: usize> Scan<P> {
@@ -144,6 +149,7 @@ impl<const P: usize> Scan<P> {
             received: 0,
             frame_capacity: 0,
             conflict: false,
+            lossless: Receiver::default(),
         }
     }
 
@@ -157,6 +163,7 @@ impl<const P: usize> Scan<P> {
         self.received = 0;
         self.frame_capacity = 0;
         self.conflict = false;
+        self.lossless.reset();
     }
 
     fn in_progress(&self) -> bool {
@@ -197,8 +204,14 @@ impl<const P: usize> Scan<P> {
         let enc = self.header.encoding;
         let dc = self.distance.get(i).copied().unwrap_or(0);
         let ic = self.intensity.get(i).copied().unwrap_or(0);
+        let distance = if enc.distance.is_lossless() {
+            // Reserved codes never reach the scan (their segment is rejected).
+            lossless_code::decode_distance(dc, enc.unit_exp).unwrap_or(Distance::Invalid)
+        } else {
+            enc.decode_distance(dc as u16)
+        };
         Some(Point {
-            distance: enc.decode_distance(dc),
+            distance,
             intensity: enc.intensity.is_present().then(|| enc.intensity.decode(ic)),
         })
     }
@@ -239,21 +252,45 @@ impl<const P: usize> Scan<P> {
 
     fn crc_matches(&self, t: &Trailer) -> bool {
         let mut crc = ScanCrc::new(&self.a_bytes, &self.b_bytes);
+        let head = self.trailer_bytes.get(..TRAILER_CRC_PREFIX).unwrap_or(&[]);
+        if self.header.encoding.distance.is_lossless() {
+            // Headers, each segment's CRC, the trailer (SPEC 4.2.4).
+            let sent = usize::from(t.points_sent);
+            let whole = sent % crate::lossless::SEGMENT_POINTS == 0
+                || t.points_sent == self.header.point_count;
+            if !whole {
+                return false;
+            }
+            let n = crate::lossless::segments(sent);
+            let Some(crcs) = self.lossless.crcs(n) else {
+                return false;
+            };
+            for c in crcs {
+                crc.bytes(&c.to_le_bytes());
+            }
+            return crc.finish(head) == t.crc;
+        }
         let with_intensity = self.header.encoding.intensity.is_present();
         let sent = usize::from(t.points_sent);
         for (d, i) in self.distance.iter().zip(self.intensity.iter()).take(sent) {
-            crc.point(*d, with_intensity.then_some(*i));
+            crc.point(*d as u16, with_intensity.then_some(*i));
         }
-        let head = self.trailer_bytes.get(..TRAILER_CRC_PREFIX).unwrap_or(&[]);
         crc.finish(head) == t.crc
     }
 
     fn valid_count(&self, sent: u16) -> u16 {
         let enc = self.header.encoding;
+        let lossless = enc.distance.is_lossless();
         self.distance
             .iter()
             .take(usize::from(sent))
-            .filter(|d| enc.is_valid_code(**d))
+            .filter(|d| {
+                if lossless {
+                    lossless_code::is_range(**d)
+                } else {
+                    enc.is_valid_code(**d as u16)
+                }
+            })
             .count() as u16
     }
 }
@@ -459,6 +496,45 @@ fn finish_incomplete<const P: usize>(scan: &mut Scan<P>, stats: &mut LossStats) 
     true
 }
 
+/// A data frame of a lossless scan (SPEC 4.2.5): into its segment; a whole, checked
+/// segment's points into the scan.
+fn lossless_frame<const P: usize>(
+    scan: &mut Scan<P>,
+    stats: &mut LossStats,
+    data: &[u8],
+) -> Result<(), Error> {
+    let header = scan.header;
+    let (distance, intensity, present) =
+        (&mut scan.distance, &mut scan.intensity, &mut scan.present);
+    let mut stored = 0u16;
+    let got = scan.lossless.frame(data, &header, |i, d, n| {
+        let i = usize::from(i);
+        if let (Some(pd), Some(pi), Some(pp)) = (
+            distance.get_mut(i),
+            intensity.get_mut(i),
+            present.get_mut(i),
+        ) {
+            *pd = d;
+            // Intensity codes are 16 bits at most.
+            *pi = n as u16;
+            *pp = true;
+            stored += 1;
+        }
+    })?;
+    scan.received = scan.received.wrapping_add(stored);
+    match got {
+        Received::Duplicate => bump(&mut stats.duplicates),
+        Received::Orphan => bump(&mut stats.frames_orphaned),
+        Received::Corrupt => bump(&mut stats.corrupt),
+        Received::Pending => {}
+        Received::Segment { points, frames, .. } => {
+            let per_frame = points.div_ceil(frames.max(1));
+            scan.frame_capacity = scan.frame_capacity.max(per_frame);
+        }
+    }
+    Ok(())
+}
+
 /// Handle a scan frame; returns the slot index of a scan to report.
 fn scan_frame<const P: usize>(
     bridge: &mut Bridge<P>,
@@ -526,6 +602,10 @@ fn scan_frame<const P: usize>(
                 return Ok(None);
             }
             let header = scan.header;
+            if header.encoding.distance.is_lossless() {
+                lossless_frame(scan, stats, data)?;
+                return Ok(None);
+            }
             let frame = DataFrame::parse(data, &header)?;
             if frame.header().seq_low != (header.seq & 0xF) as u8 {
                 bump(&mut stats.frames_orphaned);
@@ -535,8 +615,8 @@ fn scan_frame<const P: usize>(
             for (i, d, n) in frame.codes() {
                 let i = usize::from(i);
                 if scan.present.get(i).copied().unwrap_or(false) {
-                    let same =
-                        scan.distance.get(i) == Some(&d) && scan.intensity.get(i) == Some(&n);
+                    let same = scan.distance.get(i) == Some(&u32::from(d))
+                        && scan.intensity.get(i) == Some(&n);
                     if same {
                         equal += 1;
                     } else {
@@ -561,7 +641,7 @@ fn scan_frame<const P: usize>(
                     scan.intensity.get_mut(i),
                     scan.present.get_mut(i),
                 ) {
-                    *pd = d;
+                    *pd = u32::from(d);
                     *pi = n;
                     *pp = true;
                     scan.received += 1;

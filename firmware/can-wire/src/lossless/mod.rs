@@ -14,10 +14,12 @@
 //! - [`block`]: choosing, writing and reading one block's coding.
 //! - [`stream`]: the sender's per-scan state, fed a point at a time or a run at a time.
 //! - [`segment`]: the receiver's decoding of one segment's bytes.
+//! - [`receive`]: the receiver's gathering of a scan's frames into segments.
 
 pub mod bits;
 pub mod block;
 pub mod code;
+pub mod receive;
 pub mod segment;
 pub mod stream;
 
