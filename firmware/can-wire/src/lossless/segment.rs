@@ -189,7 +189,7 @@ mod tests {
         let d: std::vec::Vec<u32> = (0..682).map(|k| 128 + 1000 + (k * 13 % 29)).collect();
         round_trip(&d, None, 8);
         round_trip(&d, None, 64);
-        let i: std::vec::Vec<u32> = (0..682).map(|k| (k * 7919 % 65536)).collect();
+        let i: std::vec::Vec<u32> = (0..682).map(|k| k * 7919 % 65536).collect();
         round_trip(&d, Some(&i), 8);
         round_trip(&d[..1], Some(&i[..1]), 8);
         round_trip(&d[..129], None, 12);
