@@ -208,3 +208,62 @@ fn smooth_scans_are_small_and_bounded() {
     let d16 = 1081 * 2;
     assert!(bytes <= d16 + d16 / 16 + 9 * 8, "{bytes} bytes vs {d16}");
 }
+
+/// Golden frames written by hand from SPEC 4.2 (not by the encoder): scan 0x0102 of three
+/// points, 1000 mm, 1002 mm and the sensor's error code 0, on classic CAN at node 1.
+///
+/// Codes 1128, 1130, 0. Stream: seq_low 2 (4 bits), segment 0 (5), anchor width 11 (5)
+/// and 1128 (11); one block of two values: first-order residuals 2 and −1130 (u = 4 and
+/// 2259, k = 10: 11 + 13 bits, 4 + 24 with k) against verbatim width 11 (5 + 22 = 27
+/// bits): verbatim, mode 0 (2 bits), width 11 (5), 1130 (11), 0 (11). 54 bits, two zero
+/// bits of padding: 7 bytes, then the segment CRC: 7 stream bytes in the first frame
+/// (framing byte 0x80) and the CRC in the second (framing byte 0x01, 3 bytes).
+#[test]
+fn golden_frames_from_the_spec() {
+    let crc16 = ::crc::Crc::<u16>::new(&::crc::CRC_16_IBM_3740);
+    let stream = [0x02, 0x16, 0x1A, 0x59, 0x6A, 0x04, 0x00];
+    let seg_crc = crc16.checksum(&stream).to_le_bytes();
+    let a = [0x02, 0x01, 0x4D, 0, 0, 0, 0x03, 0x00];
+    let b = [0x02, 0x04, 0x00, 0x01, 0xE4, 0xFD, 0xA0, 0x05];
+    let head = [0x02, 0x01, 0x03, 0x00, 0x02, 0x00];
+    let mut scan_crc = crc16.digest();
+    scan_crc.update(&a);
+    scan_crc.update(&b);
+    scan_crc.update(&seg_crc);
+    scan_crc.update(&head);
+    let t = scan_crc.finalize().to_le_bytes();
+    let mut d0 = vec![0x80];
+    d0.extend_from_slice(&stream);
+    let d1 = [0x01, seg_crc[0], seg_crc[1]];
+    let trailer = [head[0], head[1], head[2], head[3], head[4], head[5], t[0], t[1]];
+
+    let h = header(3, IntensityEncoding::None, 0, 0x0102);
+    let points = [
+        (Distance::Mm(1000), 0),
+        (Distance::Mm(1002), 0),
+        (Distance::SensorError(0), 0),
+    ];
+    let frames = encode(&h, FrameFormat::Classic, &points);
+    let ids = IdWindow::DEFAULT.node(1).unwrap();
+    let golden: [(Kind, &[u8]); 5] = [
+        (Kind::HeaderA, &a),
+        (Kind::HeaderB, &b),
+        (Kind::Data, &d0),
+        (Kind::Data, &d1),
+        (Kind::Trailer, &trailer),
+    ];
+    assert_eq!(frames.len(), golden.len());
+    for (f, (kind, bytes)) in frames.iter().zip(golden) {
+        assert_eq!(f.id(), ids.id(kind));
+        assert_eq!(f.data(), bytes, "{kind:?}");
+    }
+    // And the golden frames decode to the points.
+    let golden_frames: Vec<Frame> = golden
+        .iter()
+        .map(|(k, b)| Frame::new(ids.id(*k), b, false).unwrap())
+        .collect();
+    let (c, got) = decode(&golden_frames);
+    assert_eq!(c, Completeness::Intact);
+    let got: Vec<Distance> = got.iter().map(|p| p.unwrap().distance).collect();
+    assert_eq!(got, [Distance::Mm(1000), Distance::Mm(1002), Distance::SensorError(0)]);
+}
