@@ -140,6 +140,8 @@ struct Core<const Q: usize> {
     auto_decimation: bool,
     /// The governor's last plan.
     plan: Option<crate::governor::Plan>,
+    /// The cost the scan being published was admitted with.
+    admitted: Option<can_wire::bandwidth::ScanCost>,
     /// A data line's points out of [`Pipeline::decimate_run`], as readings.
     decimated: [scip::Reading; scip::MAX_READINGS],
 }
@@ -177,6 +179,7 @@ impl<const Q: usize> Bridge<Q> {
                 health: crate::status::Health::new(),
                 auto_decimation: true,
                 plan: None,
+                admitted: None,
                 decimated: [scip::Reading::default(); scip::MAX_READINGS],
                 config,
             },
@@ -695,6 +698,7 @@ impl<const Q: usize> Core<Q> {
             self.pipeline_discard();
             return;
         }
+        self.admitted = Some(cost);
         let header = ScanHeader {
             seq: self.seq,
             timestamp_ms: timestamp,
@@ -784,6 +788,7 @@ impl<const Q: usize> Core<Q> {
             sensor_error: false,
             filtered: self.filtered,
         };
+        self.settle_lossless();
         match self.encoder.finish(flags) {
             Ok(frames) => {
                 for f in frames {
@@ -792,6 +797,34 @@ impl<const Q: usize> Core<Q> {
                 self.stats.scans_sent += 1;
             }
             Err(_) => self.abort_scan_now(AbortReason::BadData),
+        }
+    }
+
+    /// A lossless scan about to be finished: the governor learns what it really cost,
+    /// is charged what it took beyond its admission, and re-plans when its estimate
+    /// moved.
+    fn settle_lossless(&mut self) {
+        let (Some((points, bytes)), Some(admitted)) =
+            (self.encoder.lossless_progress(), self.admitted.take())
+        else {
+            return;
+        };
+        let budget = *self.governor.budget();
+        let encoding = self.config.encoding;
+        let bits_x16 = u32::try_from(u64::from(bytes) * 128 / u64::from(points.max(1)))
+            .unwrap_or(u32::MAX);
+        let actual = can_wire::bandwidth::lossless_cost(
+            points,
+            &encoding,
+            Some(bits_x16),
+            budget.format,
+            budget.extended,
+            budget.rates,
+        );
+        self.governor.observe(points, bytes);
+        self.governor.settle(&admitted, &actual);
+        if self.auto_decimation && self.governor.replan_due(&encoding) {
+            self.apply_plan();
         }
     }
 
@@ -850,26 +883,16 @@ impl<const Q: usize> Output<'_, Q> {
             .intensity
             .map_or(0, |i| u16::try_from(i).unwrap_or(u16::MAX));
         // A due data frame is built in a new back slot of the queue, not moved into it.
-        let mut queued = false;
-        let queue = &mut *self.queue;
-        let result = self.encoder.push_point_into(distance, intensity, || {
-            let slot = data_slot(queue);
-            queued = slot.is_some();
-            slot
-        });
-        match result {
-            Ok(true) if queued => self.stats.frames += 1,
-            Ok(true) => {
-                *self.overflow = true;
-                self.stats.queue_overflows += 1;
-            }
-            Ok(false) => {}
-            Err(_) => {
-                if queued {
-                    self.queue.pop_back();
+        let mut slots = DataSlots(self.queue);
+        match self.encoder.push_point_to(distance, intensity, &mut slots) {
+            Ok(run) => {
+                self.stats.frames = self.stats.frames.wrapping_add(run.frames);
+                if run.stop == Some(RunStop::NoSlot) {
+                    *self.overflow = true;
+                    self.stats.queue_overflows += 1;
                 }
-                *self.filtered = true;
             }
+            Err(_) => *self.filtered = true,
         }
     }
 

@@ -10,8 +10,21 @@
 //!   bytes are still arriving on the UART. Otherwise the scan is dropped whole — never
 //!   half — and counted. The decision is made once, before the first frame, so the UART
 //!   path never waits for the bus.
+//!
+//! The lossless coding `DL` costs what the scene makes it cost, so for it the governor
+//! plans and admits with **real costs**: an estimate of the stream's bits per point,
+//! learnt from the scans sent ([`Governor::observe`]: a running average, ¾ old + ¼ new;
+//! before the first scan a prior of 10 bits per distance and 14 per intensity), with a
+//! margin of 1/8. When a scan compresses worse than expected, the bus time it took beyond
+//! its admission is charged as a **debt** ([`Governor::settle`]): following scans are
+//! dropped whole until the share has paid it back, so the average load never exceeds the
+//! share; one scan exceeds its admitted cost by at most the difference to the coding's
+//! worst case (`can_wire::bandwidth::lossless_cost` with no estimate), which is D16's
+//! cost plus 7 bits per block of 16 points. [`GovernorStats::over_estimate`] counts such
+//! scans. The engine re-plans the decimation when the estimate moves by more than 1/8
+//! from the one its plan used ([`Governor::replan_due`]).
 
-use can_wire::bandwidth::{scan_cost, BitRates, ScanCost};
+use can_wire::bandwidth::{lossless_cost, scan_cost, BitRates, ScanCost};
 use can_wire::{Encoding, FrameFormat};
 
 /// Largest angular decimation the governor will choose.
@@ -57,7 +70,14 @@ pub struct GovernorStats {
     pub dropped_budget: u32,
     /// Scans dropped because the transmit queue could not take them.
     pub dropped_queue: u32,
+    /// Lossless scans that took more bus time than they were admitted with.
+    pub over_estimate: u32,
 }
+
+/// Prior bits per point ×16 of the lossless coding before any scan was seen: distance.
+pub const PRIOR_DISTANCE_X16: u32 = 10 * 16;
+/// Prior bits per point ×16 of the lossless coding: intensity.
+pub const PRIOR_INTENSITY_X16: u32 = 14 * 16;
 
 /// The governor. See the [module docs](self).
 #[derive(Debug, Clone)]
@@ -66,6 +86,12 @@ pub struct Governor {
     /// Bus time credit, ns.
     credit_ns: u64,
     last_ms: Option<u64>,
+    /// Bus time owed by scans that took more than admitted, ns.
+    debt_ns: u64,
+    /// The lossless coding's bits per point ×16 learnt from the scans sent.
+    estimate_x16: Option<u32>,
+    /// The estimate the last plan used.
+    planned_x16: Option<u32>,
     stats: GovernorStats,
 }
 
@@ -79,6 +105,9 @@ impl Governor {
             },
             credit_ns: 0,
             last_ms: None,
+            debt_ns: 0,
+            estimate_x16: None,
+            planned_x16: None,
             stats: GovernorStats::default(),
         }
     }
@@ -93,8 +122,32 @@ impl Governor {
         &self.stats
     }
 
-    /// Worst-case cost of a scan of `points` points.
+    /// Bits per point ×16 the governor plans a lossless scan with: the estimate (or
+    /// the prior) and a margin of 1/8.
+    pub fn planning_bits_x16(&self, encoding: &Encoding) -> u32 {
+        let prior = PRIOR_DISTANCE_X16
+            + if encoding.intensity.is_present() {
+                PRIOR_INTENSITY_X16
+            } else {
+                0
+            };
+        let e = self.estimate_x16.unwrap_or(prior);
+        e.saturating_add(e / 8)
+    }
+
+    /// The cost of a scan of `points` points: worst case for the fixed-width encodings,
+    /// the planning estimate for the lossless coding.
     pub fn cost(&self, points: u16, encoding: &Encoding) -> ScanCost {
+        if encoding.distance.is_lossless() {
+            return lossless_cost(
+                points,
+                encoding,
+                Some(self.planning_bits_x16(encoding)),
+                self.budget.format,
+                self.budget.extended,
+                self.budget.rates,
+            );
+        }
         scan_cost(
             points,
             encoding,
@@ -107,7 +160,11 @@ impl Governor {
     /// The smallest decimation (angular first, then temporal) whose average load fits the
     /// share, for scans of `points` points at `scans_per_s_milli` / 1000 scans per second.
     /// When even the coarsest does not fit, the coarsest is returned (its load says so).
-    pub fn plan(&self, points: u16, encoding: &Encoding, scans_per_s_milli: u32) -> Plan {
+    pub fn plan(&mut self, points: u16, encoding: &Encoding, scans_per_s_milli: u32) -> Plan {
+        self.planned_x16 = encoding
+            .distance
+            .is_lossless()
+            .then(|| self.planning_bits_x16(encoding));
         let limit = u64::from(self.budget.share_permille) * 1000;
         let mut best = None;
         for every_nth in 1..=u8::MAX {
@@ -144,7 +201,7 @@ impl Governor {
     /// on the UART, `queue_free` the free frames of the transmit queue now.
     pub fn admit(&mut self, now_ms: u64, cost: &ScanCost, uart_us: u64, queue_free: usize) -> bool {
         self.refill(now_ms, cost);
-        if self.credit_ns < cost.time_ns {
+        if self.debt_ns > 0 || self.credit_ns < cost.time_ns {
             self.stats.dropped_budget += 1;
             return false;
         }
@@ -162,16 +219,61 @@ impl Governor {
         true
     }
 
+    /// A lossless scan sent: `points` points took `stream_bytes` bytes of segment stream.
+    /// Updates the estimate of the coding's bits per point.
+    pub fn observe(&mut self, points: u16, stream_bytes: u32) {
+        if points == 0 {
+            return;
+        }
+        let x = u32::try_from(u64::from(stream_bytes) * 128 / u64::from(points)).unwrap_or(u32::MAX);
+        self.estimate_x16 = Some(match self.estimate_x16 {
+            None => x,
+            Some(e) => ((u64::from(e) * 3 + u64::from(x)) / 4) as u32,
+        });
+    }
+
+    /// A scan admitted with `admitted` cost took `actual` bus time: what it took beyond
+    /// its admission is spent from the credit, the rest owed as debt.
+    pub fn settle(&mut self, admitted: &ScanCost, actual: &ScanCost) {
+        let extra = actual.time_ns.saturating_sub(admitted.time_ns);
+        if extra == 0 {
+            return;
+        }
+        self.stats.over_estimate = self.stats.over_estimate.wrapping_add(1);
+        let paid = extra.min(self.credit_ns);
+        self.credit_ns -= paid;
+        self.debt_ns = self.debt_ns.saturating_add(extra - paid);
+    }
+
+    /// Bus time owed, ns.
+    pub fn debt_ns(&self) -> u64 {
+        self.debt_ns
+    }
+
+    /// Whether the lossless estimate moved by more than 1/8 from the one the last plan
+    /// used.
+    pub fn replan_due(&self, encoding: &Encoding) -> bool {
+        match self.planned_x16 {
+            Some(p) if encoding.distance.is_lossless() => {
+                self.planning_bits_x16(encoding).abs_diff(p) > p / 8
+            }
+            _ => false,
+        }
+    }
+
     fn refill(&mut self, now_ms: u64, cost: &ScanCost) {
         let cap = cost.time_ns.saturating_mul(2);
         match self.last_ms {
             None => self.credit_ns = cap,
             Some(last) => {
                 let dt_ms = now_ms.saturating_sub(last);
-                let add = dt_ms
+                let mut add = dt_ms
                     .saturating_mul(1_000_000)
                     .saturating_mul(u64::from(self.budget.share_permille))
                     / 1000;
+                let repay = add.min(self.debt_ns);
+                self.debt_ns -= repay;
+                add -= repay;
                 self.credit_ns = self.credit_ns.saturating_add(add).min(cap);
             }
         }
@@ -201,7 +303,7 @@ mod tests {
 
     #[test]
     fn urg04lx_full_resolution_fits_a_quarter_of_classic_1m() {
-        let g = classic(250);
+        let mut g = classic(250);
         let plan = g.plan(682, &D12, 10_000);
         assert_eq!((plan.factor, plan.every_nth), (1, 1));
         assert!(plan.load_ppm <= 250_000, "{plan:?}");
@@ -209,7 +311,7 @@ mod tests {
 
     #[test]
     fn a_small_share_decimates_then_skips_scans() {
-        let g = classic(100);
+        let mut g = classic(100);
         let plan = g.plan(682, &D12, 10_000);
         assert!(plan.factor > 1 && plan.every_nth == 1, "{plan:?}");
         assert!(plan.load_ppm <= 100_000);
@@ -219,7 +321,7 @@ mod tests {
 
         // 40 Hz UTM-30LX in 1 ‰ of a classic bus: even 1/16 of the points does not fit,
         // so scans are skipped too.
-        let g = classic(1);
+        let mut g = classic(1);
         let plan = g.plan(1081, &D12, 40_000);
         assert_eq!(plan.factor, MAX_FACTOR);
         assert!(plan.every_nth > 1 && plan.load_ppm <= 1000, "{plan:?}");

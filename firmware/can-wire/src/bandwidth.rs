@@ -3,6 +3,7 @@
 use crate::data::data_frame_len;
 use crate::encoder::FrameFormat;
 use crate::encoding::Encoding;
+use crate::frame::padded_len;
 use crate::header::HEADER_LEN;
 use crate::trailer::TRAILER_LEN;
 
@@ -121,7 +122,8 @@ impl ScanCost {
     }
 }
 
-/// Worst-case cost of a scan of `points` points in `encoding`, sent in `format`.
+/// Worst-case cost of a scan of `points` points in `encoding`, sent in `format` (for the
+/// lossless coding: [`lossless_cost`] at its worst case).
 pub fn scan_cost(
     points: u16,
     encoding: &Encoding,
@@ -129,6 +131,9 @@ pub fn scan_cost(
     extended: bool,
     rates: BitRates,
 ) -> ScanCost {
+    if encoding.distance.is_lossless() {
+        return lossless_cost(points, encoding, None, format, extended, rates);
+    }
     let fd = format.is_fd();
     let max_len = format.max_len();
     let per_frame = encoding.capacity(max_len).max(1);
@@ -162,10 +167,95 @@ pub fn scan_cost(
     }
 }
 
+/// Bits of one segment of `n` points in the lossless coding (SPEC 4.2.3) at worst: the
+/// header, an anchor and a verbatim block of 20-bit values per block for each of
+/// `channels` channels, the padding and the CRC.
+pub const fn lossless_worst_segment_bits(n: u32, channels: u32) -> u32 {
+    use crate::lossless::{BLOCK_POINTS, MODE_BITS, VALUE_BITS, WIDTH_BITS};
+    let blocks = n.saturating_sub(1).div_ceil(BLOCK_POINTS as u32);
+    let per_channel = WIDTH_BITS
+        + VALUE_BITS
+        + blocks * (MODE_BITS + WIDTH_BITS)
+        + n.saturating_sub(1) * VALUE_BITS;
+    crate::lossless::SEGMENT_HEADER_BITS + channels * per_channel + 7 + 16
+}
+
+/// Cost of a lossless scan of `points` points whose segments take `bits_x16 / 16` bits
+/// per point on average (headers, anchors, padding and CRCs included), or, with
+/// `bits_x16 = None`, the worst case (every block verbatim at 20 bits per value).
+pub fn lossless_cost(
+    points: u16,
+    encoding: &Encoding,
+    bits_x16: Option<u32>,
+    format: FrameFormat,
+    extended: bool,
+    rates: BitRates,
+) -> ScanCost {
+    use crate::lossless::{segment_points, segments};
+    let fd = format.is_fd();
+    let payload = format.max_len().saturating_sub(1).max(1) as u64;
+    let channels = 1 + u32::from(encoding.intensity.is_present());
+    let mut nominal = 0u32;
+    let mut data = 0u32;
+    let mut add = |len: usize, count: u32| {
+        let b = frame_bits(len, fd, extended);
+        nominal = nominal.saturating_add(b.nominal.saturating_mul(count));
+        data = data.saturating_add(b.data.saturating_mul(count));
+    };
+    add(HEADER_LEN, 2);
+    add(TRAILER_LEN, 1);
+    let mut data_frames = 0u32;
+    let mut total_bits = 0u64;
+    let n_points = usize::from(points);
+    for j in 0..segments(n_points) {
+        let n = segment_points(n_points, j) as u32;
+        let bits = match bits_x16 {
+            Some(b) => u64::from(n) * u64::from(b) / 16,
+            None => u64::from(lossless_worst_segment_bits(n, channels)),
+        };
+        total_bits += bits;
+        let bytes = bits.div_ceil(8).max(1);
+        let frames = bytes.div_ceil(payload);
+        let last = bytes - (frames - 1) * payload;
+        add(format.max_len(), (frames - 1) as u32);
+        add(padded_len(1 + last as usize).unwrap_or(format.max_len()), 1);
+        data_frames += frames as u32;
+    }
+    let bits = FrameBits { nominal, data };
+    ScanCost {
+        bits_per_point: (total_bits / n_points.max(1) as u64) as u32,
+        points_per_frame: (u64::from(points) / u64::from(data_frames.max(1))) as u32,
+        data_frames,
+        frames: data_frames + 3,
+        nominal_bits: nominal,
+        data_bits: data,
+        time_ns: bits.time_ns(rates),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::encoding::{DistanceEncoding, IntensityEncoding};
+
+    #[test]
+    fn lossless_costs() {
+        let dl = Encoding {
+            distance: DistanceEncoding::Lossless,
+            intensity: IntensityEncoding::None,
+            unit_exp: 0,
+        };
+        // 128 points at 7 bits: 112 bytes, 16 classic frames of 7 stream bytes.
+        let c = lossless_cost(128, &dl, Some(7 * 16), FrameFormat::Classic, false, BitRates::CLASSIC_1M);
+        assert_eq!((c.data_frames, c.frames), (16, 19));
+        assert_eq!(c.nominal_bits, 18 * 135 + classic_frame_bits(8, false).nominal);
+        // Worst case of one point: 9 + 25 + 7 + 16 bits = 57 bits, 8 bytes: 2 frames.
+        assert_eq!(lossless_worst_segment_bits(1, 1), 57);
+        let w = lossless_cost(1, &dl, None, FrameFormat::Classic, false, BitRates::CLASSIC_1M);
+        assert_eq!(w.data_frames, 2);
+        // A full segment at worst: 9 + 25 + 8 × 7 + 127 × 20 + 23 bits.
+        assert_eq!(lossless_worst_segment_bits(128, 1), 9 + 25 + 56 + 2540 + 23);
+    }
 
     #[test]
     fn classic_frame() {

@@ -244,6 +244,14 @@ impl ScanEncoder {
         self.scan.is_some() || self.lossless.is_some()
     }
 
+    /// For a lossless scan in progress: its points taken so far and the stream bytes
+    /// they took (what a bandwidth governor learns the coding's real cost from).
+    pub fn lossless_progress(&self) -> Option<(u16, u32)> {
+        self.lossless
+            .as_ref()
+            .map(|l| (l.stream.pushed(), l.stream.stream_bytes()))
+    }
+
     fn frame(&self, kind: Kind, data: &[u8]) -> Result<Frame, Error> {
         Frame::new(self.ids.id(kind), data, self.format.is_fd())
     }

@@ -42,6 +42,8 @@ pub struct Writer {
     counter: u8,
     /// The open segment's CRC.
     crc: ScanCrc,
+    /// Stream bytes written (framing bytes and FD padding not counted).
+    bytes: u32,
 }
 
 impl Writer {
@@ -56,7 +58,14 @@ impl Writer {
             full: full.clamp(2, MAX_LEN),
             counter: 0,
             crc: ScanCrc::start(),
+            bytes: 0,
         }
+    }
+
+    /// Stream bytes written so far (the segments' bytes and CRCs, without the framing
+    /// bytes and padding).
+    pub fn stream_bytes(&self) -> u32 {
+        self.bytes
     }
 
     /// Data frames begun so far (the counter before it wraps).
@@ -146,6 +155,7 @@ impl Writer {
         if let Some(slot) = self.buf.get_mut(self.len) {
             *slot = b;
         }
+        self.bytes = self.bytes.wrapping_add(1);
         self.len = self.len.wrapping_add(1);
         if self.len >= self.full {
             self.emit(out);

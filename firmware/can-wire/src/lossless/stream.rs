@@ -83,6 +83,11 @@ impl ScanStream {
         self.valid_sent
     }
 
+    /// Stream bytes written so far (segments and their CRCs, framing bytes not counted).
+    pub fn stream_bytes(&self) -> u32 {
+        self.w.stream_bytes()
+    }
+
     /// Whether every point of the scan was taken.
     pub fn is_full(&self) -> bool {
         self.pushed >= self.point_count
