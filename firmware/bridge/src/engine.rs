@@ -811,8 +811,8 @@ impl<const Q: usize> Core<Q> {
         };
         let budget = *self.governor.budget();
         let encoding = self.config.encoding;
-        let bits_x16 = u32::try_from(u64::from(bytes) * 128 / u64::from(points.max(1)))
-            .unwrap_or(u32::MAX);
+        let bits_x16 =
+            u32::try_from(u64::from(bytes) * 128 / u64::from(points.max(1))).unwrap_or(u32::MAX);
         let actual = can_wire::bandwidth::lossless_cost(
             points,
             &encoding,

@@ -225,7 +225,8 @@ impl Governor {
         if points == 0 {
             return;
         }
-        let x = u32::try_from(u64::from(stream_bytes) * 128 / u64::from(points)).unwrap_or(u32::MAX);
+        let x =
+            u32::try_from(u64::from(stream_bytes) * 128 / u64::from(points)).unwrap_or(u32::MAX);
         self.estimate_x16 = Some(match self.estimate_x16 {
             None => x,
             Some(e) => ((u64::from(e) * 3 + u64::from(x)) / 4) as u32,

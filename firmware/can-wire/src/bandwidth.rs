@@ -246,12 +246,29 @@ mod tests {
             unit_exp: 0,
         };
         // 128 points at 7 bits: 112 bytes, 16 classic frames of 7 stream bytes.
-        let c = lossless_cost(128, &dl, Some(7 * 16), FrameFormat::Classic, false, BitRates::CLASSIC_1M);
+        let c = lossless_cost(
+            128,
+            &dl,
+            Some(7 * 16),
+            FrameFormat::Classic,
+            false,
+            BitRates::CLASSIC_1M,
+        );
         assert_eq!((c.data_frames, c.frames), (16, 19));
-        assert_eq!(c.nominal_bits, 18 * 135 + classic_frame_bits(8, false).nominal);
+        assert_eq!(
+            c.nominal_bits,
+            18 * 135 + classic_frame_bits(8, false).nominal
+        );
         // Worst case of one point: 9 + 25 + 7 + 16 bits = 57 bits, 8 bytes: 2 frames.
         assert_eq!(lossless_worst_segment_bits(1, 1), 57);
-        let w = lossless_cost(1, &dl, None, FrameFormat::Classic, false, BitRates::CLASSIC_1M);
+        let w = lossless_cost(
+            1,
+            &dl,
+            None,
+            FrameFormat::Classic,
+            false,
+            BitRates::CLASSIC_1M,
+        );
         assert_eq!(w.data_frames, 2);
         // A full segment at worst: 9 + 25 + 8 × 7 + 127 × 20 + 23 bits.
         assert_eq!(lossless_worst_segment_bits(128, 1), 9 + 25 + 56 + 2540 + 23);

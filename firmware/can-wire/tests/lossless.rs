@@ -235,7 +235,9 @@ fn golden_frames_from_the_spec() {
     let mut d0 = vec![0x80];
     d0.extend_from_slice(&stream);
     let d1 = [0x01, seg_crc[0], seg_crc[1]];
-    let trailer = [head[0], head[1], head[2], head[3], head[4], head[5], t[0], t[1]];
+    let trailer = [
+        head[0], head[1], head[2], head[3], head[4], head[5], t[0], t[1],
+    ];
 
     let h = header(3, IntensityEncoding::None, 0, 0x0102);
     let points = [
@@ -265,5 +267,12 @@ fn golden_frames_from_the_spec() {
     let (c, got) = decode(&golden_frames);
     assert_eq!(c, Completeness::Intact);
     let got: Vec<Distance> = got.iter().map(|p| p.unwrap().distance).collect();
-    assert_eq!(got, [Distance::Mm(1000), Distance::Mm(1002), Distance::SensorError(0)]);
+    assert_eq!(
+        got,
+        [
+            Distance::Mm(1000),
+            Distance::Mm(1002),
+            Distance::SensorError(0)
+        ]
+    );
 }

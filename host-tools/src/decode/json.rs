@@ -118,6 +118,19 @@ pub fn scan(s: &DecodedScan) -> Value {
     if !out_of_range.is_empty() {
         o.insert("out_of_range".into(), out_of_range.into());
     }
+    // The sensor's error codes by point (the lossless coding keeps them): {"index": code}.
+    let errors: Map<String, Value> = s
+        .points
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| match p.map(|p| p.distance) {
+            Some(Distance::SensorError(code)) => Some((i.to_string(), code.into())),
+            _ => None,
+        })
+        .collect();
+    if !errors.is_empty() {
+        o.insert("sensor_errors".into(), errors.into());
+    }
     let missing = indices(&|p| p.is_none());
     if !missing.is_empty() {
         o.insert("missing".into(), missing.into());

@@ -70,8 +70,9 @@ pub struct CanArgs {
     /// CAN FD data frame length: 12, 16, 20, 24, 32, 48 or 64.
     #[arg(long, default_value_t = 64)]
     pub frame_len: u8,
-    /// Distance code: d16, d14, d12.
-    #[arg(long, default_value = "d16", value_parser = parse_distance)]
+    /// Distance code: dl (lossless predictive coding, SPEC 4.2: exact, about 6 bits per
+    /// point on real scans), d16, d14, d12.
+    #[arg(long, default_value = "dl", value_parser = parse_distance)]
     pub encoding: DistanceEncoding,
     /// Intensity code: none, i8, i12, i16 (only for streams that carry intensity).
     #[arg(long, default_value = "i16", value_parser = parse_intensity)]
@@ -134,7 +135,8 @@ fn parse_distance(s: &str) -> Result<DistanceEncoding, String> {
         "d16" => Ok(DistanceEncoding::D16),
         "d14" => Ok(DistanceEncoding::D14),
         "d12" => Ok(DistanceEncoding::D12),
-        _ => Err(format!("{s:?}: one of d16, d14, d12")),
+        "dl" | "lossless" => Ok(DistanceEncoding::Lossless),
+        _ => Err(format!("{s:?}: one of dl, d16, d14, d12")),
     }
 }
 
