@@ -19,7 +19,8 @@
 //! **CSV**: `seq,index,angle_rad,distance_mm,intensity,valid`, one row per point of
 //! every scan; distance and intensity are empty where unknown, `valid` is 1 for a range.
 //!
-//! **Summary** (standard error): frames read, and per bridge `LossStats`.
+//! **Summary** (standard error): frames read, malformed log lines skipped, and per
+//! bridge `LossStats`.
 
 use std::io::{self, Write};
 
@@ -264,15 +265,16 @@ pub fn summary(dec: &LogDecoder) -> Value {
         })
         .collect();
     json!({"frames": c.frames, "frames_ours": c.ours, "frames_rejected": c.rejected,
-        "frames_skipped": c.skipped, "bridges": nodes})
+        "frames_skipped": c.skipped, "lines_skipped": c.lines_skipped, "bridges": nodes})
 }
 
 /// The summary as text lines.
 pub fn summary_text(dec: &LogDecoder) -> String {
     let c = dec.counts();
     let mut s = format!(
-        "frames: {} ({} of the window, {} rejected), {} remote/error frames skipped\n",
-        c.frames, c.ours, c.rejected, c.skipped
+        "frames: {} ({} of the window, {} rejected), {} remote/error frames skipped; \
+         {} malformed lines skipped\n",
+        c.frames, c.ours, c.rejected, c.skipped, c.lines_skipped
     );
     for (node, l) in dec.stats() {
         s += &format!(
