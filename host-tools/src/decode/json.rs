@@ -8,7 +8,10 @@
 //!   it), `point_count`, `received`, the geometry (`first_step` relative to the sensor's
 //!   front, `step_increment`, `ares`, `first_angle_rad`, `angle_increment_rad`, angles
 //!   counter-clockwise from the front), `grouping`, `encoding`, `unit_mm`, `time_synced`,
-//!   `distances` (mm; null for invalid and missing points), `out_of_range` (indices of
+//!   `distances` (mm; null for invalid and missing points; one per point the scan
+//!   lists: the trailer's `points_sent` when it arrived, so a truncated scan has fewer
+//!   than `point_count`, and none for an aborted scan, whose points a receiver discards
+//!   (SPEC 3.5)), `out_of_range` (indices of
 //!   points beyond what the encoding expresses, when any), `missing` (indices of points
 //!   that did not arrive, when any), `intensities` (when the channel is present; null
 //!   for missing points).
