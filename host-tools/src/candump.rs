@@ -14,7 +14,10 @@
 //! hex, two digits per byte, optionally separated by `.`. The CAN FD flags nibble holds
 //! BRS (1, bit rate switch) and ESI (2, error state). A fourth field `R` or `T` (receive
 //! or transmit, as python-can writes it) is accepted and ignored. Blank lines are
-//! skipped; anything else that does not parse is a [`CandumpError::Line`] naming its line.
+//! skipped; anything else that does not parse is a [`CandumpError::Line`] naming its line,
+//! and the [`Reader`] goes on with the next line. A line longer than [`MAX_LINE`] bytes is
+//! such an error too: the reader skips to its end without holding it, so memory stays
+//! bounded whatever the input is.
 
 use std::fmt;
 use std::io::{self, BufRead, Write};
@@ -27,6 +30,10 @@ pub const FD_BRS: u8 = 0x1;
 pub const FD_ESI: u8 = 0x2;
 /// The error-frame bit of an 8-digit identifier (`linux/can.h` `CAN_ERR_FLAG`).
 pub const CAN_ERR_FLAG: u32 = 0x2000_0000;
+/// The longest line the [`Reader`] takes, bytes without the line end. The longest
+/// candump line (a 64-byte CAN FD frame with dot-separated bytes, a nanosecond
+/// timestamp, a long interface name) is well under 512 bytes.
+pub const MAX_LINE: usize = 4096;
 
 /// What one log line carries.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -159,6 +166,10 @@ pub enum LineError {
     FdFlags,
     /// A remote frame's DLC is not a digit 0..=8.
     RemoteDlc,
+    /// The line is longer than [`MAX_LINE`] bytes (skipped unread).
+    LineTooLong,
+    /// The line is not UTF-8 text.
+    NotText,
 }
 
 impl fmt::Display for LineError {
@@ -172,6 +183,8 @@ impl fmt::Display for LineError {
             Self::FdLength(n) => write!(f, "{n} bytes is not a CAN FD length"),
             Self::FdFlags => f.write_str("CAN FD flags nibble missing or not hex"),
             Self::RemoteDlc => f.write_str("remote frame DLC is not 0..=8"),
+            Self::LineTooLong => write!(f, "line longer than {MAX_LINE} bytes"),
+            Self::NotText => f.write_str("line is not UTF-8 text"),
         }
     }
 }
@@ -334,12 +347,29 @@ pub fn parse_line(line: &str) -> Result<Record, LineError> {
     })
 }
 
-/// Reads a candump log line by line.
+/// Reads a candump log line by line, in bounded memory.
+///
+/// Each item is a record or the error of one line; after a [`CandumpError::Line`] the
+/// next call goes on with the next line. A read error ([`CandumpError::Io`]) ends the
+/// iteration. Lines are handed out as soon as their line end arrives (nothing waits
+/// for more input than one line), and a line longer than [`MAX_LINE`] is dropped as it
+/// is read ([`LineError::LineTooLong`]), never held whole.
 #[derive(Debug)]
 pub struct Reader<R: BufRead> {
     input: R,
     line: usize,
-    buf: String,
+    buf: Vec<u8>,
+    done: bool,
+}
+
+/// How one line came out of the input.
+enum RawLine {
+    /// The line (in `Reader::buf`, without its line end).
+    Text,
+    /// Longer than [`MAX_LINE`]: dropped.
+    TooLong,
+    /// End of input.
+    End,
 }
 
 impl<R: BufRead> Reader<R> {
@@ -348,7 +378,55 @@ impl<R: BufRead> Reader<R> {
         Self {
             input,
             line: 0,
-            buf: String::new(),
+            buf: Vec::with_capacity(MAX_LINE),
+            done: false,
+        }
+    }
+
+    /// Number of lines read so far (the number of the last one, 1-based).
+    pub fn line(&self) -> usize {
+        self.line
+    }
+
+    /// The next line into `buf`, keeping at most [`MAX_LINE`] bytes of it.
+    fn read_line(&mut self) -> io::Result<RawLine> {
+        self.buf.clear();
+        let mut started = false;
+        let mut too_long = false;
+        loop {
+            let chunk = match self.input.fill_buf() {
+                Ok(c) => c,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            };
+            if chunk.is_empty() {
+                // End of input; a last line without a line end still counts.
+                return Ok(match (started, too_long) {
+                    (false, _) => RawLine::End,
+                    (true, false) => RawLine::Text,
+                    (true, true) => RawLine::TooLong,
+                });
+            }
+            started = true;
+            let end = chunk.iter().position(|&b| b == b'\n');
+            let part = chunk.get(..end.unwrap_or(chunk.len())).unwrap_or(&[]);
+            if !too_long {
+                if self.buf.len() + part.len() > MAX_LINE {
+                    too_long = true;
+                    self.buf.clear();
+                } else {
+                    self.buf.extend_from_slice(part);
+                }
+            }
+            let used = end.map_or(chunk.len(), |i| i + 1);
+            self.input.consume(used);
+            if end.is_some() {
+                return Ok(if too_long {
+                    RawLine::TooLong
+                } else {
+                    RawLine::Text
+                });
+            }
         }
     }
 }
@@ -357,22 +435,38 @@ impl<R: BufRead> Iterator for Reader<R> {
     type Item = Result<Record, CandumpError>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        loop {
-            self.buf.clear();
-            match self.input.read_line(&mut self.buf) {
-                Ok(0) => return None,
-                Ok(_) => self.line += 1,
-                Err(e) => return Some(Err(CandumpError::Io(e))),
+        while !self.done {
+            let raw = match self.read_line() {
+                Ok(raw) => raw,
+                Err(e) => {
+                    self.done = true;
+                    return Some(Err(CandumpError::Io(e)));
+                }
+            };
+            let line_error = |line, kind| Some(Err(CandumpError::Line { line, kind }));
+            match raw {
+                RawLine::End => self.done = true,
+                RawLine::TooLong => {
+                    self.line += 1;
+                    return line_error(self.line, LineError::LineTooLong);
+                }
+                RawLine::Text => {
+                    self.line += 1;
+                    let Ok(text) = std::str::from_utf8(&self.buf) else {
+                        return line_error(self.line, LineError::NotText);
+                    };
+                    let text = text.trim();
+                    if text.is_empty() {
+                        continue;
+                    }
+                    return Some(parse_line(text).map_err(|kind| CandumpError::Line {
+                        line: self.line,
+                        kind,
+                    }));
+                }
             }
-            let text = self.buf.trim();
-            if text.is_empty() {
-                continue;
-            }
-            return Some(parse_line(text).map_err(|kind| CandumpError::Line {
-                line: self.line,
-                kind,
-            }));
         }
+        None
     }
 }
 
@@ -384,6 +478,7 @@ pub fn write_record(out: &mut impl Write, record: &Record) -> io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::io::Read;
 
     fn std_id(raw: u16) -> Id {
         Id::Standard(StandardId::new(raw).unwrap())
@@ -562,5 +657,114 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn the_reader_goes_on_after_bad_lines() {
+        let mut text = format!("{CLASSIC}\ngarbage\n").into_bytes();
+        text.extend_from_slice(b"\xff\xfe\n");
+        text.extend_from_slice(format!("{FD}\n(1.0) can0 123#0\n{REMOTE}").as_bytes());
+        let got: Vec<_> = Reader::new(&text[..])
+            .map(|r| r.map_err(|e| e.to_string()))
+            .collect();
+        assert_eq!(got.len(), 6);
+        assert_eq!(got[0], Ok(parse_line(CLASSIC).unwrap()));
+        assert_eq!(
+            got[1],
+            Err("line 2: 1 fields, expected `(time) iface frame`".into())
+        );
+        assert_eq!(got[2], Err("line 3: line is not UTF-8 text".into()));
+        assert_eq!(got[3], Ok(parse_line(FD).unwrap()));
+        assert_eq!(
+            got[4],
+            Err("line 5: data is not pairs of hex digits".into())
+        );
+        // The last line has no line end.
+        assert_eq!(got[5], Ok(parse_line(REMOTE).unwrap()));
+    }
+
+    #[test]
+    fn an_overlong_line_is_skipped_without_holding_it() {
+        // 100 MB of one line, then two good lines; read through a small buffer.
+        let long = io::repeat(b'7').take(100 << 20);
+        let rest = format!("\n{CLASSIC}\r\n{EXTENDED}\n");
+        let input = io::BufReader::with_capacity(1000, long.chain(rest.as_bytes()));
+        let mut reader = Reader::new(input);
+        match reader.next() {
+            Some(Err(CandumpError::Line { line: 1, kind })) => {
+                assert_eq!(kind, LineError::LineTooLong);
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(
+            reader.buf.capacity() <= MAX_LINE,
+            "{}",
+            reader.buf.capacity()
+        );
+        assert_eq!(
+            reader.next().unwrap().unwrap(),
+            parse_line(CLASSIC).unwrap()
+        );
+        assert_eq!(
+            reader.next().unwrap().unwrap(),
+            parse_line(EXTENDED).unwrap()
+        );
+        assert!(reader.next().is_none());
+        assert_eq!(reader.line(), 3);
+        // A line of exactly MAX_LINE bytes is read (and fails to parse as a frame);
+        // one byte more is too long, also as the last line without a line end.
+        let exact = format!("{}\n", " ".repeat(MAX_LINE - 3) + "x y");
+        assert!(matches!(
+            Reader::new(exact.as_bytes()).next(),
+            Some(Err(CandumpError::Line {
+                kind: LineError::Fields(2),
+                ..
+            }))
+        ));
+        let over = "x".repeat(MAX_LINE + 1);
+        assert!(matches!(
+            Reader::new(over.as_bytes()).next(),
+            Some(Err(CandumpError::Line {
+                kind: LineError::LineTooLong,
+                ..
+            }))
+        ));
+    }
+
+    /// Gives its text once, then fails the test if read again.
+    struct Once(Option<&'static [u8]>);
+
+    impl io::Read for Once {
+        fn read(&mut self, out: &mut [u8]) -> io::Result<usize> {
+            let text = self.0.take().expect("read past the available input");
+            out[..text.len()].copy_from_slice(text);
+            Ok(text.len())
+        }
+    }
+
+    #[test]
+    fn a_line_is_handed_out_without_waiting_for_more_input() {
+        let line = b"(0000000001.250000) can0 123#DEADBEEF\n";
+        let mut reader = Reader::new(io::BufReader::new(Once(Some(line))));
+        assert_eq!(
+            reader.next().unwrap().unwrap(),
+            parse_line(CLASSIC).unwrap()
+        );
+    }
+
+    /// Fails every read.
+    struct Broken;
+
+    impl io::Read for Broken {
+        fn read(&mut self, _: &mut [u8]) -> io::Result<usize> {
+            Err(io::Error::other("disk on fire"))
+        }
+    }
+
+    #[test]
+    fn a_read_error_ends_the_reader() {
+        let mut reader = Reader::new(io::BufReader::new(Broken));
+        assert!(matches!(reader.next(), Some(Err(CandumpError::Io(_)))));
+        assert!(reader.next().is_none());
     }
 }

@@ -5,7 +5,12 @@
 //! interleaving of up to 16 bridges of one identifier window; frames outside the window
 //! (other devices), remote and error frames are skipped. A scan is printed when its
 //! trailer or abort arrives, when its bridge's next scan begins, or at the end of the log
-//! (then as incomplete). See [`json`] for the output formats.
+//! (then as incomplete). Each item is written (and standard output flushed) as soon as
+//! it is complete, so `candump -L can0 | scip2can decode -` shows scans live.
+//!
+//! A malformed log line (or one longer than [`crate::candump::MAX_LINE`]) is reported on
+//! standard error with its line number and reason, counted in the summary, and skipped;
+//! decoding goes on with the next line. See [`json`] for the output formats.
 
 pub mod json;
 
@@ -137,7 +142,12 @@ pub struct FrameCounts {
     pub rejected: u64,
     /// Remote and error frames (skipped).
     pub skipped: u64,
+    /// Malformed log lines (skipped).
+    pub lines_skipped: u64,
 }
+
+/// Malformed lines reported one by one on standard error; later ones are only counted.
+pub const LINE_WARNINGS: u64 = 100;
 
 /// A candump log decoder: records in, [`Item`]s out.
 pub struct LogDecoder {
@@ -242,17 +252,39 @@ impl LogDecoder {
     pub fn counts(&self) -> FrameCounts {
         self.counts
     }
+
+    /// One item of a [`Reader`]: a record is pushed; a malformed line is counted,
+    /// reported on standard error (the first [`LINE_WARNINGS`] of them) and skipped.
+    /// A read error is returned.
+    pub fn push_read(&mut self, read: Result<Record, CandumpError>) -> io::Result<Option<Item>> {
+        match read {
+            Ok(record) => Ok(self.push(&record)),
+            Err(CandumpError::Io(e)) => Err(e),
+            Err(e @ CandumpError::Line { .. }) => {
+                self.counts.lines_skipped += 1;
+                let n = self.counts.lines_skipped;
+                if n <= LINE_WARNINGS {
+                    eprintln!("warning: {e}; skipped");
+                }
+                if n == LINE_WARNINGS {
+                    eprintln!("warning: further malformed lines are counted, not listed");
+                }
+                Ok(None)
+            }
+        }
+    }
 }
 
-/// Decodes a whole log into items (for tests and `plot`).
+/// Decodes a whole log into items (for tests and `plot`); malformed lines are skipped
+/// as [`LogDecoder::push_read`] does. Fails only if reading fails.
 pub fn decode_log(
     input: impl BufRead,
     window: IdWindow,
 ) -> Result<(Vec<Item>, LogDecoder), CandumpError> {
     let mut dec = LogDecoder::new(window);
     let mut items = Vec::new();
-    for record in Reader::new(input) {
-        items.extend(dec.push(&record?));
+    for read in Reader::new(input) {
+        items.extend(dec.push_read(read).map_err(CandumpError::Io)?);
     }
     items.extend(dec.finish());
     Ok((items, dec))
@@ -293,20 +325,28 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
     if args.csv {
         json::write_csv_header(&mut out)?;
     }
+    // Each item goes out as soon as it is complete (a live log shows scans as they
+    // arrive).
     let emit = |item: &Item, out: &mut dyn Write| -> io::Result<()> {
         if args.csv {
             match item {
-                Item::Scan(s) => json::write_csv(out, s),
-                _ => Ok(()),
+                Item::Scan(s) => json::write_csv(out, s)?,
+                _ => return Ok(()),
             }
         } else {
             serde_json::to_writer(&mut *out, &json::item(item))?;
-            out.write_all(b"\n")
+            out.write_all(b"\n")?;
         }
+        out.flush()
     };
-    for record in Reader::new(input) {
-        let record = record.with_context(|| format!("reading {}", args.log))?;
-        if let Some(item) = dec.push(&record) {
+    if args.csv {
+        out.flush()?;
+    }
+    for read in Reader::new(input) {
+        let item = dec
+            .push_read(read)
+            .with_context(|| format!("reading {}", args.log))?;
+        if let Some(item) = item {
             emit(&item, &mut out)?;
         }
     }

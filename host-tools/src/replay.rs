@@ -7,7 +7,9 @@
 //! decodes. The stream is fed line by line; the time of a line is its end position in
 //! the stream at `--uart-baud` (10 bits per byte), so the same input always gives the
 //! same log, and the governor's bus-time budget sees the stream at the pace a UART at
-//! that rate delivers it.
+//! that rate delivers it. The input is read in chunks and each frame is written as it
+//! leaves the bus, so memory does not grow with the input (a line longer than
+//! [`LINE_CAP`] bytes, which SCIP never sends, is fed in pieces of that size).
 //!
 //! **`sim:key=value,...`** (the keys of `scip2can sim`): the bridge's session is started
 //! and talks to a simulated sensor in virtual time (1 ms steps): it probes, identifies
@@ -42,6 +44,10 @@ use crate::sim::SimOptions;
 
 /// Capacity of the bridge's transmit queue, frames (what a board would give it).
 pub const QUEUE: usize = 128;
+/// The most of one stream line a replay holds before feeding it to the bridge, bytes.
+pub const LINE_CAP: usize = 64 * 1024;
+/// Bytes a replay reads from its input at a time.
+const READ_CHUNK: usize = 64 * 1024;
 
 /// A frame and the end of its transmission.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -57,8 +63,11 @@ pub struct TimedFrame {
 pub struct Replayed {
     /// The bridge's configuration.
     pub config: BridgeConfig,
-    /// Frames in transmit order.
+    /// Frames in transmit order (empty when they went to a sink as they were sent:
+    /// [`replay_reader`]).
     pub frames: Vec<TimedFrame>,
+    /// End of the last frame's transmission, ns (0 without frames).
+    pub last_frame_ns: u64,
     /// The bridge's scan counters.
     pub stats: BridgeStats,
     /// The governor's counters.
@@ -74,63 +83,74 @@ pub struct Replayed {
     pub plan: Option<bridge::governor::Plan>,
 }
 
+/// Where a replay's frames go, in transmit order, as they leave the bus.
+pub type FrameSink<'a> = &'a mut dyn FnMut(&TimedFrame) -> io::Result<()>;
+
 /// The bridge and the bus, stepped together.
-struct Driver {
+struct Driver<'a> {
     bridge: Box<Bridge<QUEUE>>,
     bus: Bus,
-    frames: Vec<TimedFrame>,
+    sink: FrameSink<'a>,
+    last_frame_ns: u64,
 }
 
-impl Driver {
-    fn new(config: BridgeConfig) -> anyhow::Result<Self> {
+impl<'a> Driver<'a> {
+    fn new(config: BridgeConfig, sink: FrameSink<'a>) -> anyhow::Result<Self> {
         let bridge = Bridge::new(config).map_err(|e| anyhow::anyhow!("bridge settings: {e}"))?;
         Ok(Self {
             bridge: Box::new(bridge),
             bus: Bus::new(config.budget.rates, config.ids.window()),
-            frames: Vec::new(),
+            sink,
+            last_frame_ns: 0,
         })
+    }
+
+    fn send(&mut self, ready_ns: u64, frame: Frame) -> io::Result<()> {
+        let time_ns = self.bus.transmit(ready_ns, &frame);
+        self.last_frame_ns = time_ns;
+        (self.sink)(&TimedFrame { time_ns, frame })
     }
 
     /// Sends queued frames while the bus is free by `now_ns`; a frame cannot start before
     /// `ready_ns`.
-    fn drain(&mut self, now_ns: u64, ready_ns: u64) {
+    fn drain(&mut self, now_ns: u64, ready_ns: u64) -> io::Result<()> {
         while self.bus.free_at_ns() <= now_ns {
             let Some(frame) = self.bridge.pop_frame() else {
                 break;
             };
-            let time_ns = self.bus.transmit(ready_ns, &frame);
-            self.frames.push(TimedFrame { time_ns, frame });
+            self.send(ready_ns, frame)?;
         }
+        Ok(())
     }
 
     /// UART bytes arriving at `now_ns`; returns the session's actions.
-    fn input(&mut self, now_ns: u64, bytes: &[u8]) -> Vec<Action> {
+    fn input(&mut self, now_ns: u64, bytes: &[u8]) -> io::Result<Vec<Action>> {
         // Frames queued earlier leave as the bus frees up, before the new ones exist.
-        self.drain(now_ns, 0);
+        self.drain(now_ns, 0)?;
         let ms = now_ns / 1_000_000;
         self.bridge.on_uart(bytes, ms);
         let actions: Vec<Action> = std::iter::from_fn(|| self.bridge.poll(ms))
             .take(16)
             .collect();
-        self.drain(now_ns, now_ns);
-        actions
+        self.drain(now_ns, now_ns)?;
+        Ok(actions)
     }
 
-    fn finish(mut self, stream_ns: u64, scan_hz: Option<f64>) -> Replayed {
+    fn finish(mut self, stream_ns: u64, scan_hz: Option<f64>) -> io::Result<Replayed> {
         while let Some(frame) = self.bridge.pop_frame() {
-            let time_ns = self.bus.transmit(0, &frame);
-            self.frames.push(TimedFrame { time_ns, frame });
+            self.send(0, frame)?;
         }
-        Replayed {
+        Ok(Replayed {
             config: *self.bridge.config(),
-            frames: self.frames,
+            frames: Vec::new(),
+            last_frame_ns: self.last_frame_ns,
             stats: *self.bridge.stats(),
             governor: *self.bridge.governor().stats(),
             bus: *self.bus.totals(),
             stream_ns,
             scan_hz,
             plan: self.bridge.plan().copied(),
-        }
+        })
     }
 }
 
@@ -139,24 +159,120 @@ pub fn uart_time_ns(bytes: u64, baud: u32) -> u64 {
     bytes * 10 * 1_000_000_000 / u64::from(baud.max(1))
 }
 
-/// The scan rate a stream's PP answer gives (`SCAN` rpm / 60).
-fn pp_scan_hz(bytes: &[u8]) -> Option<f64> {
-    crate::parse::parse_bytes(bytes).iter().find_map(|r| {
-        let rpm = r.fields.get("SCAN")?.as_str()?.parse::<f64>().ok()?;
-        (r.command.as_deref() == Some("PP") && rpm > 0.0).then_some(rpm / 60.0)
-    })
+/// Watches a stream for the scan rate its PP answer gives (`SCAN` rpm / 60), until it
+/// is found.
+#[derive(Debug, Default)]
+struct PpWatch {
+    decoder: scip::Decoder,
+    collector: crate::parse::Collector,
+    done: Vec<crate::parse::ResponseJson>,
+    scan_hz: Option<f64>,
 }
 
-/// Replays a sensor → host stream through a listening bridge, line by line.
-pub fn replay_stream(bytes: &[u8], config: BridgeConfig) -> anyhow::Result<Replayed> {
-    let mut driver = Driver::new(config)?;
-    let mut pos = 0u64;
-    for line in bytes.split_inclusive(|&b| b == b'\n') {
-        pos += line.len() as u64;
-        driver.input(uart_time_ns(pos, config.uart_bit_rate), line);
+impl PpWatch {
+    fn look(&mut self) {
+        self.scan_hz = self.done.drain(..).find_map(|r| {
+            let rpm = r.fields.get("SCAN")?.as_str()?.parse::<f64>().ok()?;
+            (r.command.as_deref() == Some("PP") && rpm > 0.0).then_some(rpm / 60.0)
+        });
     }
-    let end = uart_time_ns(pos, config.uart_bit_rate);
-    Ok(driver.finish(end, pp_scan_hz(bytes)))
+
+    fn feed(&mut self, bytes: &[u8]) {
+        if self.scan_hz.is_none() {
+            self.collector
+                .feed(&mut self.decoder, bytes, &mut self.done);
+            self.look();
+        }
+    }
+
+    fn finish(mut self) -> Option<f64> {
+        if self.scan_hz.is_none() {
+            self.collector.finish(&mut self.decoder, &mut self.done);
+            self.look();
+        }
+        self.scan_hz
+    }
+}
+
+/// Replays a sensor → host stream through a listening bridge, line by line; the frames
+/// are collected in [`Replayed::frames`].
+pub fn replay_stream(bytes: &[u8], config: BridgeConfig) -> anyhow::Result<Replayed> {
+    let mut frames = Vec::new();
+    let mut sink = |f: &TimedFrame| {
+        frames.push(*f);
+        Ok(())
+    };
+    let mut r = replay_reader(bytes, config, &mut sink)?;
+    r.frames = frames;
+    Ok(r)
+}
+
+/// Replays a sensor → host stream read from `input` through a listening bridge, line
+/// by line, in constant memory: each frame goes to `sink` as it leaves the bus
+/// ([`Replayed::frames`] stays empty). A sink error stops the replay.
+pub fn replay_reader(
+    mut input: impl Read,
+    config: BridgeConfig,
+    sink: FrameSink<'_>,
+) -> anyhow::Result<Replayed> {
+    let mut driver = Driver::new(config, sink)?;
+    let mut pp = PpWatch::default();
+    let mut chunk = vec![0u8; READ_CHUNK];
+    // The start of a line whose end has not been read yet.
+    let mut pending: Vec<u8> = Vec::with_capacity(LINE_CAP);
+    let mut pos = 0u64;
+    let baud = config.uart_bit_rate;
+    let mut feed = |driver: &mut Driver<'_>, pos: &mut u64, line: &[u8]| -> anyhow::Result<()> {
+        *pos += line.len() as u64;
+        pp.feed(line);
+        driver
+            .input(uart_time_ns(*pos, baud), line)
+            .map(drop)
+            .context("writing the frames")
+    };
+    loop {
+        let n = match input.read(&mut chunk) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e).context("reading the stream"),
+        };
+        let mut rest = chunk.get(..n).unwrap_or(&[]);
+        while !rest.is_empty() {
+            let end = rest.iter().position(|&b| b == b'\n');
+            let take = end.map_or(rest.len(), |i| i + 1);
+            // `pending` always holds less than LINE_CAP bytes.
+            let room = LINE_CAP - pending.len();
+            if pending.is_empty() && end.is_some() && take <= LINE_CAP {
+                // A whole line in the chunk: fed from there.
+                let (line, after) = rest.split_at(take);
+                feed(&mut driver, &mut pos, line)?;
+                rest = after;
+            } else if take < room || (end.is_some() && take == room) {
+                let (part, after) = rest.split_at(take);
+                pending.extend_from_slice(part);
+                rest = after;
+                if end.is_some() {
+                    feed(&mut driver, &mut pos, &pending)?;
+                    pending.clear();
+                }
+            } else {
+                // A line longer than LINE_CAP: fed LINE_CAP bytes at a time.
+                let (part, after) = rest.split_at(room);
+                pending.extend_from_slice(part);
+                rest = after;
+                feed(&mut driver, &mut pos, &pending)?;
+                pending.clear();
+            }
+        }
+    }
+    if !pending.is_empty() {
+        feed(&mut driver, &mut pos, &pending)?;
+    }
+    let end = uart_time_ns(pos, baud);
+    driver
+        .finish(end, pp.finish())
+        .context("writing the frames")
 }
 
 /// A UART in virtual time: bytes queue up and leave at `baud` (10 bits per byte).
@@ -197,8 +313,27 @@ pub fn replay_sim(
     config: BridgeConfig,
     auto_decimation: bool,
 ) -> anyhow::Result<Replayed> {
+    let mut frames = Vec::new();
+    let mut sink = |f: &TimedFrame| {
+        frames.push(*f);
+        Ok(())
+    };
+    let mut r = replay_sim_into(sim, scans, config, auto_decimation, &mut sink)?;
+    r.frames = frames;
+    Ok(r)
+}
+
+/// [`replay_sim`] with each frame going to `sink` as it leaves the bus
+/// ([`Replayed::frames`] stays empty).
+pub fn replay_sim_into(
+    sim: &SimOptions,
+    scans: u32,
+    config: BridgeConfig,
+    auto_decimation: bool,
+    sink: FrameSink<'_>,
+) -> anyhow::Result<Replayed> {
     let mut sensor = sim.build()?;
-    let mut driver = Driver::new(config)?;
+    let mut driver = Driver::new(config, sink)?;
     driver.bridge.set_auto_decimation(auto_decimation);
     let mut uart = Uart {
         baud: config.uart_bit_rate,
@@ -230,12 +365,16 @@ pub fn replay_sim(
             }
         }
         let bytes = uart.tick(sensor.take_output(now_us));
-        actions = driver.input(ms * 1_000_000, &bytes);
+        actions = driver
+            .input(ms * 1_000_000, &bytes)
+            .context("writing the frames")?;
         ms += 1;
     }
     driver.bridge.stop(ms);
     let hz = 1e6 / sensor.scan_period_us().max(1) as f64;
-    Ok(driver.finish(ms * 1_000_000, Some(hz)))
+    driver
+        .finish(ms * 1_000_000, Some(hz))
+        .context("writing the frames")
 }
 
 impl Replayed {
@@ -293,9 +432,7 @@ impl Replayed {
             k(Kind::ControlAnswer),
             b.payload_bytes
         );
-        let span = self
-            .stream_ns
-            .max(self.frames.last().map_or(0, |f| f.time_ns));
+        let span = self.stream_ns.max(self.last_frame_ns);
         let _ = writeln!(
             s,
             "bus: {bus}, worst-case stuffing: {} + {} bits, {:.3} ms busy in {:.3} s = {:.2} % load",
@@ -355,46 +492,41 @@ fn percent(part: f64, whole: f64) -> f64 {
     }
 }
 
-/// `scip2can replay`.
+/// `scip2can replay`: the candump log is written frame by frame as the replay runs.
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let config = args.bridge_config()?;
+    let (interface, brs) = (args.interface.as_str(), args.can.brs());
+    let mut out: BufWriter<Box<dyn Write>> = BufWriter::new(match &args.output {
+        Some(path) => {
+            Box::new(File::create(path).with_context(|| format!("creating {}", path.display()))?)
+        }
+        None => Box::new(io::stdout().lock()),
+    });
+    let mut sink = |f: &TimedFrame| {
+        write_record(
+            &mut out,
+            &Record::from_frame(f.time_ns / 1000, interface, &f.frame, brs),
+        )
+    };
     let mut replayed = if let Some(spec) = args.input.strip_prefix("sim:") {
         let sim = SimOptions::from_spec(spec)?;
         let p = &args.pipeline;
         let user_decimation = p.decimate.is_some() || p.every_nth.is_some() || p.max_rate.is_some();
-        replay_sim(&sim, args.scans, config, !user_decimation)?
+        replay_sim_into(&sim, args.scans, config, !user_decimation, &mut sink)?
     } else {
-        let mut contents = Vec::new();
-        if args.input == "-" {
-            io::stdin()
-                .lock()
-                .read_to_end(&mut contents)
-                .context("reading standard input")?;
+        let input: Box<dyn Read> = if args.input == "-" {
+            Box::new(io::stdin().lock())
         } else {
-            File::open(&args.input)
-                .and_then(|mut f| f.read_to_end(&mut contents))
-                .with_context(|| format!("reading {}", args.input))?;
-        }
-        let stream = crate::sensor::record_file::sensor_bytes(&contents)
+            Box::new(File::open(&args.input).with_context(|| format!("opening {}", args.input))?)
+        };
+        let stream = crate::sensor::record_file::sensor_side(input)
             .with_context(|| format!("reading {}", args.input))?;
-        replay_stream(&stream, config)?
+        replay_reader(stream, config, &mut sink)
+            .with_context(|| format!("replaying {}", args.input))?
     };
+    out.flush().context("writing the log")?;
     if args.scan_hz.is_some() {
         replayed.scan_hz = args.scan_hz;
-    }
-    let records = replayed.records(&args.interface, args.can.brs());
-    let write = |out: &mut dyn Write| -> io::Result<()> {
-        let mut out = BufWriter::new(out);
-        for r in &records {
-            write_record(&mut out, r)?;
-        }
-        out.flush()
-    };
-    match &args.output {
-        Some(path) => File::create(path)
-            .and_then(|mut f| write(&mut f))
-            .with_context(|| format!("writing {}", path.display()))?,
-        None => write(&mut io::stdout().lock()).context("writing standard output")?,
     }
     eprint!("{}", replayed.report());
     Ok(())

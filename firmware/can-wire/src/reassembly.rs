@@ -23,12 +23,13 @@ use crate::Error;
 pub struct LossStats {
     /// Scans reported intact.
     pub scans_intact: u32,
-    /// Scans reported but not intact (incomplete, CRC mismatch, corrupt).
+    /// Scans not intact: incomplete, CRC mismatch, corrupt; also those whose header B
+    /// never arrived (SPEC 7: incomplete, but with no header to decode them by they are
+    /// not reported).
     pub scans_damaged: u32,
     /// Scans reported aborted by the bridge.
     pub scans_aborted: u32,
-    /// Scans of which nothing usable arrived: sequence gaps between headers A, and
-    /// scans whose header B never arrived.
+    /// Scans of which nothing arrived: sequence gaps between headers A.
     pub scans_lost: u32,
     /// Frames known or estimated to be lost: missing header B and trailer frames, and
     /// missing data frames estimated from the runs of missing points.
@@ -195,10 +196,22 @@ impl<const P: usize> Scan<P> {
         self.received
     }
 
-    /// Point `index`, or `None` if it did not arrive (or is outside the scan).
+    /// Number of points the scan lists: none for an aborted scan (SPEC 3.5: the receiver
+    /// discards its points), the trailer's `points_sent` when it arrived (a truncated
+    /// scan has no more), else the header's `point_count`.
+    pub fn listed(&self) -> u16 {
+        match (self.completeness, &self.trailer) {
+            (Completeness::Aborted { .. }, _) => 0,
+            (_, Some(t)) => t.points_sent.min(self.header.point_count),
+            (_, None) => self.header.point_count,
+        }
+    }
+
+    /// Point `index`, or `None` if it did not arrive or is not listed
+    /// ([`Scan::listed`]).
     pub fn point(&self, index: u16) -> Option<Point> {
         let i = usize::from(index);
-        if index >= self.header.point_count || !self.present.get(i).copied().unwrap_or(false) {
+        if index >= self.listed() || !self.present.get(i).copied().unwrap_or(false) {
             return None;
         }
         let enc = self.header.encoding;
@@ -216,9 +229,9 @@ impl<const P: usize> Scan<P> {
         })
     }
 
-    /// All points of the scan in order, `None` for the missing ones.
+    /// The [listed](Scan::listed) points in order, `None` for the missing ones.
     pub fn points(&self) -> impl Iterator<Item = Option<Point>> + '_ {
-        (0..self.header.point_count).map(|i| self.point(i))
+        (0..self.listed()).map(|i| self.point(i))
     }
 
     fn missing_in(&self, count: u16) -> u16 {
@@ -478,8 +491,9 @@ fn finish_incomplete<const P: usize>(scan: &mut Scan<P>, stats: &mut LossStats) 
     scan.state = State::Done;
     bump(&mut stats.frames_lost); // the trailer
     if !reportable {
+        // Header B was lost: the scan is incomplete, but cannot be decoded.
         bump(&mut stats.frames_lost); // header B
-        bump(&mut stats.scans_lost);
+        bump(&mut stats.scans_damaged);
         return false;
     }
     let count = scan.header.point_count;
@@ -666,9 +680,10 @@ fn scan_frame<const P: usize>(
                 return Ok(None);
             }
             if scan.state == State::HaveA {
+                // Header B was lost: the scan is incomplete, but cannot be decoded.
                 scan.state = State::Done;
                 bump(&mut stats.frames_lost);
-                bump(&mut stats.scans_lost);
+                bump(&mut stats.scans_damaged);
                 return Ok(None);
             }
             scan.trailer_bytes.copy_from_slice(data);
@@ -901,6 +916,90 @@ mod tests {
             dec.push(ids(1).id(Kind::HeaderA), &A).map(|e| e.is_some()),
             Err(Error::TooManyBridges)
         );
+    }
+
+    /// Feeds frames to node 0; the completeness and points of the scan the last one
+    /// reports.
+    fn scan_of(
+        dec: &mut Decoder<16, 2>,
+        frames: &[(Kind, &[u8])],
+    ) -> Option<(Completeness, Vec<Option<Distance>>)> {
+        let mut got = None;
+        for (k, d) in frames {
+            if let Ok(Some(Event::Scan { scan, .. })) = dec.push(ids(0).id(*k), d) {
+                let pts = scan.points().map(|p| p.map(|p| p.distance)).collect();
+                got = Some((scan.completeness(), pts));
+            }
+        }
+        got
+    }
+
+    #[test]
+    fn an_aborted_scan_lists_no_points() {
+        // SPEC 3.5: the receiver discards the points of an aborted scan. Abort of seq
+        // 0x0107, reason 2 (line checksum), detail 0, 4 points sent.
+        let abort = [0x07, 0x01, 0x02, 0x00, 0x04, 0x00];
+        let mut dec: Decoder<16, 2> = Decoder::new(IdWindow::DEFAULT);
+        let frames = [
+            (Kind::HeaderA, &A[..]),
+            (Kind::HeaderB, &B),
+            (Kind::Data, &D0),
+            (Kind::Abort, &abort),
+        ];
+        let (c, pts) = scan_of(&mut dec, &frames).expect("reported");
+        assert!(matches!(c, Completeness::Aborted { .. }), "{c:?}");
+        assert_eq!(pts, vec![]);
+        assert_eq!(dec.stats(0).unwrap().scans_aborted, 1);
+    }
+
+    #[test]
+    fn a_truncated_scan_lists_the_points_sent() {
+        // Header A announces 5 points; the trailer says 4 were sent (truncated flag,
+        // bit 12 of bytes 2..4), 2 of them valid. CRC-16/IBM-3740 over A, B, the codes
+        // ABC 000 FFF 123 as u16 LE and the trailer's bytes 0..6, computed by hand.
+        let t = [0x07, 0x01, 0x04, 0x10, 0x02, 0x00, 0x79, 0x7C];
+        let mut dec: Decoder<16, 2> = Decoder::new(IdWindow::DEFAULT);
+        let frames = [
+            (Kind::HeaderA, &A[..]),
+            (Kind::HeaderB, &B),
+            (Kind::Data, &D0),
+            (Kind::Trailer, &t),
+        ];
+        let (c, pts) = scan_of(&mut dec, &frames).expect("reported");
+        assert_eq!(c, Completeness::Intact);
+        assert_eq!(
+            pts,
+            vec![
+                Some(Distance::Mm(0xABC)),
+                Some(Distance::Invalid),
+                Some(Distance::OutOfRange),
+                Some(Distance::Mm(0x123)),
+            ]
+        );
+    }
+
+    #[test]
+    fn a_scan_without_header_b_is_damaged_not_lost() {
+        // SPEC 7: its header A arrived, so the scan is incomplete; "lost" is for
+        // sequence gaps. Ended by its trailer, and by the next header A.
+        let mut dec: Decoder<16, 2> = Decoder::new(IdWindow::DEFAULT);
+        scan_of(
+            &mut dec,
+            &[(Kind::HeaderA, &A[..]), (Kind::Trailer, &trailer())],
+        );
+        let s = *dec.stats(0).unwrap();
+        assert_eq!((s.scans_damaged, s.scans_lost, s.frames_lost), (1, 0, 1));
+        let next = [0x08, 0x01, 0, 0, 0, 0, 5, 0];
+        scan_of(
+            &mut dec,
+            &[
+                (Kind::HeaderA, &next),
+                (Kind::HeaderA, &[0x09, 0x01, 0, 0, 0, 0, 5, 0]),
+            ],
+        );
+        let s = *dec.stats(0).unwrap();
+        // Header B and trailer of 0x0108 lost.
+        assert_eq!((s.scans_damaged, s.scans_lost, s.frames_lost), (2, 0, 3));
     }
 
     #[test]

@@ -8,7 +8,10 @@
 //!   it), `point_count`, `received`, the geometry (`first_step` relative to the sensor's
 //!   front, `step_increment`, `ares`, `first_angle_rad`, `angle_increment_rad`, angles
 //!   counter-clockwise from the front), `grouping`, `encoding`, `unit_mm`, `time_synced`,
-//!   `distances` (mm; null for invalid and missing points), `out_of_range` (indices of
+//!   `distances` (mm; null for invalid and missing points; one per point the scan
+//!   lists: the trailer's `points_sent` when it arrived, so a truncated scan has fewer
+//!   than `point_count`, and none for an aborted scan, whose points a receiver discards
+//!   (SPEC 3.5)), `out_of_range` (indices of
 //!   points beyond what the encoding expresses, when any), `missing` (indices of points
 //!   that did not arrive, when any), `intensities` (when the channel is present; null
 //!   for missing points).
@@ -19,7 +22,8 @@
 //! **CSV**: `seq,index,angle_rad,distance_mm,intensity,valid`, one row per point of
 //! every scan; distance and intensity are empty where unknown, `valid` is 1 for a range.
 //!
-//! **Summary** (standard error): frames read, and per bridge `LossStats`.
+//! **Summary** (standard error): frames read, malformed log lines skipped, and per
+//! bridge `LossStats`.
 
 use std::io::{self, Write};
 
@@ -277,15 +281,16 @@ pub fn summary(dec: &LogDecoder) -> Value {
         })
         .collect();
     json!({"frames": c.frames, "frames_ours": c.ours, "frames_rejected": c.rejected,
-        "frames_skipped": c.skipped, "bridges": nodes})
+        "frames_skipped": c.skipped, "lines_skipped": c.lines_skipped, "bridges": nodes})
 }
 
 /// The summary as text lines.
 pub fn summary_text(dec: &LogDecoder) -> String {
     let c = dec.counts();
     let mut s = format!(
-        "frames: {} ({} of the window, {} rejected), {} remote/error frames skipped\n",
-        c.frames, c.ours, c.rejected, c.skipped
+        "frames: {} ({} of the window, {} rejected), {} remote/error frames skipped; \
+         {} malformed lines skipped\n",
+        c.frames, c.ours, c.rejected, c.skipped, c.lines_skipped
     );
     for (node, l) in dec.stats() {
         s += &format!(
