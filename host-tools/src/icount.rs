@@ -46,8 +46,39 @@ use crate::sim::SimOptions;
 #[path = "../../firmware/boards/qemu-mps2/src/config.rs"]
 pub mod qemu_config;
 
-/// The benchmark firmware binary's name (built with the other QEMU binaries).
+/// The benchmark firmware binary's name (built with the other QEMU binaries): the
+/// board's configuration in its default encoding, the lossless coding.
 pub const BENCH_FIRMWARE: &str = "scip2can-qemu-bench";
+
+/// The same benchmark with plain 16-bit millimetres.
+pub const BENCH_FIRMWARE_D16: &str = "scip2can-qemu-bench-d16";
+
+/// The scan encodings the benchmark firmware is built in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BenchEncoding {
+    /// The lossless predictive coding (the board's default).
+    Dl,
+    /// Plain 16-bit millimetres.
+    D16,
+}
+
+impl BenchEncoding {
+    /// The encoding the firmware and the host core run.
+    pub fn encoding(self) -> can_wire::Encoding {
+        match self {
+            BenchEncoding::Dl => qemu_config::ENCODING,
+            BenchEncoding::D16 => can_wire::Encoding::PLAIN_MM,
+        }
+    }
+
+    /// The benchmark binary built for it.
+    pub fn firmware_name(self) -> &'static str {
+        match self {
+            BenchEncoding::Dl => BENCH_FIRMWARE,
+            BenchEncoding::D16 => BENCH_FIRMWARE_D16,
+        }
+    }
+}
 
 /// Bytes per `on_uart` call, as in the firmware.
 pub const CHUNK: usize = 64;
@@ -61,7 +92,7 @@ pub const INSTRUCTIONS_PER_TICK: u64 = 40;
 
 /// The benchmark firmware: `path` if given (it must exist), else the board workspace's
 /// release build, brought up to date first.
-pub fn bench_firmware(path: Option<&Path>) -> anyhow::Result<PathBuf> {
+pub fn bench_firmware(path: Option<&Path>, encoding: BenchEncoding) -> anyhow::Result<PathBuf> {
     match path {
         Some(p) if p.exists() => Ok(p.to_owned()),
         Some(p) => bail!(
@@ -69,7 +100,7 @@ pub fn bench_firmware(path: Option<&Path>) -> anyhow::Result<PathBuf> {
             p.display()
         ),
         None => {
-            let elf = build_firmware()?.with_file_name(BENCH_FIRMWARE);
+            let elf = build_firmware()?.with_file_name(encoding.firmware_name());
             if !elf.exists() {
                 bail!(
                     "{} is missing after the build; build it with {BUILD_COMMAND}",
@@ -206,9 +237,9 @@ pub struct HostRun {
 /// Runs the stream through the bridge core with the emulated board's configuration:
 /// [`CHUNK`]-byte calls at the time the chunk's last byte arrives at the board's bit
 /// rate (10 bits per byte), every frame popped after each call.
-pub fn host_run(stream: &[u8]) -> anyhow::Result<HostRun> {
-    let config =
-        qemu_config::bridge().ok_or_else(|| anyhow!("the board's configuration is invalid"))?;
+pub fn host_run(stream: &[u8], encoding: BenchEncoding) -> anyhow::Result<HostRun> {
+    let config = qemu_config::bridge_with(encoding.encoding())
+        .ok_or_else(|| anyhow!("the board's configuration is invalid"))?;
     let mut bridge = Bridge::<{ qemu_config::QUEUE }>::new(config)
         .map_err(|e| anyhow!("the board's configuration: {e}"))?;
     let mut run = HostRun {
@@ -441,8 +472,13 @@ impl Measurement {
 
 /// Runs the firmware and the host core on `stream` and checks that they agree: every
 /// byte reached the firmware's core, and its frames (count and hash) are the host's.
-pub fn measure(qemu: &str, firmware: &Path, stream: &[u8]) -> anyhow::Result<Measurement> {
-    let host = host_run(stream)?;
+pub fn measure(
+    qemu: &str,
+    firmware: &Path,
+    stream: &[u8],
+    encoding: BenchEncoding,
+) -> anyhow::Result<Measurement> {
+    let host = host_run(stream, encoding)?;
     let line = run_firmware(qemu, firmware, stream, timeout_for(stream))?;
     if line.bytes != stream.len() as u64 || line.overruns != 0 {
         bail!(
@@ -490,6 +526,10 @@ pub struct IcountArgs {
     /// `scip2can-qemu-bench`, built if missing or stale).
     #[arg(long)]
     pub firmware: Option<PathBuf>,
+    /// The scan encoding of the board's configuration: dl (the lossless coding, the
+    /// board's default) or d16.
+    #[arg(long, value_enum, default_value = "dl")]
+    pub encoding: BenchEncoding,
     /// The QEMU binary.
     #[arg(long, default_value = "qemu-system-arm")]
     pub qemu: String,
@@ -536,14 +576,15 @@ pub fn run(args: IcountArgs) -> anyhow::Result<()> {
             )
         }
     };
-    let firmware = bench_firmware(args.firmware.as_deref())?;
-    let m = measure(&args.qemu, &firmware, &stream)?;
+    let firmware = bench_firmware(args.firmware.as_deref(), args.encoding)?;
+    let m = measure(&args.qemu, &firmware, &stream, args.encoding)?;
     let f = &m.firmware;
     let mut out = std::io::stdout().lock();
     if args.json {
         let v = json!({
             "source": source,
             "model": model,
+            "encoding": format!("{:?}", args.encoding.encoding().distance),
             "stream_file": args.stream.as_ref().map(|p| p.display().to_string()),
             "seed": args.stream.is_none().then_some(args.seed),
             "bytes": m.bytes,

@@ -26,7 +26,9 @@ use crate::qemu::QEMU;
 /// The benchmark ELF, built once per test run; `None` (test skipped) without QEMU.
 fn bench_firmware() -> Option<PathBuf> {
     static ELF: OnceLock<Result<PathBuf, String>> = OnceLock::new();
-    crate::qemu::firmware(&ELF, || icount::bench_firmware(None))
+    crate::qemu::firmware(&ELF, || {
+        icount::bench_firmware(None, icount::BenchEncoding::Dl)
+    })
 }
 
 fn stream(model: ModelKind, seed: u64, scans: usize) -> Vec<u8> {
@@ -75,7 +77,7 @@ fn replay(stream: &[u8]) -> (u64, u32) {
 fn firmware_matches_the_host_core_and_repeats(model: ModelKind, scans: usize) {
     let Some(elf) = bench_firmware() else { return };
     let s = stream(model, 7, scans);
-    let m = icount::measure(QEMU, &elf, &s).unwrap();
+    let m = icount::measure(QEMU, &elf, &s, icount::BenchEncoding::Dl).unwrap();
     let fw = m.firmware;
     let (frames, hash) = replay(&s);
     assert!(frames > 0);

@@ -26,12 +26,24 @@ pub const SLCAN_VERSION: [u8; 4] = *b"0100";
 /// What `N` answers.
 pub const SLCAN_SERIAL: [u8; 4] = *b"QEMU";
 
+/// The scan encoding: the lossless predictive coding (SPEC 4.2), millimetre-exact.
+pub const ENCODING: Encoding = Encoding {
+    distance: can_wire::DistanceEncoding::Lossless,
+    intensity: can_wire::IntensityEncoding::I16,
+    unit_exp: 0,
+};
+
 /// The bridge: a full-range distance stream (`MD`, steps AMIN..AMAX learned from
-/// `PP`, 0..1080 until then; no `SS`, QEMU's UART has no bit rate), plain 16-bit
-/// millimetres, classic CAN at 1 Mbit/s of which the bridge may use all (the
+/// `PP`, 0..1080 until then; no `SS`, QEMU's UART has no bit rate), the lossless coding
+/// ([`ENCODING`]), classic CAN at 1 Mbit/s of which the bridge may use all (the
 /// emulated bus has no other node), status pages every second. The SLCAN port can
 /// carry CAN FD, so a control frame may switch to FD frames.
 pub fn bridge() -> Option<BridgeConfig> {
+    bridge_with(ENCODING)
+}
+
+/// [`bridge`] with another scan encoding.
+pub fn bridge_with(encoding: Encoding) -> Option<BridgeConfig> {
     let ids: NodeIds = IdWindow::DEFAULT.node(NODE).ok()?;
     Some(BridgeConfig {
         session: SessionConfig {
@@ -39,7 +51,7 @@ pub fn bridge() -> Option<BridgeConfig> {
             ..SessionConfig::default()
         },
         pipeline: PipelineConfig::default(),
-        encoding: Encoding::PLAIN_MM,
+        encoding,
         budget: Budget {
             rates: BitRates::CLASSIC_1M,
             format: FrameFormat::Classic,

@@ -1,32 +1,11 @@
-//! The deterministic work benchmark for QEMU's `mps2-an386` machine.
-//!
-//! The bridge core of `scip2can-qemu`, with the same configuration, listening to a
-//! sensor stream on UART0 (the session is never started, so the core sends nothing back):
-//! the stream is cut into chunks of exactly [`CHUNK`] bytes, whatever pace the bytes
-//! arrive at, and each chunk goes through `Bridge::on_uart` with SysTick read around the
-//! call. The core's time is the stream position at [`config::BAUD`] (10 bits per byte),
-//! so the run depends on the stream's bytes only: under `qemu-system-arm -icount
-//! shift=0` (one instruction per ns, one SysTick tick per 40 instructions) two runs of
-//! one stream give the same counts, and the host can run the same core the same way and
-//! must get the same frames.
-//!
-//! A byte 0x04 (EOT, never part of SCIP) on UART0 ends the stream; the result is one line
-//! on UART1:
-//!
-//! ```text
-//! bench bytes=212453 chunks=3320 ticks=… max_chunk_ticks=… scans_in=100 scans_sent=100 \
-//!   scans_aborted=0 frames=23900 frame_hash=0x1234abcd overruns=0 pop_ticks=…
-//! ```
-//! `ticks` is `on_uart` only; `pop_ticks` is every `Bridge::pop_frame_with` call (the
-//! frames, and the last call that finds the queue empty), with the frame's identifier,
-//! length and data copied out as a board copies them into its CAN controller.
-//! `frame_hash` is FNV-1a (32 bit) over every frame popped, in order: the raw identifier
-//! (4 bytes, little endian), the FD flag, the length, then the data bytes.
+//! The work benchmark (see `bench.rs`) with the board's configuration in its default encoding (the lossless coding DL).
 
 #![no_std]
 #![no_main]
 #![deny(unsafe_code)]
 
+#[path = "../bench.rs"]
+mod bench;
 #[path = "../config.rs"]
 #[allow(dead_code)] // the SLCAN and watchdog settings are the bridge binary's
 mod config;
@@ -36,101 +15,9 @@ mod frame_hash;
 #[allow(dead_code)] // shared with the bridge binary
 mod hw;
 
-use bridge::engine::Bridge;
 use cortex_m_rt::entry;
-use embedded_io::{Read, Write};
-
-/// Bytes given to the core per call (a DMA half-buffer of the STM32 boards).
-const CHUNK: usize = 64;
-
-/// The byte that ends the stream.
-const EOT: u8 = 0x04;
 
 #[entry]
 fn main() -> ! {
-    let Some(cp) = cortex_m::Peripherals::take() else {
-        hw::exit()
-    };
-    hw::start_systick(cp.SYST);
-    let Some(hw::Board {
-        uart0: mut sensor,
-        uart1: mut output,
-    }) = hw::Board::take(config::BAUD)
-    else {
-        hw::exit()
-    };
-    let Some(Ok(mut bridge)) = config::bridge().map(Bridge::<{ config::QUEUE }>::new) else {
-        hw::exit()
-    };
-    let _ = write!(output, "{BANNER}\r\n");
-
-    let mut hash = frame_hash::FrameHash::default();
-    let (mut bytes, mut chunks, mut ticks, mut max_ticks) = (0u64, 0u32, 0u64, 0u32);
-    let (mut frames, mut overruns, mut pop_ticks) = (0u32, 0u32, 0u64);
-    let mut chunk = [0u8; CHUNK];
-    let mut out = can_wire::Frame::default();
-    let mut filled = 0;
-    let mut eot = false;
-    while !eot {
-        // Exactly CHUNK bytes, or what is left before EOT.
-        while filled < CHUNK && !eot {
-            let dst = chunk.get_mut(filled..).unwrap_or_default();
-            let n = match sensor.read(dst) {
-                Ok(n) => n,
-                Err(hw::UartError::Overrun) => {
-                    overruns = overruns.wrapping_add(1);
-                    continue;
-                }
-            };
-            let got = chunk.get(filled..filled + n).unwrap_or_default();
-            match got.iter().position(|&b| b == EOT) {
-                Some(i) => {
-                    filled += i;
-                    eot = true;
-                }
-                None => filled += n,
-            }
-        }
-        let data = chunk.get(..filled).unwrap_or_default();
-        if !data.is_empty() {
-            bytes += data.len() as u64;
-            // The core's clock: when the chunk's last byte arrived at the nominal rate.
-            let now = bytes * 10 * 1000 / u64::from(config::BAUD);
-            let ((), t) = hw::measure(|| bridge.on_uart(data, now));
-            ticks += u64::from(t);
-            max_ticks = max_ticks.max(t);
-            chunks = chunks.wrapping_add(1);
-            loop {
-                // Taking a frame off the queue is core work too (its bus bookkeeping).
-                // As a board hands a frame to its CAN controller: its identifier, length
-                // and data bytes copied out (here into `out`, hashed after).
-                let (popped, t) = hw::measure(|| {
-                    bridge.pop_frame_with(|frame| out.set(frame.id(), frame.data(), frame.is_fd()))
-                });
-                pop_ticks += u64::from(t);
-                if popped.is_none() {
-                    break;
-                }
-                hash.frame(&out);
-                frames = frames.wrapping_add(1);
-            }
-        }
-        filled = 0;
-    }
-    let s = bridge.stats();
-    let _ = write!(
-        output,
-        "bench bytes={bytes} chunks={chunks} ticks={ticks} max_chunk_ticks={max_ticks} \
-         scans_in={} scans_sent={} scans_aborted={} frames={frames} frame_hash={:#010x} \
-         overruns={overruns} pop_ticks={pop_ticks}\r\n",
-        s.scans_in, s.scans_sent, s.scans_aborted, hash.0
-    );
-    let _ = output.flush();
-    hw::exit()
+    bench::run(config::ENCODING)
 }
-
-const BANNER: &str = concat!(
-    "scip2can-qemu-bench ",
-    env!("CARGO_PKG_VERSION"),
-    " mps2-an386: UART0=sensor stream, EOT ends it; UART1=result"
-);
