@@ -198,3 +198,50 @@ fn status_frames_are_periodic_and_go_before_scan_frames() {
     let frames = drain(&mut b);
     assert_eq!(frames.iter().filter(|f| f.id() == status_id).count(), 4);
 }
+
+/// The encoding control (opcode 0x20, bytes written from SPEC 6: distance 4 = DL,
+/// intensity 0, unit 0) switches the next scan to the lossless coding: its header B says
+/// so, its data frames have one framing byte, and its values arrive exactly.
+#[test]
+fn the_lossless_coding_by_control_frame() {
+    let mut b: Bridge<Q> = Bridge::new(config()).unwrap();
+    b.on_uart(&scan_frame(300, 10), 0);
+    let ids = config().ids;
+    let raw = Frame::new(ids.id(Kind::Control), &[0x20, 9, 4, 0, 0], false).unwrap();
+    assert!(b.on_can_frame(&raw, 1));
+    b.on_uart(&scan_frame(300, 35), 2);
+    let frames = drain(&mut b);
+    let a = answers(&frames);
+    assert_eq!((a[0].token, a[0].outcome), (9, Outcome::Accepted));
+    let header_b: Vec<&Frame> = frames
+        .iter()
+        .filter(|f| f.id() == ids.id(Kind::HeaderB))
+        .collect();
+    assert_eq!(header_b.len(), 2);
+    assert_eq!(header_b[0].data()[1] & 0xF, 1, "D16 first");
+    assert_eq!(header_b[1].data()[1] & 0xF, 4, "then DL");
+    let s = scans(&frames);
+    assert_eq!(s.len(), 2);
+    let want: Vec<u32> = (0..300).map(|i| 1000 + i).collect();
+    assert_eq!(s[0].2, want);
+    assert_eq!(s[1].2, want);
+    // 300 points of a ramp: D16 takes 300 × 2 bytes of points; DL a small part of it.
+    let data_bytes = |scan: usize| -> usize {
+        let mut seen = 0;
+        let mut bytes = 0;
+        for f in &frames {
+            if f.id() == ids.id(Kind::HeaderA) {
+                seen += 1;
+            } else if f.id() == ids.id(Kind::Data) && seen == scan + 1 {
+                bytes += f.len();
+            }
+        }
+        bytes
+    };
+    assert!(
+        data_bytes(1) * 4 < data_bytes(0),
+        "{} vs {}",
+        data_bytes(1),
+        data_bytes(0)
+    );
+}

@@ -284,10 +284,53 @@ fn scan_frames(format: FrameFormat, seq: u16, abort: bool) -> Vec<Frame> {
     out
 }
 
+/// The header and trailer frames of a lossless (DL) scan: the DBC describes those; its
+/// data frames are a Rice-coded stream a DBC cannot (SPEC 4.2).
+fn lossless_scan_frames() -> Vec<Frame> {
+    struct Sink(Vec<Frame>);
+    impl FrameSink for Sink {
+        fn data_slot(&mut self) -> Option<&mut Frame> {
+            self.0.push(Frame::default());
+            self.0.last_mut()
+        }
+    }
+    let ids = IdWindow::DEFAULT.node(0).unwrap();
+    let mut enc = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+    let header = ScanHeader {
+        seq: 0x0304,
+        timestamp_ms: 12,
+        point_count: 200,
+        encoding: Encoding {
+            distance: DistanceEncoding::Lossless,
+            intensity: IntensityEncoding::I16,
+            unit_exp: 0,
+        },
+        time_synced: false,
+        grouping: Grouping::Single,
+        step_increment: 1,
+        first_step: -540,
+        ares: 1440,
+    };
+    let mut out: Vec<Frame> = enc.begin(&header).unwrap().into();
+    let mut data = Sink(vec![]);
+    for i in 0..200u32 {
+        let d = if i % 50 == 7 {
+            Distance::SensorError(1)
+        } else {
+            Distance::Mm(3000 + i)
+        };
+        enc.push_point_to(d, i as u16, &mut data).unwrap();
+    }
+    assert!(!data.0.is_empty());
+    out.extend(enc.finish(TrailerFlags::default()).unwrap());
+    out
+}
+
 fn all_frames() -> Vec<Frame> {
     let ids = IdWindow::DEFAULT.node(0).unwrap();
     let mut frames = scan_frames(FrameFormat::Classic, 0xFFF3, false);
     frames.extend(scan_frames(FrameFormat::Fd { max_len: 24 }, 7, true));
+    frames.extend(lossless_scan_frames());
     let commands = [
         can_wire::Command::Start,
         can_wire::Command::Stop,
@@ -320,6 +363,11 @@ fn all_frames() -> Vec<Frame> {
             unit_exp: 15,
         }),
         can_wire::Command::FrameSize { max_len: 48 },
+        can_wire::Command::Encoding(Encoding {
+            distance: DistanceEncoding::Lossless,
+            intensity: IntensityEncoding::None,
+            unit_exp: 0,
+        }),
     ];
     for (token, command) in commands.into_iter().enumerate() {
         let mut buf = [0u8; 8];
