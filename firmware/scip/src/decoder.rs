@@ -15,7 +15,7 @@
 
 use crate::command::{Command, DataSet, EchoError, Request, ScanMode, ScanRequest, TimeMode};
 use crate::error::{Error, ErrorKind};
-use crate::info::{Param, Range, RangeLimits, SensorParams};
+use crate::info::{Param, ParamError, Range, RangeLimits, SensorParams};
 use crate::status::Status;
 use crate::sum::checksum;
 use crate::value::CHAR_MIN;
@@ -237,16 +237,7 @@ impl Decoder {
     /// A decoder between responses, with default range limits (DMIN 20, family unknown)
     /// until it decodes a PP response.
     pub const fn new() -> Self {
-        const EMPTY: SensorParams = SensorParams {
-            dmin: None,
-            dmax: None,
-            ares: None,
-            amin: None,
-            amax: None,
-            afrt: None,
-            scan_rpm: None,
-            family: None,
-        };
+        const EMPTY: SensorParams = SensorParams::EMPTY;
         Self {
             buf: [0; LINE_CAP],
             len: 0,
@@ -329,7 +320,9 @@ impl Decoder {
         self.limits
     }
 
-    /// The PP parameters of the last intact PP response.
+    /// The PP parameters of the last intact PP response whose fields are whole and
+    /// plausible ([`SensorParams::check`]; a unit differing from its model's table is
+    /// accepted here).
     pub fn params(&self) -> &SensorParams {
         &self.params
     }
@@ -1095,12 +1088,17 @@ impl Decoder {
         if matches!(self.state, State::Payload(Payload::Fields))
             && matches!(self.request.map(|r| r.command), Some(Command::Parameters))
         {
-            self.params = self.pp;
-            if let Some(dmin) = self.pp.dmin {
-                self.limits.dmin = dmin;
-            }
-            if let Some(family) = self.pp.family {
-                self.limits.family = family;
+            // Parameters and limits only from an answer whose fields are whole and
+            // plausible: a flip the line sum cannot see must not change the geometry or
+            // how ranges are told from error codes.
+            if matches!(self.pp.check(), Ok(()) | Err(ParamError::NotTheModels(_))) {
+                self.params = self.pp;
+                if let Some(dmin) = self.pp.dmin {
+                    self.limits.dmin = dmin;
+                }
+                if let Some(family) = self.pp.family {
+                    self.limits.family = family;
+                }
             }
         }
         self.state = State::Idle;
