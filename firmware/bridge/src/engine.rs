@@ -99,6 +99,11 @@ pub struct BridgeStats {
     pub queue_overflows: u32,
     /// Frames queued.
     pub frames: u32,
+    /// Scans the sensor sent that the bridge never started: a stream frame whose echo,
+    /// status or timestamp line was damaged, or a scan withheld because the sensor's
+    /// geometry is in doubt ([`crate::session::Geometry`]). Each one advances the scan
+    /// sequence (a receiver sees the gap) and counts in `dropped_scans`.
+    pub scans_lost: u32,
 }
 
 /// Where the scan path is within the current response.
@@ -128,6 +133,11 @@ struct Core<const Q: usize> {
     queue: FrameQueue<Q>,
     phase: Phase,
     seq: u16,
+    /// The last response that ended was a stream frame: a next response whose echo is
+    /// damaged is most likely one too.
+    in_stream: bool,
+    /// The echo of the response being decoded did not parse.
+    echo_damaged: bool,
     overflow: bool,
     filtered: bool,
     stats: BridgeStats,
@@ -149,6 +159,8 @@ struct Core<const Q: usize> {
 pub struct Bridge<const Q: usize> {
     decoder: Decoder,
     core: Core<Q>,
+    /// When the last UART byte arrived, ms.
+    last_uart_ms: u64,
 }
 
 impl<const Q: usize> Bridge<Q> {
@@ -160,6 +172,7 @@ impl<const Q: usize> Bridge<Q> {
         config.encoding.validate().map_err(BridgeError::Wire)?;
         Ok(Self {
             decoder: Decoder::new(),
+            last_uart_ms: 0,
             core: Core {
                 session: Session::new(config.session).map_err(BridgeError::Session)?,
                 pipeline: Pipeline::new(config.pipeline).map_err(BridgeError::Pipeline)?,
@@ -169,6 +182,8 @@ impl<const Q: usize> Bridge<Q> {
                 queue: FrameQueue::new(),
                 phase: Phase::None,
                 seq: 0,
+                in_stream: false,
+                echo_damaged: false,
                 overflow: false,
                 filtered: false,
                 stats: BridgeStats::default(),
@@ -196,6 +211,9 @@ impl<const Q: usize> Bridge<Q> {
 
     /// Takes bytes from the sensor's UART. Work is linear in `bytes.len()`.
     pub fn on_uart(&mut self, bytes: &[u8], now_ms: u64) {
+        if !bytes.is_empty() {
+            self.last_uart_ms = now_ms;
+        }
         let mut rest = bytes;
         while !rest.is_empty() {
             let (used, event) = self.decoder.feed(rest);
@@ -210,6 +228,16 @@ impl<const Q: usize> Bridge<Q> {
     /// periodically.
     pub fn poll(&mut self, now_ms: u64) -> Option<Action> {
         self.core.periodic_status(now_ms, self.decoder.stats());
+        // A response cut off (the sensor rebooted or the link dropped bytes) and silence
+        // since: what is buffered is stale. Without this, the next answer would be glued
+        // to the partial line and lost with it.
+        let silent = now_ms.saturating_sub(self.last_uart_ms);
+        if !self.decoder.is_idle() && silent > u64::from(self.core.session.stale_input_ms()) {
+            if let Some(event) = self.decoder.finish() {
+                // It happened when the bytes stopped.
+                self.core.event(&event, self.last_uart_ms);
+            }
+        }
         let action = self.core.session.poll(now_ms);
         if let Some(notice) = self.core.session.take_notice() {
             self.core.notice(notice);
@@ -340,6 +368,7 @@ impl<const Q: usize> Core<Q> {
                     // decoder, but never leave a scan open.
                     self.abort_scan(AbortReason::BadData);
                 }
+                self.echo_damaged = request.is_none();
                 self.phase = match request.map(|r| r.command) {
                     Some(Command::Scan(s)) => Phase::Echo(s),
                     _ => Phase::None,
@@ -352,7 +381,10 @@ impl<const Q: usize> Core<Q> {
                     Phase::None
                 };
             }
-            (Event::Timestamp(t), Phase::Framed(s)) => self.begin_scan(s, *t, now),
+            (Event::Timestamp(t), Phase::Framed(s)) => {
+                self.in_stream = s.mode == ScanMode::Continuous;
+                self.begin_scan(s, *t, now);
+            }
             (Event::Data(line), Phase::Active(s)) => self.data_line(line, &s),
             (Event::End(_), Phase::Active(_)) => self.finish_scan(),
             (Event::Error(e), Phase::Active(_)) => {
@@ -363,9 +395,34 @@ impl<const Q: usize> Core<Q> {
                 };
                 self.abort_scan(reason);
             }
-            (Event::End(_) | Event::Error(_), _) => self.phase = Phase::None,
+            (Event::Error(_), Phase::Echo(_) | Phase::Framed(_)) => {
+                // A measurement response damaged before its scan began.
+                self.lose_scan();
+                self.phase = Phase::None;
+            }
+            (Event::Error(_), Phase::None) if self.in_stream && self.echo_damaged => {
+                // A damaged echo inside a stream: a frame, most likely.
+                self.lose_scan();
+            }
+            (Event::End(_) | Event::Error(_), _) => {
+                if matches!(event, Event::End(_))
+                    && matches!(self.phase, Phase::None)
+                    && !self.echo_damaged
+                {
+                    // An answer to another command: the stream is not what came last.
+                    self.in_stream = false;
+                }
+                self.phase = Phase::None;
+            }
             _ => {}
         }
+    }
+
+    /// A scan the sensor sent and the bridge never started: counted, and its sequence
+    /// number skipped so that a receiver sees the gap.
+    fn lose_scan(&mut self) {
+        self.stats.scans_lost = self.stats.scans_lost.wrapping_add(1);
+        self.seq = self.seq.wrapping_add(1);
     }
 
     /// The pipeline, the decimated-line buffer and the parts output points go through,
@@ -532,6 +589,7 @@ impl<const Q: usize> Core<Q> {
         let dropped = self
             .stats
             .scans_aborted
+            .saturating_add(self.stats.scans_lost)
             .saturating_add(g.dropped_budget)
             .saturating_add(g.dropped_queue);
         let pages = crate::status::periodic_pages(
@@ -663,6 +721,11 @@ impl<const Q: usize> Core<Q> {
     fn begin_scan(&mut self, s: ScanRequest, timestamp: u32, now: u64) {
         self.stats.scans_in += 1;
         self.phase = Phase::Ignored;
+        if !self.session.geometry().allows_scans() {
+            // The last PP answer was damaged or doubted: no angles to publish it with.
+            self.lose_scan();
+            return;
+        }
         let info = ScanInfo {
             seq: u32::from(self.seq),
             timestamp_ms: timestamp,

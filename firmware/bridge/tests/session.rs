@@ -1,14 +1,22 @@
 //! The session state machine against a scripted sensor: the bytes of each answer are
 //! written with the codec's `ResponseWriter` and decoded with its `Decoder`, as on the MCU.
 
-use bridge::session::{Action, Notice, RecoverReason, Session, SessionConfig, State};
-use scip::{Command, Decoder, Request, ResponseWriter, ScanMode, ScanRequest, TimeMode};
+use bridge::session::{Action, Geometry, Notice, RecoverReason, Session, SessionConfig, State};
+use scip::{
+    Command, Decoder, ParamError, ParamName, Request, ResponseWriter, ScanMode, ScanRequest,
+    TimeMode,
+};
 
 /// A scripted sensor: SCIP 1.1 until switched, UTM-30LX parameters.
 struct Sensor {
     scip11: bool,
     mute: bool,
     baud: u32,
+    /// PP answers still to damage: bit 6 of ARES's last digit flipped, which the line
+    /// sum cannot see (`ARES:1440` reads `ARES:144p`).
+    pp_flips: u32,
+    /// The AFRT this unit reports (540, as the UTM-30LX table says).
+    afrt: &'static [u8],
 }
 
 impl Sensor {
@@ -45,7 +53,7 @@ impl Sensor {
                     (b"ARES", b"1440"),
                     (b"AMIN", b"0"),
                     (b"AMAX", b"1080"),
-                    (b"AFRT", b"540"),
+                    (b"AFRT", self.afrt),
                     (b"SCAN", b"2400"),
                 ] {
                     w.field(n, v);
@@ -68,6 +76,11 @@ impl Sensor {
         }
         w.end();
         let _ = w.into_inner();
+        if req.command == Command::Parameters && self.pp_flips > 0 {
+            self.pp_flips -= 1;
+            let at = out.windows(9).position(|w| w == b"ARES:1440").unwrap() + 8;
+            out[at] ^= 0x40;
+        }
         out
     }
 }
@@ -108,6 +121,8 @@ impl Rig {
                 scip11,
                 mute: false,
                 baud: 115_200,
+                pp_flips: 0,
+                afrt: b"540",
             },
             sent: Vec::new(),
             rates: Vec::new(),
@@ -421,4 +436,62 @@ fn a_silent_sensor_at_both_rates_is_recovered_at_the_power_up_rate() {
         rig.notices.first(),
         Some(&Notice::Recovering(RecoverReason::Timeout))
     );
+}
+
+#[test]
+fn a_pp_answer_damaged_past_its_sums_is_asked_again() {
+    let mut rig = Rig::new(config(), false);
+    rig.sensor.pp_flips = 1;
+    rig.session.start(0);
+    rig.run(0);
+    assert_eq!(
+        rig.codes(),
+        ["QT", "VV", "PP", "PP", "II", "MD0000108001000"]
+    );
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.geometry(), Geometry::Established);
+    // The values of the sound answer, as the script writes them.
+    let p = rig.session.params();
+    assert_eq!(
+        (p.ares, p.afrt, p.amin, p.amax),
+        (Some(1440), Some(540), Some(0), Some(1080))
+    );
+    assert_eq!(rig.session.stats().pp_doubted, 1);
+    assert_eq!(rig.notices, [Notice::Identified, Notice::Streaming]);
+}
+
+#[test]
+fn a_pp_answer_doubted_every_time_is_recovered_and_never_streams() {
+    let mut rig = Rig::new(config(), false);
+    rig.sensor.pp_flips = u32::MAX;
+    rig.session.start(0);
+    rig.run(0);
+    let doubt = ParamError::BadValue(ParamName::Ares);
+    assert_eq!(
+        rig.notices,
+        [Notice::Recovering(RecoverReason::Parameters(doubt))]
+    );
+    // Asked three times (two retries), then QT, RS.
+    assert_eq!(rig.codes(), ["QT", "VV", "PP", "PP", "PP", "QT", "RS"]);
+    assert_eq!(rig.session.geometry(), Geometry::Doubted(doubt));
+    assert_eq!(rig.session.params().ares, None);
+    // Once the sensor answers soundly, the session streams.
+    rig.sensor.pp_flips = 0;
+    rig.run(101);
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.params().ares, Some(1440));
+}
+
+#[test]
+fn a_unit_that_differs_from_its_models_table_is_taken_when_it_answers_the_same_twice() {
+    let mut rig = Rig::new(config(), false);
+    rig.sensor.afrt = b"541";
+    rig.session.start(0);
+    rig.run(0);
+    assert_eq!(
+        rig.codes(),
+        ["QT", "VV", "PP", "PP", "II", "MD0000108001000"]
+    );
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.params().afrt, Some(541));
 }

@@ -1,7 +1,8 @@
 //! The session state machine itself.
 
 use scip::{
-    Command, Event, Request, ScanRequest, SensorParams, Status, StatusKind, Summary, TimeMode,
+    Command, Event, KnownModel, ParamError, Request, ScanRequest, SensorParams, Status, StatusKind,
+    Summary, TimeMode,
 };
 
 use super::config::{SessionConfig, SessionError};
@@ -69,6 +70,33 @@ pub enum RecoverReason {
     Reboot,
     /// The sensor refused to start the stream for a reason other than its parameters.
     StartFailed(Status),
+    /// The PP answer was doubted every time it was asked for ([`Geometry::Doubted`]).
+    Parameters(ParamError),
+}
+
+/// What the session knows of the sensor's geometry (PP), which every published scan's
+/// angles depend on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Geometry {
+    /// No PP answer seen yet (e.g. a replay of a capture without one).
+    Unknown,
+    /// The last PP answer passed every check ([`SensorParams::check`]): [`Session::params`].
+    Established,
+    /// The last PP answer was damaged (a line failed its sum or framing): no scan may be
+    /// published with a geometry until a sound answer comes.
+    Damaged,
+    /// The last PP answer arrived intact but failed a check (a flip the line sum cannot
+    /// see, an implausible value): no scan may be published until a sound answer comes.
+    Doubted(ParamError),
+}
+
+impl Geometry {
+    /// True when scans may be published: established, or not known at all (no PP was
+    /// ever seen, so none was doubted).
+    pub fn allows_scans(self) -> bool {
+        matches!(self, Self::Established | Self::Unknown)
+    }
 }
 
 /// Something worth telling the rest of the bridge.
@@ -117,6 +145,8 @@ pub struct SessionStats {
     pub damaged_frames: u32,
     /// Answers nobody was waiting for.
     pub unexpected: u32,
+    /// PP answers that arrived intact but failed a check ([`Geometry::Doubted`]).
+    pub pp_doubted: u32,
 }
 
 /// The sensor session. See the [module docs](super).
@@ -141,6 +171,19 @@ pub struct Session {
     /// learns the geometry too.
     current_is_pp: bool,
     pp: SensorParams,
+    /// The response being decoded is a VV answer: its `PROD` names the model.
+    current_is_vv: bool,
+    /// The echo of the response being decoded did not parse.
+    current_echo_damaged: bool,
+    vv_model: Option<KnownModel>,
+    /// The model the last intact VV answer named, if a known one.
+    vv_known: Option<KnownModel>,
+    /// The last PP answer doubted only for differing from its model's table: the same
+    /// answer again is accepted (a unit that differs from the table, answering the same).
+    last_doubted: Option<SensorParams>,
+    geometry: Geometry,
+    /// Doubt about the PP answer just ended, for `on_response`.
+    pp_doubt: Option<ParamError>,
     current_status: Option<Status>,
     last_rx: u64,
     backoff_ms: u32,
@@ -169,6 +212,13 @@ impl Session {
             current_is_frame: false,
             current_is_pp: false,
             pp: SensorParams::default(),
+            current_is_vv: false,
+            current_echo_damaged: false,
+            vv_model: None,
+            vv_known: None,
+            last_doubted: None,
+            geometry: Geometry::Unknown,
+            pp_doubt: None,
             current_status: None,
             last_rx: 0,
             backoff_ms: config.backoff_min_ms,
@@ -196,9 +246,15 @@ impl Session {
         &self.stats
     }
 
-    /// The PP parameters of the sensor, once identified.
+    /// The PP parameters of the sensor from the last PP answer that passed every check
+    /// (empty before one did).
     pub fn params(&self) -> &SensorParams {
         &self.params
+    }
+
+    /// What is known of the sensor's geometry: whether scans may be published.
+    pub fn geometry(&self) -> Geometry {
+        self.geometry
     }
 
     /// The stream request in force.
@@ -291,7 +347,10 @@ impl Session {
                 );
                 self.current_is_pp =
                     matches!(request.map(|r| r.command), Some(Command::Parameters));
+                self.current_is_vv = matches!(request.map(|r| r.command), Some(Command::Version));
+                self.current_echo_damaged = request.is_none();
                 self.pp = SensorParams::default();
+                self.vv_model = None;
                 None
             }
             Event::Status(status) => {
@@ -301,6 +360,9 @@ impl Session {
             Event::Field(field) => {
                 if self.current_is_pp {
                     self.pp.apply(field.name, field.value);
+                }
+                if self.current_is_vv && field.name == b"PROD" {
+                    self.vv_model = KnownModel::from_model(field.value);
                 }
                 None
             }
@@ -322,14 +384,25 @@ impl Session {
             }
             Event::End(summary) => {
                 self.last_rx = now;
-                if core::mem::take(&mut self.current_is_pp) && summary.status == Status::OK {
-                    self.params = self.pp;
+                if core::mem::take(&mut self.current_is_vv) && summary.status == Status::OK {
+                    self.vv_known = self.vv_model;
+                }
+                self.pp_doubt = None;
+                if core::mem::take(&mut self.current_is_pp) {
+                    self.judge_pp();
                 }
                 self.on_response(summary, now)
             }
             Event::Error(_) => {
                 self.last_rx = now;
-                self.current_is_pp = false;
+                self.current_is_vv = false;
+                if core::mem::take(&mut self.current_is_pp)
+                    || (self.current_echo_damaged && self.geometry == Geometry::Unknown)
+                {
+                    // A damaged PP answer, or a damaged answer to an unknown command
+                    // before any PP: it may have been the PP answer.
+                    self.geometry = Geometry::Damaged;
+                }
                 if self.current_is_frame && !self.current_is_pending {
                     self.stats.damaged_frames += 1;
                 } else if self.current_is_pending && self.pending.is_some() {
@@ -363,6 +436,10 @@ impl Session {
         if !is_pending {
             self.stats.unexpected += 1;
             return None;
+        }
+        if let (State::Parameters, Some(doubt)) = (self.state, self.pp_doubt) {
+            // Ask again (bounded), then recover.
+            return self.retry_or_recover(RecoverReason::Parameters(doubt), now);
         }
         self.pending = None;
         self.retries = 0;
@@ -470,6 +547,39 @@ impl Session {
         None
     }
 
+    /// Judges the PP answer that just ended intact: its parameters become the session's
+    /// when they pass every check; otherwise the geometry is doubted (`pp_doubt`).
+    fn judge_pp(&mut self) {
+        let pp = self.pp;
+        let mut verdict = pp.check();
+        if verdict.is_ok() {
+            if let (Some(vv), Some(modl)) = (self.vv_known, pp.model) {
+                if vv != modl {
+                    verdict = Err(ParamError::ModelConflict);
+                }
+            }
+        }
+        if let Err(ParamError::NotTheModels(_)) = verdict {
+            if self.last_doubted == Some(pp) {
+                // The same answer twice: the unit differs from its model's table.
+                verdict = Ok(());
+            }
+        }
+        match verdict {
+            Ok(()) => {
+                self.params = pp;
+                self.geometry = Geometry::Established;
+                self.last_doubted = None;
+            }
+            Err(e) => {
+                self.stats.pp_doubted += 1;
+                self.geometry = Geometry::Doubted(e);
+                self.last_doubted = Some(pp);
+                self.pp_doubt = Some(e);
+            }
+        }
+    }
+
     fn on_frame(&mut self, status: Status, now: u64) -> Option<Notice> {
         match status.kind(b"MD") {
             StatusKind::StreamFrame | StatusKind::Unstable | StatusKind::Ok => {
@@ -485,6 +595,13 @@ impl Session {
                 None
             }
         }
+    }
+
+    /// How long a partial response may wait for its next byte before it is stale (the
+    /// sensor stopped in the middle of it): the stream's silence limit, or the answer
+    /// timeout if shorter.
+    pub fn stale_input_ms(&self) -> u32 {
+        self.silence_timeout().min(self.config.response_timeout_ms)
     }
 
     fn silence_timeout(&self) -> u32 {

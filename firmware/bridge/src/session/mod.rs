@@ -21,4 +21,4 @@ mod config;
 mod machine;
 
 pub use config::{SessionConfig, SessionError};
-pub use machine::{Action, Notice, RecoverReason, Session, SessionStats, State};
+pub use machine::{Action, Geometry, Notice, RecoverReason, Session, SessionStats, State};
