@@ -138,6 +138,8 @@ struct Core<const Q: usize> {
     in_stream: bool,
     /// The echo of the response being decoded did not parse.
     echo_damaged: bool,
+    /// The status of a response whose echo was damaged.
+    echo_status: Option<Status>,
     overflow: bool,
     filtered: bool,
     stats: BridgeStats,
@@ -184,6 +186,7 @@ impl<const Q: usize> Bridge<Q> {
                 seq: 0,
                 in_stream: false,
                 echo_damaged: false,
+                echo_status: None,
                 overflow: false,
                 filtered: false,
                 stats: BridgeStats::default(),
@@ -369,6 +372,7 @@ impl<const Q: usize> Core<Q> {
                     self.abort_scan(AbortReason::BadData);
                 }
                 self.echo_damaged = request.is_none();
+                self.echo_status = None;
                 self.phase = match request.map(|r| r.command) {
                     Some(Command::Scan(s)) => Phase::Echo(s),
                     _ => Phase::None,
@@ -400,8 +404,18 @@ impl<const Q: usize> Core<Q> {
                 self.lose_scan();
                 self.phase = Phase::None;
             }
-            (Event::Error(_), Phase::None) if self.in_stream && self.echo_damaged => {
-                // A damaged echo inside a stream: a frame, most likely.
+            (Event::Status(status), Phase::None) if self.echo_damaged => {
+                self.echo_status = Some(*status);
+            }
+            (Event::Error(_), Phase::None)
+                if self.echo_damaged
+                    && match self.echo_status {
+                        Some(status) => carries_frame(status),
+                        None => self.in_stream,
+                    } =>
+            {
+                // A stream frame whose echo was damaged (its status says so or, when
+                // that was damaged too, it came in a stream).
                 self.lose_scan();
             }
             (Event::End(_) | Event::Error(_), _) => {
@@ -972,8 +986,13 @@ impl<const Q: usize> Output<'_, Q> {
 fn carries_scan(s: &ScanRequest, status: Status) -> bool {
     match s.mode {
         ScanMode::Single => status == Status::OK,
-        ScanMode::Continuous => matches!(status, Status::Scip2([b'9', b'9'] | [b'0', b'M'])),
+        ScanMode::Continuous => carries_frame(status),
     }
+}
+
+/// The status of a stream frame (`99`, or `0M` on SCIP 2.2).
+fn carries_frame(status: Status) -> bool {
+    matches!(status, Status::Scip2([b'9', b'9'] | [b'0', b'M']))
 }
 
 /// The queue as the encoder's [`FrameSink`]: a data frame gets a slot when two are free

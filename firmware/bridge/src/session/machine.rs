@@ -175,6 +175,8 @@ pub struct Session {
     current_is_vv: bool,
     /// The echo of the response being decoded did not parse.
     current_echo_damaged: bool,
+    /// The last response that ended was a stream frame.
+    after_frame: bool,
     vv_model: Option<KnownModel>,
     /// The model the last intact VV answer named, if a known one.
     vv_known: Option<KnownModel>,
@@ -214,6 +216,7 @@ impl Session {
             pp: SensorParams::default(),
             current_is_vv: false,
             current_echo_damaged: false,
+            after_frame: false,
             vv_model: None,
             vv_known: None,
             last_doubted: None,
@@ -384,6 +387,7 @@ impl Session {
             }
             Event::End(summary) => {
                 self.last_rx = now;
+                self.after_frame = self.current_is_frame || is_frame_status(summary.status);
                 if core::mem::take(&mut self.current_is_vv) && summary.status == Status::OK {
                     self.vv_known = self.vv_model;
                 }
@@ -396,13 +400,17 @@ impl Session {
             Event::Error(_) => {
                 self.last_rx = now;
                 self.current_is_vv = false;
-                if core::mem::take(&mut self.current_is_pp)
-                    || (self.current_echo_damaged && self.geometry == Geometry::Unknown)
-                {
+                let frame_status = self.current_status.is_some_and(is_frame_status);
+                let maybe_pp = self.current_echo_damaged
+                    && self.geometry == Geometry::Unknown
+                    && !frame_status
+                    && (self.current_status.is_some() || !self.after_frame);
+                if core::mem::take(&mut self.current_is_pp) || maybe_pp {
                     // A damaged PP answer, or a damaged answer to an unknown command
-                    // before any PP: it may have been the PP answer.
+                    // (not a stream frame) before any PP: it may have been the PP answer.
                     self.geometry = Geometry::Damaged;
                 }
+                self.after_frame = self.current_is_frame || frame_status;
                 if self.current_is_frame && !self.current_is_pending {
                     self.stats.damaged_frames += 1;
                 } else if self.current_is_pending && self.pending.is_some() {
@@ -737,6 +745,11 @@ fn same_command(echo: &Command, sent: &Command) -> bool {
         (Command::Scan(a), Command::Scan(b)) => a == b,
         (a, b) => core::mem::discriminant(a) == core::mem::discriminant(b),
     }
+}
+
+/// The status of a stream frame (`99`, or `0M` on SCIP 2.2).
+fn is_frame_status(status: Status) -> bool {
+    matches!(status, Status::Scip2([b'9', b'9'] | [b'0', b'M']))
 }
 
 /// A stream frame of `sent`: the same request but for the remaining count.
