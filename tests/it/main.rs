@@ -9,5 +9,6 @@ mod live_bridge;
 mod pp_faults;
 mod qemu;
 mod recordings;
+mod session_timing;
 mod sim_clients;
 mod sim_protocol;

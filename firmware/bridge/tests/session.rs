@@ -223,11 +223,11 @@ fn silence_is_recovered_with_growing_back_off() {
     rig.session.start(0);
     rig.run(0);
     assert_eq!(rig.session.state(), State::Streaming);
-    // 2400 rpm = 25 ms per scan: silence limit 4 * 25 + 200 = 300 ms.
-    rig.run(300);
+    // 2400 rpm = 25 ms per scan: silence limit 8 * 25 + 500 = 700 ms.
+    rig.run(700);
     assert_eq!(rig.session.state(), State::Streaming);
     rig.sent.clear();
-    rig.run(301);
+    rig.run(701);
     assert_eq!(
         rig.notices.last(),
         Some(&Notice::Recovering(RecoverReason::Silence))
@@ -235,17 +235,17 @@ fn silence_is_recovered_with_growing_back_off() {
     assert_eq!(rig.codes(), ["QT", "RS"]);
     assert_eq!(rig.session.state(), State::Backoff);
     // 100 ms back-off, then the whole bring-up again.
-    rig.run(400);
+    rig.run(800);
     assert_eq!(rig.session.state(), State::Backoff);
     rig.sent.clear();
-    rig.run(401);
+    rig.run(801);
     assert_eq!(rig.codes(), ["QT", "VV", "PP", "II", "MD0000108001000"]);
     assert_eq!(rig.session.state(), State::Streaming);
     // Streaming resets the back-off; a second silence waits 100 ms again.
-    rig.run(1000);
+    rig.run(1502);
     assert_eq!(rig.session.state(), State::Backoff);
     rig.sent.clear();
-    rig.run(1101);
+    rig.run(1602);
     assert_eq!(rig.session.state(), State::Streaming);
     assert_eq!(rig.session.stats().recoveries, 2);
 }
@@ -494,4 +494,74 @@ fn a_unit_that_differs_from_its_models_table_is_taken_when_it_answers_the_same_t
     );
     assert_eq!(rig.session.state(), State::Streaming);
     assert_eq!(rig.session.params().afrt, Some(541));
+}
+
+/// Feeds `frames` stream frames, one every `period` ms from `from`, polling every ms in
+/// between; returns the time after the last one.
+fn stream_for(rig: &mut Rig, from: u64, frames: u64, period: u64) -> u64 {
+    let scan = rig.session.scan_request();
+    let mut t = from;
+    for _ in 0..frames {
+        for _ in 0..period {
+            t += 1;
+            rig.run(t);
+        }
+        rig.feed(&frame(&scan, *b"99"), t);
+    }
+    t
+}
+
+#[test]
+fn a_300_ms_stall_keeps_the_stream_and_its_late_scans() {
+    let mut rig = Rig::new(config(), false);
+    rig.session.start(0);
+    rig.run(0);
+    let t = stream_for(&mut rig, 0, 10, 25);
+    // The sensor holds its output back for 300 ms, then sends the 12 scans it measured
+    // meanwhile in a burst, and streams on.
+    let mut t2 = t;
+    for _ in 0..325 {
+        t2 += 1;
+        rig.run(t2);
+    }
+    let scan = rig.session.scan_request();
+    for _ in 0..12 {
+        rig.feed(&frame(&scan, *b"99"), t2);
+    }
+    rig.run(t2);
+    let end = stream_for(&mut rig, t2, 20, 25);
+    rig.run(end);
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert!(
+        rig.notices
+            .iter()
+            .all(|n| !matches!(n, Notice::Recovering(_))),
+        "{:?}",
+        rig.notices
+    );
+    assert_eq!(rig.session.stats().frames, 10 + 12 + 20);
+    assert_eq!(rig.session.stats().recoveries, 0);
+    assert_eq!(rig.codes(), ["QT", "VV", "PP", "II", "MD0000108001000"]);
+}
+
+#[test]
+fn the_silence_limit_scales_with_the_frame_period() {
+    // UTM-30LX, 25 ms per scan: 8 frames + 500 ms = 700 ms; every second scan: 900 ms.
+    for (skip, limit) in [(0u8, 700u64), (1, 900)] {
+        let mut scan = ScanRequest::distance(ScanMode::Continuous, 0, 1080);
+        scan.skip = skip;
+        let mut rig = Rig::new(SessionConfig { scan, ..config() }, false);
+        rig.session.start(0);
+        rig.run(0);
+        let t = stream_for(&mut rig, 0, 4, 25 * (u64::from(skip) + 1));
+        assert_eq!(rig.session.silence_limit_ms(), limit as u32);
+        rig.run(t + limit);
+        assert_eq!(rig.session.state(), State::Streaming, "skip {skip}");
+        rig.run(t + limit + 1);
+        assert_eq!(
+            rig.notices.last(),
+            Some(&Notice::Recovering(RecoverReason::Silence)),
+            "skip {skip}"
+        );
+    }
 }

@@ -7,6 +7,13 @@ use scip::{
 
 use super::config::{SessionConfig, SessionError};
 
+/// Frame periods of silence a stream may have before it counts as lost (see
+/// [`Session::silence_limit_ms`]).
+pub const STALL_FRAMES: u32 = 8;
+
+/// Silence a stream may have on top of [`STALL_FRAMES`] frame periods, ms.
+pub const STALL_MARGIN_MS: u32 = 500;
+
 /// Where the session is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -319,7 +326,7 @@ impl Session {
                 }
             }
             State::Streaming => {
-                if now.saturating_sub(self.last_rx) > u64::from(self.silence_timeout()) {
+                if now.saturating_sub(self.last_rx) > u64::from(self.silence_limit_ms()) {
                     self.notice = self.recover(RecoverReason::Silence, now);
                 }
             }
@@ -609,10 +616,16 @@ impl Session {
     /// sensor stopped in the middle of it): the stream's silence limit, or the answer
     /// timeout if shorter.
     pub fn stale_input_ms(&self) -> u32 {
-        self.silence_timeout().min(self.config.response_timeout_ms)
+        self.silence_limit_ms().min(self.config.response_timeout_ms)
     }
 
-    fn silence_timeout(&self) -> u32 {
+    /// The stream's silence limit, ms: [`SessionConfig::silence_timeout_ms`], or when
+    /// that is 0, [`STALL_FRAMES`] frame periods (scan period × (skip + 1), from PP's
+    /// SCAN; 100 ms before PP) plus [`STALL_MARGIN_MS`]. A UTM-30LX (25 ms) recovers
+    /// after 700 ms of silence, a URG-04LX (100 ms) after 1300 ms: a sensor that stalls
+    /// for 300 ms and resumes keeps its stream, and one that rebooted (which takes about
+    /// half a second) is answering by the time it is probed.
+    pub fn silence_limit_ms(&self) -> u32 {
         if self.config.silence_timeout_ms != 0 {
             return self.config.silence_timeout_ms;
         }
@@ -622,9 +635,9 @@ impl Session {
             .map_or(100, |us| us.div_ceil(1000));
         let skip = u32::from(self.config.scan.skip) + 1;
         period_ms
-            .saturating_mul(4)
+            .saturating_mul(STALL_FRAMES)
             .saturating_mul(skip)
-            .saturating_add(200)
+            .saturating_add(STALL_MARGIN_MS)
     }
 
     fn probe(&mut self, now: u64) {
