@@ -411,14 +411,16 @@ impl Replayed {
         };
         let _ = writeln!(
             s,
-            "scans: {} in, {} sent, {} aborted, {} skipped, {} dropped ({} budget, {} queue)",
+            "scans: {} in, {} sent, {} aborted, {} skipped, {} dropped ({} budget, {} queue), \
+             {} lost (never started)",
             st.scans_in,
             st.scans_sent,
             st.scans_aborted,
             st.scans_skipped,
             st.scans_dropped,
             g.dropped_budget,
-            g.dropped_queue
+            g.dropped_queue,
+            st.scans_lost
         );
         let _ = writeln!(
             s,

@@ -111,6 +111,9 @@ fn replay(stream: &[(u64, Vec<u8>)]) -> Vec<Received> {
     b.start(0);
     let mut out = Vec::new();
     for (ms, bytes) in stream {
+        // What falls due by now (a stale partial response dropped, a timeout) comes
+        // before the bytes of this moment, as on the board, which polls between reads.
+        while b.poll(*ms).is_some() {}
         for piece in bytes.chunks(16) {
             b.on_uart(piece, *ms);
             while b.poll(*ms).is_some() {}

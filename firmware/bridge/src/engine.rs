@@ -99,6 +99,11 @@ pub struct BridgeStats {
     pub queue_overflows: u32,
     /// Frames queued.
     pub frames: u32,
+    /// Scans the sensor sent that the bridge never started: a stream frame whose echo,
+    /// status or timestamp line was damaged, or a scan withheld because the sensor's
+    /// geometry is in doubt ([`crate::session::Geometry`]). Each one advances the scan
+    /// sequence (a receiver sees the gap) and counts in `dropped_scans`.
+    pub scans_lost: u32,
 }
 
 /// Where the scan path is within the current response.
@@ -128,6 +133,13 @@ struct Core<const Q: usize> {
     queue: FrameQueue<Q>,
     phase: Phase,
     seq: u16,
+    /// The last response that ended was a stream frame: a next response whose echo is
+    /// damaged is most likely one too.
+    in_stream: bool,
+    /// The echo of the response being decoded did not parse.
+    echo_damaged: bool,
+    /// The status of a response whose echo was damaged.
+    echo_status: Option<Status>,
     overflow: bool,
     filtered: bool,
     stats: BridgeStats,
@@ -151,6 +163,8 @@ struct Core<const Q: usize> {
 pub struct Bridge<const Q: usize> {
     decoder: Decoder,
     core: Core<Q>,
+    /// When the last UART byte arrived, ms.
+    last_uart_ms: u64,
 }
 
 impl<const Q: usize> Bridge<Q> {
@@ -162,6 +176,7 @@ impl<const Q: usize> Bridge<Q> {
         config.encoding.validate().map_err(BridgeError::Wire)?;
         Ok(Self {
             decoder: Decoder::new(),
+            last_uart_ms: 0,
             core: Core {
                 session: Session::new(config.session).map_err(BridgeError::Session)?,
                 pipeline: Pipeline::new(config.pipeline).map_err(BridgeError::Pipeline)?,
@@ -171,6 +186,9 @@ impl<const Q: usize> Bridge<Q> {
                 queue: FrameQueue::new(),
                 phase: Phase::None,
                 seq: 0,
+                in_stream: false,
+                echo_damaged: false,
+                echo_status: None,
                 overflow: false,
                 filtered: false,
                 stats: BridgeStats::default(),
@@ -199,6 +217,9 @@ impl<const Q: usize> Bridge<Q> {
 
     /// Takes bytes from the sensor's UART. Work is linear in `bytes.len()`.
     pub fn on_uart(&mut self, bytes: &[u8], now_ms: u64) {
+        if !bytes.is_empty() {
+            self.last_uart_ms = now_ms;
+        }
         let mut rest = bytes;
         while !rest.is_empty() {
             let (used, event) = self.decoder.feed(rest);
@@ -213,6 +234,16 @@ impl<const Q: usize> Bridge<Q> {
     /// periodically.
     pub fn poll(&mut self, now_ms: u64) -> Option<Action> {
         self.core.periodic_status(now_ms, self.decoder.stats());
+        // A response cut off (the sensor rebooted or the link dropped bytes) and silence
+        // since: what is buffered is stale. Without this, the next answer would be glued
+        // to the partial line and lost with it.
+        let silent = now_ms.saturating_sub(self.last_uart_ms);
+        if !self.decoder.is_idle() && silent > u64::from(self.core.session.stale_input_ms()) {
+            if let Some(event) = self.decoder.finish() {
+                // It happened when the bytes stopped.
+                self.core.event(&event, self.last_uart_ms);
+            }
+        }
         let action = self.core.session.poll(now_ms);
         if let Some(notice) = self.core.session.take_notice() {
             self.core.notice(notice);
@@ -343,6 +374,8 @@ impl<const Q: usize> Core<Q> {
                     // decoder, but never leave a scan open.
                     self.abort_scan(AbortReason::BadData);
                 }
+                self.echo_damaged = request.is_none();
+                self.echo_status = None;
                 self.phase = match request.map(|r| r.command) {
                     Some(Command::Scan(s)) => Phase::Echo(s),
                     _ => Phase::None,
@@ -355,7 +388,10 @@ impl<const Q: usize> Core<Q> {
                     Phase::None
                 };
             }
-            (Event::Timestamp(t), Phase::Framed(s)) => self.begin_scan(s, *t, now),
+            (Event::Timestamp(t), Phase::Framed(s)) => {
+                self.in_stream = s.mode == ScanMode::Continuous;
+                self.begin_scan(s, *t, now);
+            }
             (Event::Data(line), Phase::Active(s)) => self.data_line(line, &s),
             (Event::End(_), Phase::Active(_)) => self.finish_scan(),
             (Event::Error(e), Phase::Active(_)) => {
@@ -366,9 +402,44 @@ impl<const Q: usize> Core<Q> {
                 };
                 self.abort_scan(reason);
             }
-            (Event::End(_) | Event::Error(_), _) => self.phase = Phase::None,
+            (Event::Error(_), Phase::Echo(_) | Phase::Framed(_)) => {
+                // A measurement response damaged before its scan began.
+                self.lose_scan();
+                self.phase = Phase::None;
+            }
+            (Event::Status(status), Phase::None) if self.echo_damaged => {
+                self.echo_status = Some(*status);
+            }
+            (Event::Error(_), Phase::None)
+                if self.echo_damaged
+                    && match self.echo_status {
+                        Some(status) => carries_frame(status),
+                        None => self.in_stream,
+                    } =>
+            {
+                // A stream frame whose echo was damaged (its status says so or, when
+                // that was damaged too, it came in a stream).
+                self.lose_scan();
+            }
+            (Event::End(_) | Event::Error(_), _) => {
+                if matches!(event, Event::End(_))
+                    && matches!(self.phase, Phase::None)
+                    && !self.echo_damaged
+                {
+                    // An answer to another command: the stream is not what came last.
+                    self.in_stream = false;
+                }
+                self.phase = Phase::None;
+            }
             _ => {}
         }
+    }
+
+    /// A scan the sensor sent and the bridge never started: counted, and its sequence
+    /// number skipped so that a receiver sees the gap.
+    fn lose_scan(&mut self) {
+        self.stats.scans_lost = self.stats.scans_lost.wrapping_add(1);
+        self.seq = self.seq.wrapping_add(1);
     }
 
     /// The pipeline, the decimated-line buffer and the parts output points go through,
@@ -535,6 +606,7 @@ impl<const Q: usize> Core<Q> {
         let dropped = self
             .stats
             .scans_aborted
+            .saturating_add(self.stats.scans_lost)
             .saturating_add(g.dropped_budget)
             .saturating_add(g.dropped_queue);
         let pages = crate::status::periodic_pages(
@@ -666,6 +738,11 @@ impl<const Q: usize> Core<Q> {
     fn begin_scan(&mut self, s: ScanRequest, timestamp: u32, now: u64) {
         self.stats.scans_in += 1;
         self.phase = Phase::Ignored;
+        if !self.session.geometry().allows_scans() {
+            // The last PP answer was damaged or doubted: no angles to publish it with.
+            self.lose_scan();
+            return;
+        }
         let info = ScanInfo {
             seq: u32::from(self.seq),
             timestamp_ms: timestamp,
@@ -932,8 +1009,13 @@ impl<const Q: usize> Output<'_, Q> {
 fn carries_scan(s: &ScanRequest, status: Status) -> bool {
     match s.mode {
         ScanMode::Single => status == Status::OK,
-        ScanMode::Continuous => matches!(status, Status::Scip2([b'9', b'9'] | [b'0', b'M'])),
+        ScanMode::Continuous => carries_frame(status),
     }
+}
+
+/// The status of a stream frame (`99`, or `0M` on SCIP 2.2).
+fn carries_frame(status: Status) -> bool {
+    matches!(status, Status::Scip2([b'9', b'9'] | [b'0', b'M']))
 }
 
 /// The queue as the encoder's [`FrameSink`]: a data frame gets a slot when two are free

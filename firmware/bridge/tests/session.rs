@@ -1,14 +1,22 @@
 //! The session state machine against a scripted sensor: the bytes of each answer are
 //! written with the codec's `ResponseWriter` and decoded with its `Decoder`, as on the MCU.
 
-use bridge::session::{Action, Notice, RecoverReason, Session, SessionConfig, State};
-use scip::{Command, Decoder, Request, ResponseWriter, ScanMode, ScanRequest, TimeMode};
+use bridge::session::{Action, Geometry, Notice, RecoverReason, Session, SessionConfig, State};
+use scip::{
+    Command, Decoder, ParamError, ParamName, Request, ResponseWriter, ScanMode, ScanRequest,
+    TimeMode,
+};
 
 /// A scripted sensor: SCIP 1.1 until switched, UTM-30LX parameters.
 struct Sensor {
     scip11: bool,
     mute: bool,
     baud: u32,
+    /// PP answers still to damage: bit 6 of ARES's last digit flipped, which the line
+    /// sum cannot see (`ARES:1440` reads `ARES:144p`).
+    pp_flips: u32,
+    /// The AFRT this unit reports (540, as the UTM-30LX table says).
+    afrt: &'static [u8],
 }
 
 impl Sensor {
@@ -45,7 +53,7 @@ impl Sensor {
                     (b"ARES", b"1440"),
                     (b"AMIN", b"0"),
                     (b"AMAX", b"1080"),
-                    (b"AFRT", b"540"),
+                    (b"AFRT", self.afrt),
                     (b"SCAN", b"2400"),
                 ] {
                     w.field(n, v);
@@ -68,6 +76,11 @@ impl Sensor {
         }
         w.end();
         let _ = w.into_inner();
+        if req.command == Command::Parameters && self.pp_flips > 0 {
+            self.pp_flips -= 1;
+            let at = out.windows(9).position(|w| w == b"ARES:1440").unwrap() + 8;
+            out[at] ^= 0x40;
+        }
         out
     }
 }
@@ -108,6 +121,8 @@ impl Rig {
                 scip11,
                 mute: false,
                 baud: 115_200,
+                pp_flips: 0,
+                afrt: b"540",
             },
             sent: Vec::new(),
             rates: Vec::new(),
@@ -208,11 +223,11 @@ fn silence_is_recovered_with_growing_back_off() {
     rig.session.start(0);
     rig.run(0);
     assert_eq!(rig.session.state(), State::Streaming);
-    // 2400 rpm = 25 ms per scan: silence limit 4 * 25 + 200 = 300 ms.
-    rig.run(300);
+    // 2400 rpm = 25 ms per scan: silence limit 8 * 25 + 500 = 700 ms.
+    rig.run(700);
     assert_eq!(rig.session.state(), State::Streaming);
     rig.sent.clear();
-    rig.run(301);
+    rig.run(701);
     assert_eq!(
         rig.notices.last(),
         Some(&Notice::Recovering(RecoverReason::Silence))
@@ -220,17 +235,17 @@ fn silence_is_recovered_with_growing_back_off() {
     assert_eq!(rig.codes(), ["QT", "RS"]);
     assert_eq!(rig.session.state(), State::Backoff);
     // 100 ms back-off, then the whole bring-up again.
-    rig.run(400);
+    rig.run(800);
     assert_eq!(rig.session.state(), State::Backoff);
     rig.sent.clear();
-    rig.run(401);
+    rig.run(801);
     assert_eq!(rig.codes(), ["QT", "VV", "PP", "II", "MD0000108001000"]);
     assert_eq!(rig.session.state(), State::Streaming);
     // Streaming resets the back-off; a second silence waits 100 ms again.
-    rig.run(1000);
+    rig.run(1502);
     assert_eq!(rig.session.state(), State::Backoff);
     rig.sent.clear();
-    rig.run(1101);
+    rig.run(1602);
     assert_eq!(rig.session.state(), State::Streaming);
     assert_eq!(rig.session.stats().recoveries, 2);
 }
@@ -421,4 +436,132 @@ fn a_silent_sensor_at_both_rates_is_recovered_at_the_power_up_rate() {
         rig.notices.first(),
         Some(&Notice::Recovering(RecoverReason::Timeout))
     );
+}
+
+#[test]
+fn a_pp_answer_damaged_past_its_sums_is_asked_again() {
+    let mut rig = Rig::new(config(), false);
+    rig.sensor.pp_flips = 1;
+    rig.session.start(0);
+    rig.run(0);
+    assert_eq!(
+        rig.codes(),
+        ["QT", "VV", "PP", "PP", "II", "MD0000108001000"]
+    );
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.geometry(), Geometry::Established);
+    // The values of the sound answer, as the script writes them.
+    let p = rig.session.params();
+    assert_eq!(
+        (p.ares, p.afrt, p.amin, p.amax),
+        (Some(1440), Some(540), Some(0), Some(1080))
+    );
+    assert_eq!(rig.session.stats().pp_doubted, 1);
+    assert_eq!(rig.notices, [Notice::Identified, Notice::Streaming]);
+}
+
+#[test]
+fn a_pp_answer_doubted_every_time_is_recovered_and_never_streams() {
+    let mut rig = Rig::new(config(), false);
+    rig.sensor.pp_flips = u32::MAX;
+    rig.session.start(0);
+    rig.run(0);
+    let doubt = ParamError::BadValue(ParamName::Ares);
+    assert_eq!(
+        rig.notices,
+        [Notice::Recovering(RecoverReason::Parameters(doubt))]
+    );
+    // Asked three times (two retries), then QT, RS.
+    assert_eq!(rig.codes(), ["QT", "VV", "PP", "PP", "PP", "QT", "RS"]);
+    assert_eq!(rig.session.geometry(), Geometry::Doubted(doubt));
+    assert_eq!(rig.session.params().ares, None);
+    // Once the sensor answers soundly, the session streams.
+    rig.sensor.pp_flips = 0;
+    rig.run(101);
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.params().ares, Some(1440));
+}
+
+#[test]
+fn a_unit_that_differs_from_its_models_table_is_taken_when_it_answers_the_same_twice() {
+    let mut rig = Rig::new(config(), false);
+    rig.sensor.afrt = b"541";
+    rig.session.start(0);
+    rig.run(0);
+    assert_eq!(
+        rig.codes(),
+        ["QT", "VV", "PP", "PP", "II", "MD0000108001000"]
+    );
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert_eq!(rig.session.params().afrt, Some(541));
+}
+
+/// Feeds `frames` stream frames, one every `period` ms from `from`, polling every ms in
+/// between; returns the time after the last one.
+fn stream_for(rig: &mut Rig, from: u64, frames: u64, period: u64) -> u64 {
+    let scan = rig.session.scan_request();
+    let mut t = from;
+    for _ in 0..frames {
+        for _ in 0..period {
+            t += 1;
+            rig.run(t);
+        }
+        rig.feed(&frame(&scan, *b"99"), t);
+    }
+    t
+}
+
+#[test]
+fn a_300_ms_stall_keeps_the_stream_and_its_late_scans() {
+    let mut rig = Rig::new(config(), false);
+    rig.session.start(0);
+    rig.run(0);
+    let t = stream_for(&mut rig, 0, 10, 25);
+    // The sensor holds its output back for 300 ms, then sends the 12 scans it measured
+    // meanwhile in a burst, and streams on.
+    let mut t2 = t;
+    for _ in 0..325 {
+        t2 += 1;
+        rig.run(t2);
+    }
+    let scan = rig.session.scan_request();
+    for _ in 0..12 {
+        rig.feed(&frame(&scan, *b"99"), t2);
+    }
+    rig.run(t2);
+    let end = stream_for(&mut rig, t2, 20, 25);
+    rig.run(end);
+    assert_eq!(rig.session.state(), State::Streaming);
+    assert!(
+        rig.notices
+            .iter()
+            .all(|n| !matches!(n, Notice::Recovering(_))),
+        "{:?}",
+        rig.notices
+    );
+    assert_eq!(rig.session.stats().frames, 10 + 12 + 20);
+    assert_eq!(rig.session.stats().recoveries, 0);
+    assert_eq!(rig.codes(), ["QT", "VV", "PP", "II", "MD0000108001000"]);
+}
+
+#[test]
+fn the_silence_limit_scales_with_the_frame_period() {
+    // UTM-30LX, 25 ms per scan: 8 frames + 500 ms = 700 ms; every second scan: 900 ms.
+    for (skip, limit) in [(0u8, 700u64), (1, 900)] {
+        let mut scan = ScanRequest::distance(ScanMode::Continuous, 0, 1080);
+        scan.skip = skip;
+        let mut rig = Rig::new(SessionConfig { scan, ..config() }, false);
+        rig.session.start(0);
+        rig.run(0);
+        let t = stream_for(&mut rig, 0, 4, 25 * (u64::from(skip) + 1));
+        assert_eq!(rig.session.silence_limit_ms(), limit as u32);
+        rig.run(t + limit);
+        assert_eq!(rig.session.state(), State::Streaming, "skip {skip}");
+        rig.run(t + limit + 1);
+        assert_eq!(
+            rig.notices.last(),
+            Some(&Notice::Recovering(RecoverReason::Silence)),
+            "skip {skip}"
+        );
+    }
 }

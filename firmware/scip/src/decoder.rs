@@ -15,7 +15,7 @@
 
 use crate::command::{Command, DataSet, EchoError, Request, ScanMode, ScanRequest, TimeMode};
 use crate::error::{Error, ErrorKind};
-use crate::info::{Param, Range, RangeLimits, SensorParams};
+use crate::info::{Param, ParamError, Range, RangeLimits, SensorParams};
 use crate::status::Status;
 use crate::sum::checksum;
 use crate::value::CHAR_MIN;
@@ -167,6 +167,10 @@ enum Payload {
     Time,
     /// Generic checked lines (`%ST`).
     Lines,
+    /// The echo did not parse, yet the status announces a payload: its status is
+    /// reported (a `99` tells a stream frame from an info answer's `00`), then the
+    /// response fails with [`ErrorKind::UnknownEcho`] at its first payload line or end.
+    Unknown,
 }
 
 /// Shape of the values of the measurement being decoded.
@@ -237,16 +241,7 @@ impl Decoder {
     /// A decoder between responses, with default range limits (DMIN 20, family unknown)
     /// until it decodes a PP response.
     pub const fn new() -> Self {
-        const EMPTY: SensorParams = SensorParams {
-            dmin: None,
-            dmax: None,
-            ares: None,
-            amin: None,
-            amax: None,
-            afrt: None,
-            scan_rpm: None,
-            family: None,
-        };
+        const EMPTY: SensorParams = SensorParams::EMPTY;
         Self {
             buf: [0; LINE_CAP],
             len: 0,
@@ -329,7 +324,9 @@ impl Decoder {
         self.limits
     }
 
-    /// The PP parameters of the last intact PP response.
+    /// The PP parameters of the last intact PP response whose fields are whole and
+    /// plausible ([`SensorParams::check`]; a unit differing from its model's table is
+    /// accepted here).
     pub fn params(&self) -> &SensorParams {
         &self.params
     }
@@ -686,7 +683,7 @@ impl Decoder {
         let payload = match (status, self.request.map(|r| r.command)) {
             (Status::Scip11(_), _) => Payload::Ignore,
             (s, _) if !s.carries_data() => Payload::None,
-            (_, None) => return self.fail(ErrorKind::UnknownEcho(self.echo_error)),
+            (_, None) => Payload::Unknown,
             (s, Some(cmd)) => match cmd {
                 Command::Version | Command::Parameters | Command::Info => Payload::Fields,
                 Command::Time(TimeMode::Read) => Payload::Time,
@@ -719,6 +716,7 @@ impl Decoder {
     fn payload_line(&mut self, p: Payload, len: usize) -> Option<Event<'_>> {
         match p {
             Payload::None => self.fail(ErrorKind::UnexpectedPayload),
+            Payload::Unknown => self.fail(ErrorKind::UnknownEcho(self.echo_error)),
             Payload::Ignore => None,
             Payload::Fields => self.field_line(len),
             Payload::ScanTimestamp | Payload::Time => {
@@ -1081,6 +1079,9 @@ impl Decoder {
     }
 
     fn end_response(&mut self) -> Option<Event<'_>> {
+        if self.state == State::Payload(Payload::Unknown) {
+            return self.fail(ErrorKind::UnknownEcho(self.echo_error));
+        }
         if let State::Payload(p @ (Payload::ScanTimestamp | Payload::Data)) = self.state {
             if self.carry_n != 0 || self.in_aux || self.next_is_echo {
                 return self.fail(ErrorKind::TruncatedValue);
@@ -1095,12 +1096,17 @@ impl Decoder {
         if matches!(self.state, State::Payload(Payload::Fields))
             && matches!(self.request.map(|r| r.command), Some(Command::Parameters))
         {
-            self.params = self.pp;
-            if let Some(dmin) = self.pp.dmin {
-                self.limits.dmin = dmin;
-            }
-            if let Some(family) = self.pp.family {
-                self.limits.family = family;
+            // Parameters and limits only from an answer whose fields are whole and
+            // plausible: a flip the line sum cannot see must not change the geometry or
+            // how ranges are told from error codes.
+            if matches!(self.pp.check(), Ok(()) | Err(ParamError::NotTheModels(_))) {
+                self.params = self.pp;
+                if let Some(dmin) = self.pp.dmin {
+                    self.limits.dmin = dmin;
+                }
+                if let Some(family) = self.pp.family {
+                    self.limits.family = family;
+                }
             }
         }
         self.state = State::Idle;
@@ -1264,6 +1270,43 @@ mod tests {
     use super::*;
     use crate::command::ScanMode;
     use crate::response::ResponseWriter;
+
+    /// The kinds of events a whole input gives, one char each: S start, T status,
+    /// F field, E error, N end, other x.
+    fn kinds(input: &[u8]) -> String {
+        let mut d = Decoder::new();
+        let mut out = String::new();
+        let mut rest = input;
+        while !rest.is_empty() {
+            let (n, ev) = d.feed(rest);
+            rest = &rest[n..];
+            out.push(match ev {
+                None => continue,
+                Some(Event::Start { .. }) => 'S',
+                Some(Event::Status(_)) => 'T',
+                Some(Event::Field(_)) => 'F',
+                Some(Event::Error(e)) => {
+                    assert!(matches!(e.kind, ErrorKind::UnknownEcho(_)), "{e:?}");
+                    'E'
+                }
+                Some(Event::End(_)) => 'N',
+                Some(_) => 'x',
+            });
+        }
+        out
+    }
+
+    #[test]
+    fn an_unknown_echo_reports_its_status_before_failing() {
+        // A stream frame whose echo lost a bit: status 99 reported, then the failure.
+        assert_eq!(kinds(b"mD0000000101000\n99b\n0000\n000\n\n"), "STE");
+        // An info answer: 00, then the failure at its first field.
+        assert_eq!(kinds(b"Pp\n00P\nDMIN:20;4\n\n"), "STE");
+        // Or at its end, when it has no payload line.
+        assert_eq!(kinds(b"Pp\n00P\n\n"), "STE");
+        // A status without payload: an answer like any other.
+        assert_eq!(kinds(b"Pp\n0Ee\n\n"), "STN");
+    }
 
     #[test]
     fn distance_lines_after_intensity_lines_carry_no_old_intensity() {

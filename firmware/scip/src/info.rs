@@ -2,6 +2,129 @@
 
 use core::fmt;
 
+/// The name of a PP field the parameters are made of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ParamName {
+    /// `MODL`: the model string.
+    Modl,
+    /// `DMIN`.
+    Dmin,
+    /// `DMAX`.
+    Dmax,
+    /// `ARES`.
+    Ares,
+    /// `AMIN`.
+    Amin,
+    /// `AMAX`.
+    Amax,
+    /// `AFRT`.
+    Afrt,
+    /// `SCAN`.
+    Scan,
+}
+
+impl ParamName {
+    /// The name of a PP field, if it is one of the parameters.
+    pub fn from_name(name: &[u8]) -> Option<Self> {
+        Some(match name {
+            b"MODL" => Self::Modl,
+            b"DMIN" => Self::Dmin,
+            b"DMAX" => Self::Dmax,
+            b"ARES" => Self::Ares,
+            b"AMIN" => Self::Amin,
+            b"AMAX" => Self::Amax,
+            b"AFRT" => Self::Afrt,
+            b"SCAN" => Self::Scan,
+            _ => return None,
+        })
+    }
+
+    /// The four letters of the field.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Modl => "MODL",
+            Self::Dmin => "DMIN",
+            Self::Dmax => "DMAX",
+            Self::Ares => "ARES",
+            Self::Amin => "AMIN",
+            Self::Amax => "AMAX",
+            Self::Afrt => "AFRT",
+            Self::Scan => "SCAN",
+        }
+    }
+}
+
+impl fmt::Display for ParamName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Why a PP answer's parameters are not trusted. A line's 6-bit sum cannot see a flip
+/// of bit 6 or 7, so an intact-looking answer can still carry a damaged field: these
+/// checks catch what the sum lets through.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ParamError {
+    /// A field whose value is not whole: a number must be 1..=9 decimal digits and
+    /// nothing else (a trailing `<-comment` aside); `MODL` must be printable ASCII.
+    BadValue(ParamName),
+    /// A field that came twice in one answer.
+    Repeated(ParamName),
+    /// A field that is missing.
+    Missing(ParamName),
+    /// `DMIN` is not below `DMAX`.
+    DistanceOrder,
+    /// Not `AMIN <= AFRT <= AMAX < ARES` (or `ARES` above 65535).
+    StepOrder,
+    /// `SCAN` outside [`SCAN_RPM_RANGE`].
+    ScanSpeed,
+    /// A value other than the one every unit of the model `MODL` names reports
+    /// ([`KnownModel`]).
+    NotTheModels(ParamName),
+    /// `MODL` names another model than `VV`'s `PROD`.
+    ModelConflict,
+}
+
+impl fmt::Display for ParamError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::BadValue(n) => write!(f, "PP {n}: damaged value"),
+            Self::Repeated(n) => write!(f, "PP {n}: field repeated"),
+            Self::Missing(n) => write!(f, "PP {n}: field missing"),
+            Self::DistanceOrder => f.write_str("PP: DMIN not below DMAX"),
+            Self::StepOrder => f.write_str("PP: not AMIN <= AFRT <= AMAX < ARES"),
+            Self::ScanSpeed => f.write_str("PP: SCAN speed implausible"),
+            Self::NotTheModels(n) => write!(f, "PP {n}: not the model's value"),
+            Self::ModelConflict => f.write_str("PP MODL and VV PROD name different models"),
+        }
+    }
+}
+
+/// Motor speeds (`SCAN`, rpm) a sensor may report: Hokuyo scanners turn at 600 to 2400
+/// rpm by default and `CR` changes that by a few percent; this range leaves a wide margin.
+pub const SCAN_RPM_RANGE: core::ops::RangeInclusive<u32> = 60..=6000;
+
+/// The value of a numeric PP field: the whole of it decimal digits (1..=9 of them), or
+/// digits followed by a `<-comment` (as some firmware appends to info lines). Anything
+/// else is damaged: the leading digits of `1440` with bit 6 of its `4` flipped are not
+/// the value.
+fn whole_number(value: &[u8]) -> Option<u32> {
+    let digits = value
+        .windows(2)
+        .position(|w| w == b"<-")
+        .map_or(value, |i| value.get(..i).unwrap_or(&[]));
+    if digits.is_empty() || digits.len() > 9 || !digits.iter().all(u8::is_ascii_digit) {
+        return None;
+    }
+    Some(
+        digits
+            .iter()
+            .fold(0u32, |acc, &c| acc * 10 + u32::from(c - b'0')),
+    )
+}
+
 /// A typed PP field.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -23,27 +146,84 @@ pub enum Param {
 }
 
 impl Param {
-    /// Parses a PP field whose name is one of the typed ones and whose value is decimal.
+    /// Parses a numeric PP field; `None` for another name or a damaged value (see
+    /// [`Param::try_parse`] to tell them apart).
     pub fn parse(name: &[u8], value: &[u8]) -> Option<Self> {
-        let ctor: fn(u32) -> Param = match name {
-            b"DMIN" => Param::Dmin,
-            b"DMAX" => Param::Dmax,
-            b"ARES" => Param::Ares,
-            b"AMIN" => Param::Amin,
-            b"AMAX" => Param::Amax,
-            b"AFRT" => Param::Afrt,
-            b"SCAN" => Param::Scan,
-            _ => return None,
+        Self::try_parse(name, value).ok().flatten()
+    }
+
+    /// Parses a numeric PP field: `Ok(None)` for a name that is not one of them
+    /// (`MODL` included), [`ParamError::BadValue`] for a value that is not a whole
+    /// decimal number.
+    pub fn try_parse(name: &[u8], value: &[u8]) -> Result<Option<Self>, ParamError> {
+        let ctor: fn(u32) -> Param = match ParamName::from_name(name) {
+            Some(ParamName::Dmin) => Param::Dmin,
+            Some(ParamName::Dmax) => Param::Dmax,
+            Some(ParamName::Ares) => Param::Ares,
+            Some(ParamName::Amin) => Param::Amin,
+            Some(ParamName::Amax) => Param::Amax,
+            Some(ParamName::Afrt) => Param::Afrt,
+            Some(ParamName::Scan) => Param::Scan,
+            Some(ParamName::Modl) | None => return Ok(None),
         };
-        // Some firmware appends a unit or comment; the leading digits are the value.
-        let digits = value.iter().take_while(|c| c.is_ascii_digit()).count();
-        let digits = value
-            .get(..digits)
-            .filter(|d| !d.is_empty() && d.len() <= 9)?;
-        let v = digits
-            .iter()
-            .fold(0u32, |acc, &c| acc * 10 + u32::from(c - b'0'));
-        Some(ctor(v))
+        match whole_number(value) {
+            Some(v) => Ok(Some(ctor(v))),
+            None => Err(ParamError::BadValue(
+                ParamName::from_name(name).unwrap_or(ParamName::Modl),
+            )),
+        }
+    }
+}
+
+/// A model whose geometry every unit reports the same (scip-reference §6): its PP values
+/// are checked against these.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum KnownModel {
+    /// URG-04LX and URG-04LX-UG01.
+    Urg04lx,
+    /// UTM-30LX and UTM-30LX-EW.
+    Utm30lx,
+    /// UXM-30LX-E.
+    Uxm30lxE,
+    /// UST-10LX.
+    Ust10lx,
+}
+
+impl KnownModel {
+    /// The model a `MODL` (PP) or `PROD` (VV) string names, if it is a known one.
+    pub fn from_model(model: &[u8]) -> Option<Self> {
+        let has = |needle: &[u8]| model.windows(needle.len()).any(|w| w == needle);
+        if has(b"URG-04LX") {
+            Some(Self::Urg04lx)
+        } else if has(b"UTM-30LX") {
+            Some(Self::Utm30lx)
+        } else if has(b"UXM-30LX-E") {
+            Some(Self::Uxm30lxE)
+        } else if has(b"UST-10LX") {
+            Some(Self::Ust10lx)
+        } else {
+            None
+        }
+    }
+
+    /// The model's DMIN, DMAX, ARES, AMIN, AMAX and AFRT (SCAN is not fixed: `CR`
+    /// changes it).
+    pub const fn values(self) -> [(ParamName, u32); 6] {
+        let [dmin, dmax, ares, amin, amax, afrt] = match self {
+            Self::Urg04lx => [20, 5600, 1024, 44, 725, 384],
+            Self::Utm30lx => [23, 60_000, 1440, 0, 1080, 540],
+            Self::Uxm30lxE => [100, 100_000, 1440, 0, 760, 380],
+            Self::Ust10lx => [20, 30_000, 1440, 0, 1080, 540],
+        };
+        [
+            (ParamName::Dmin, dmin),
+            (ParamName::Dmax, dmax),
+            (ParamName::Ares, ares),
+            (ParamName::Amin, amin),
+            (ParamName::Amax, amax),
+            (ParamName::Afrt, afrt),
+        ]
     }
 }
 
@@ -238,7 +418,7 @@ impl RangeLimits {
     }
 }
 
-/// The typed PP parameters of a sensor.
+/// The typed PP parameters of a sensor, as collected from one PP answer's fields.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SensorParams {
@@ -258,25 +438,117 @@ pub struct SensorParams {
     pub scan_rpm: Option<u32>,
     /// Model family from `MODL`.
     pub family: Option<ModelFamily>,
+    /// The known model `MODL` names, if any.
+    pub model: Option<KnownModel>,
+    /// The first damaged or repeated field of the answer (its value was not taken).
+    pub fault: Option<ParamError>,
 }
 
 impl SensorParams {
-    /// Records one PP field.
+    /// No field yet.
+    pub const EMPTY: Self = Self {
+        dmin: None,
+        dmax: None,
+        ares: None,
+        amin: None,
+        amax: None,
+        afrt: None,
+        scan_rpm: None,
+        family: None,
+        model: None,
+        fault: None,
+    };
+
+    /// Records one PP field. A damaged value (see [`Param::try_parse`]) or a field seen
+    /// before is not taken, and recorded as the answer's [`SensorParams::fault`].
     pub fn apply(&mut self, name: &[u8], value: &[u8]) {
-        if name == b"MODL" {
-            self.family = Some(ModelFamily::from_model(value));
+        let Some(which) = ParamName::from_name(name) else {
+            return;
+        };
+        if self.get(which).is_some() {
+            self.fault.get_or_insert(ParamError::Repeated(which));
             return;
         }
-        match Param::parse(name, value) {
-            Some(Param::Dmin(v)) => self.dmin = Some(v),
-            Some(Param::Dmax(v)) => self.dmax = Some(v),
-            Some(Param::Ares(v)) => self.ares = Some(v),
-            Some(Param::Amin(v)) => self.amin = Some(v),
-            Some(Param::Amax(v)) => self.amax = Some(v),
-            Some(Param::Afrt(v)) => self.afrt = Some(v),
-            Some(Param::Scan(v)) => self.scan_rpm = Some(v),
-            None => {}
+        if which == ParamName::Modl {
+            if value.is_empty() || !value.iter().all(|c| (0x20..0x7F).contains(c)) {
+                self.fault.get_or_insert(ParamError::BadValue(which));
+                return;
+            }
+            self.family = Some(ModelFamily::from_model(value));
+            self.model = KnownModel::from_model(value);
+            return;
         }
+        match Param::try_parse(name, value) {
+            Ok(Some(Param::Dmin(v))) => self.dmin = Some(v),
+            Ok(Some(Param::Dmax(v))) => self.dmax = Some(v),
+            Ok(Some(Param::Ares(v))) => self.ares = Some(v),
+            Ok(Some(Param::Amin(v))) => self.amin = Some(v),
+            Ok(Some(Param::Amax(v))) => self.amax = Some(v),
+            Ok(Some(Param::Afrt(v))) => self.afrt = Some(v),
+            Ok(Some(Param::Scan(v))) => self.scan_rpm = Some(v),
+            Ok(None) => {}
+            Err(e) => {
+                self.fault.get_or_insert(e);
+            }
+        }
+    }
+
+    /// A field's value (`MODL`: 0 when present), if it was received whole.
+    fn get(&self, name: ParamName) -> Option<u32> {
+        match name {
+            ParamName::Modl => self.family.map(|_| 0),
+            ParamName::Dmin => self.dmin,
+            ParamName::Dmax => self.dmax,
+            ParamName::Ares => self.ares,
+            ParamName::Amin => self.amin,
+            ParamName::Amax => self.amax,
+            ParamName::Afrt => self.afrt,
+            ParamName::Scan => self.scan_rpm,
+        }
+    }
+
+    /// Whether the parameters can be trusted: every field there once and whole,
+    /// `DMIN < DMAX`, `AMIN <= AFRT <= AMAX < ARES <= 65535`, `SCAN` in
+    /// [`SCAN_RPM_RANGE`], and, when `MODL` names a [`KnownModel`], that model's values.
+    /// The first failed check is returned (the model's values are checked last, so that
+    /// a caller may accept a unit that differs from its model's table but answers the
+    /// same twice).
+    pub fn check(&self) -> Result<(), ParamError> {
+        if let Some(e) = self.fault {
+            return Err(e);
+        }
+        let all = [
+            ParamName::Modl,
+            ParamName::Dmin,
+            ParamName::Dmax,
+            ParamName::Ares,
+            ParamName::Amin,
+            ParamName::Amax,
+            ParamName::Afrt,
+            ParamName::Scan,
+        ];
+        let mut v = [0u32; 8];
+        for (slot, name) in v.iter_mut().zip(all) {
+            *slot = self.get(name).ok_or(ParamError::Missing(name))?;
+        }
+        let [_, dmin, dmax, ares, amin, amax, afrt, scan] = v;
+        if dmin >= dmax {
+            return Err(ParamError::DistanceOrder);
+        }
+        if !(amin <= afrt && afrt <= amax && amax < ares && ares <= 65_535) {
+            return Err(ParamError::StepOrder);
+        }
+        if !SCAN_RPM_RANGE.contains(&scan) {
+            return Err(ParamError::ScanSpeed);
+        }
+        if let Some(model) = self.model {
+            for (name, value) in model.values() {
+                if self.get(name) != Some(value) {
+                    return Err(ParamError::NotTheModels(name));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Scan period in microseconds from `SCAN` (rpm), if known and non-zero.
@@ -293,6 +565,7 @@ mod tests {
     fn params_parse() {
         assert_eq!(Param::parse(b"DMIN", b"20"), Some(Param::Dmin(20)));
         assert_eq!(Param::parse(b"SCAN", b"2400"), Some(Param::Scan(2400)));
+        assert_eq!(Param::parse(b"AMIN", b"0"), Some(Param::Amin(0)));
         assert_eq!(Param::parse(b"DMIN", b"x"), None);
         assert_eq!(Param::parse(b"DMIN", b"12345678901"), None);
         assert_eq!(Param::parse(b"MODL", b"20"), None);
@@ -300,7 +573,171 @@ mod tests {
         p.apply(b"MODL", b"UTM-30LX(Hokuyo Automatic Co.,Ltd.)");
         p.apply(b"SCAN", b"2400");
         assert_eq!(p.family, Some(ModelFamily::Utm));
+        assert_eq!(p.model, Some(KnownModel::Utm30lx));
         assert_eq!(p.scan_period_us(), Some(25_000));
+    }
+
+    #[test]
+    fn a_value_is_parsed_whole_or_not_at_all() {
+        // `1440` with bit 6 of a digit flipped (the line sum cannot see it): not 144, 14
+        // or 1, but a damaged field.
+        for bad in [&b"144t"[..], b"14t0", b"1t40", b"q440", b"54p", b""] {
+            assert_eq!(
+                Param::try_parse(b"ARES", bad),
+                Err(ParamError::BadValue(ParamName::Ares)),
+                "{bad:?}"
+            );
+        }
+        // Bit 7: not ASCII at all.
+        assert_eq!(
+            Param::try_parse(b"AFRT", &[b'5', b'4' | 0x80, b'0']),
+            Err(ParamError::BadValue(ParamName::Afrt))
+        );
+        assert_eq!(
+            Param::try_parse(b"DMIN", b"1234567890"),
+            Err(ParamError::BadValue(ParamName::Dmin))
+        );
+        assert_eq!(
+            Param::try_parse(b"ARES", b"1440"),
+            Ok(Some(Param::Ares(1440)))
+        );
+        assert_eq!(
+            Param::try_parse(b"ARES", b"1440<-default"),
+            Ok(Some(Param::Ares(1440)))
+        );
+        assert_eq!(
+            Param::try_parse(b"ARES", b"<-1440"),
+            Err(ParamError::BadValue(ParamName::Ares))
+        );
+        assert_eq!(Param::try_parse(b"FOO", b"1t"), Ok(None));
+        assert_eq!(Param::try_parse(b"MODL", b"x"), Ok(None));
+    }
+
+    /// The UTM-30LX's PP fields as the capture in the project's recordings has them.
+    const UTM: [(&[u8], &[u8]); 8] = [
+        (b"MODL", b"UTM-30LX(Hokuyo Automatic Co.,Ltd.)"),
+        (b"DMIN", b"23"),
+        (b"DMAX", b"60000"),
+        (b"ARES", b"1440"),
+        (b"AMIN", b"0"),
+        (b"AMAX", b"1080"),
+        (b"AFRT", b"540"),
+        (b"SCAN", b"2400"),
+    ];
+
+    fn params(fields: &[(&[u8], &[u8])]) -> SensorParams {
+        let mut p = SensorParams::default();
+        for (n, v) in fields {
+            p.apply(n, v);
+        }
+        p
+    }
+
+    fn with(name: &'static [u8], value: &'static [u8]) -> SensorParams {
+        let mut f = UTM;
+        for slot in &mut f {
+            if slot.0 == name {
+                slot.1 = value;
+            }
+        }
+        params(&f)
+    }
+
+    #[test]
+    fn checks() {
+        let p = params(&UTM);
+        assert_eq!(p.check(), Ok(()));
+        assert_eq!(
+            (p.ares, p.afrt, p.amin, p.amax, p.dmin, p.dmax, p.scan_rpm),
+            (
+                Some(1440),
+                Some(540),
+                Some(0),
+                Some(1080),
+                Some(23),
+                Some(60000),
+                Some(2400)
+            )
+        );
+        // Damaged, missing, repeated.
+        assert_eq!(
+            with(b"ARES", b"144t").check(),
+            Err(ParamError::BadValue(ParamName::Ares))
+        );
+        assert_eq!(with(b"ARES", b"144t").ares, None);
+        assert_eq!(
+            params(&UTM[..7]).check(),
+            Err(ParamError::Missing(ParamName::Scan))
+        );
+        assert_eq!(
+            params(&UTM[1..]).check(),
+            Err(ParamError::Missing(ParamName::Modl))
+        );
+        let mut p = params(&UTM);
+        p.apply(b"AFRT", b"541");
+        assert_eq!(p.check(), Err(ParamError::Repeated(ParamName::Afrt)));
+        assert_eq!(p.afrt, Some(540));
+        // A flip to another printable char: taken, but no longer a known model.
+        let p = with(b"MODL", b"UTM-s0LX(Hokuyo Automatic Co.,Ltd.)");
+        assert_eq!(
+            (p.check(), p.model, p.family),
+            (Ok(()), None, Some(ModelFamily::Utm))
+        );
+        assert_eq!(
+            with(b"MODL", &[b'U' ^ 0x40, b'T', b'M']).check(),
+            Err(ParamError::BadValue(ParamName::Modl))
+        );
+        // Implausible relations (an unknown model, so that only they are checked).
+        let odd = |name, value| {
+            let mut p = with(name, value);
+            p.model = None;
+            p.check()
+        };
+        assert_eq!(odd(b"MODL", b"X"), Ok(()));
+        assert_eq!(odd(b"DMIN", b"60000"), Err(ParamError::DistanceOrder));
+        assert_eq!(odd(b"AFRT", b"1081"), Err(ParamError::StepOrder));
+        assert_eq!(odd(b"AMIN", b"541"), Err(ParamError::StepOrder));
+        assert_eq!(odd(b"ARES", b"1080"), Err(ParamError::StepOrder));
+        assert_eq!(odd(b"SCAN", b"0"), Err(ParamError::ScanSpeed));
+        assert_eq!(odd(b"SCAN", b"24000"), Err(ParamError::ScanSpeed));
+        assert_eq!(odd(b"ARES", b"2048"), Ok(()));
+        // The model's own values.
+        assert_eq!(
+            with(b"ARES", b"2048").check(),
+            Err(ParamError::NotTheModels(ParamName::Ares))
+        );
+        assert_eq!(
+            with(b"AFRT", b"541").check(),
+            Err(ParamError::NotTheModels(ParamName::Afrt))
+        );
+        assert_eq!(
+            with(b"SCAN", b"2200").check(),
+            Ok(()),
+            "CR may change the speed"
+        );
+    }
+
+    #[test]
+    fn known_models() {
+        for (text, model) in [
+            (
+                &b"URG-04LX(Hokuyo Automatic Co.,Ltd.)"[..],
+                KnownModel::Urg04lx,
+            ),
+            (
+                b"SOKUIKI Sensor URG-04LX-UG01(Simple-URG)",
+                KnownModel::Urg04lx,
+            ),
+            (b"SOKUIKI Sensor TOP-URG UTM-30LX", KnownModel::Utm30lx),
+            (
+                b"UXM-30LX-E(Hokuyo Automatic Co.,Ltd.)",
+                KnownModel::Uxm30lxE,
+            ),
+            (b"UST-10LX", KnownModel::Ust10lx),
+        ] {
+            assert_eq!(KnownModel::from_model(text), Some(model));
+        }
+        assert_eq!(KnownModel::from_model(b"UST-20LX"), None);
     }
 
     #[test]

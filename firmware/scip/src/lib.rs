@@ -21,7 +21,10 @@ pub use decoder::{
     DataLine, Decoder, DecoderStats, Event, Field, Reading, Summary, LINE_CAP, MAX_READINGS,
 };
 pub use error::{Error, ErrorKind};
-pub use info::{ModelFamily, Param, Range, RangeError, RangeLimits, RangeTest, SensorParams};
+pub use info::{
+    KnownModel, ModelFamily, Param, ParamError, ParamName, Range, RangeError, RangeLimits,
+    RangeTest, SensorParams, SCAN_RPM_RANGE,
+};
 pub use response::ResponseWriter;
 pub use status::{Status, StatusKind};
 pub use sum::checksum;

@@ -20,7 +20,8 @@ pub struct SessionConfig {
     /// Time a command's answer may take, in ms.
     pub response_timeout_ms: u32,
     /// Silence in a stream that counts as lost, in ms; 0 derives it from the scan period
-    /// learned from PP (4 periods × (skip + 1), plus 200 ms).
+    /// learned from PP (8 periods × (skip + 1), plus 500 ms: see
+    /// [`super::Session::silence_limit_ms`]).
     pub silence_timeout_ms: u32,
     /// First back-off before re-initialising after a failure, in ms.
     pub backoff_min_ms: u32,

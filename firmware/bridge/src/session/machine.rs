@@ -1,10 +1,18 @@
 //! The session state machine itself.
 
 use scip::{
-    Command, Event, Request, ScanRequest, SensorParams, Status, StatusKind, Summary, TimeMode,
+    Command, Event, KnownModel, ParamError, Request, ScanRequest, SensorParams, Status, StatusKind,
+    Summary, TimeMode,
 };
 
 use super::config::{SessionConfig, SessionError};
+
+/// Frame periods of silence a stream may have before it counts as lost (see
+/// [`Session::silence_limit_ms`]).
+pub const STALL_FRAMES: u32 = 8;
+
+/// Silence a stream may have on top of [`STALL_FRAMES`] frame periods, ms.
+pub const STALL_MARGIN_MS: u32 = 500;
 
 /// Where the session is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -69,6 +77,33 @@ pub enum RecoverReason {
     Reboot,
     /// The sensor refused to start the stream for a reason other than its parameters.
     StartFailed(Status),
+    /// The PP answer was doubted every time it was asked for ([`Geometry::Doubted`]).
+    Parameters(ParamError),
+}
+
+/// What the session knows of the sensor's geometry (PP), which every published scan's
+/// angles depend on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Geometry {
+    /// No PP answer seen yet (e.g. a replay of a capture without one).
+    Unknown,
+    /// The last PP answer passed every check ([`SensorParams::check`]): [`Session::params`].
+    Established,
+    /// The last PP answer was damaged (a line failed its sum or framing): no scan may be
+    /// published with a geometry until a sound answer comes.
+    Damaged,
+    /// The last PP answer arrived intact but failed a check (a flip the line sum cannot
+    /// see, an implausible value): no scan may be published until a sound answer comes.
+    Doubted(ParamError),
+}
+
+impl Geometry {
+    /// True when scans may be published: established, or not known at all (no PP was
+    /// ever seen, so none was doubted).
+    pub fn allows_scans(self) -> bool {
+        matches!(self, Self::Established | Self::Unknown)
+    }
 }
 
 /// Something worth telling the rest of the bridge.
@@ -117,6 +152,8 @@ pub struct SessionStats {
     pub damaged_frames: u32,
     /// Answers nobody was waiting for.
     pub unexpected: u32,
+    /// PP answers that arrived intact but failed a check ([`Geometry::Doubted`]).
+    pub pp_doubted: u32,
 }
 
 /// The sensor session. See the [module docs](super).
@@ -141,6 +178,21 @@ pub struct Session {
     /// learns the geometry too.
     current_is_pp: bool,
     pp: SensorParams,
+    /// The response being decoded is a VV answer: its `PROD` names the model.
+    current_is_vv: bool,
+    /// The echo of the response being decoded did not parse.
+    current_echo_damaged: bool,
+    /// The last response that ended was a stream frame.
+    after_frame: bool,
+    vv_model: Option<KnownModel>,
+    /// The model the last intact VV answer named, if a known one.
+    vv_known: Option<KnownModel>,
+    /// The last PP answer doubted only for differing from its model's table: the same
+    /// answer again is accepted (a unit that differs from the table, answering the same).
+    last_doubted: Option<SensorParams>,
+    geometry: Geometry,
+    /// Doubt about the PP answer just ended, for `on_response`.
+    pp_doubt: Option<ParamError>,
     current_status: Option<Status>,
     last_rx: u64,
     backoff_ms: u32,
@@ -169,6 +221,14 @@ impl Session {
             current_is_frame: false,
             current_is_pp: false,
             pp: SensorParams::default(),
+            current_is_vv: false,
+            current_echo_damaged: false,
+            after_frame: false,
+            vv_model: None,
+            vv_known: None,
+            last_doubted: None,
+            geometry: Geometry::Unknown,
+            pp_doubt: None,
             current_status: None,
             last_rx: 0,
             backoff_ms: config.backoff_min_ms,
@@ -196,9 +256,15 @@ impl Session {
         &self.stats
     }
 
-    /// The PP parameters of the sensor, once identified.
+    /// The PP parameters of the sensor from the last PP answer that passed every check
+    /// (empty before one did).
     pub fn params(&self) -> &SensorParams {
         &self.params
+    }
+
+    /// What is known of the sensor's geometry: whether scans may be published.
+    pub fn geometry(&self) -> Geometry {
+        self.geometry
     }
 
     /// The stream request in force.
@@ -260,7 +326,7 @@ impl Session {
                 }
             }
             State::Streaming => {
-                if now.saturating_sub(self.last_rx) > u64::from(self.silence_timeout()) {
+                if now.saturating_sub(self.last_rx) > u64::from(self.silence_limit_ms()) {
                     self.notice = self.recover(RecoverReason::Silence, now);
                 }
             }
@@ -291,7 +357,10 @@ impl Session {
                 );
                 self.current_is_pp =
                     matches!(request.map(|r| r.command), Some(Command::Parameters));
+                self.current_is_vv = matches!(request.map(|r| r.command), Some(Command::Version));
+                self.current_echo_damaged = request.is_none();
                 self.pp = SensorParams::default();
+                self.vv_model = None;
                 None
             }
             Event::Status(status) => {
@@ -301,6 +370,9 @@ impl Session {
             Event::Field(field) => {
                 if self.current_is_pp {
                     self.pp.apply(field.name, field.value);
+                }
+                if self.current_is_vv && field.name == b"PROD" {
+                    self.vv_model = KnownModel::from_model(field.value);
                 }
                 None
             }
@@ -322,14 +394,30 @@ impl Session {
             }
             Event::End(summary) => {
                 self.last_rx = now;
-                if core::mem::take(&mut self.current_is_pp) && summary.status == Status::OK {
-                    self.params = self.pp;
+                self.after_frame = self.current_is_frame || is_frame_status(summary.status);
+                if core::mem::take(&mut self.current_is_vv) && summary.status == Status::OK {
+                    self.vv_known = self.vv_model;
+                }
+                self.pp_doubt = None;
+                if core::mem::take(&mut self.current_is_pp) {
+                    self.judge_pp();
                 }
                 self.on_response(summary, now)
             }
             Event::Error(_) => {
                 self.last_rx = now;
-                self.current_is_pp = false;
+                self.current_is_vv = false;
+                let frame_status = self.current_status.is_some_and(is_frame_status);
+                let maybe_pp = self.current_echo_damaged
+                    && self.geometry == Geometry::Unknown
+                    && !frame_status
+                    && (self.current_status.is_some() || !self.after_frame);
+                if core::mem::take(&mut self.current_is_pp) || maybe_pp {
+                    // A damaged PP answer, or a damaged answer to an unknown command
+                    // (not a stream frame) before any PP: it may have been the PP answer.
+                    self.geometry = Geometry::Damaged;
+                }
+                self.after_frame = self.current_is_frame || frame_status;
                 if self.current_is_frame && !self.current_is_pending {
                     self.stats.damaged_frames += 1;
                 } else if self.current_is_pending && self.pending.is_some() {
@@ -363,6 +451,10 @@ impl Session {
         if !is_pending {
             self.stats.unexpected += 1;
             return None;
+        }
+        if let (State::Parameters, Some(doubt)) = (self.state, self.pp_doubt) {
+            // Ask again (bounded), then recover.
+            return self.retry_or_recover(RecoverReason::Parameters(doubt), now);
         }
         self.pending = None;
         self.retries = 0;
@@ -470,6 +562,39 @@ impl Session {
         None
     }
 
+    /// Judges the PP answer that just ended intact: its parameters become the session's
+    /// when they pass every check; otherwise the geometry is doubted (`pp_doubt`).
+    fn judge_pp(&mut self) {
+        let pp = self.pp;
+        let mut verdict = pp.check();
+        if verdict.is_ok() {
+            if let (Some(vv), Some(modl)) = (self.vv_known, pp.model) {
+                if vv != modl {
+                    verdict = Err(ParamError::ModelConflict);
+                }
+            }
+        }
+        if let Err(ParamError::NotTheModels(_)) = verdict {
+            if self.last_doubted == Some(pp) {
+                // The same answer twice: the unit differs from its model's table.
+                verdict = Ok(());
+            }
+        }
+        match verdict {
+            Ok(()) => {
+                self.params = pp;
+                self.geometry = Geometry::Established;
+                self.last_doubted = None;
+            }
+            Err(e) => {
+                self.stats.pp_doubted += 1;
+                self.geometry = Geometry::Doubted(e);
+                self.last_doubted = Some(pp);
+                self.pp_doubt = Some(e);
+            }
+        }
+    }
+
     fn on_frame(&mut self, status: Status, now: u64) -> Option<Notice> {
         match status.kind(b"MD") {
             StatusKind::StreamFrame | StatusKind::Unstable | StatusKind::Ok => {
@@ -487,7 +612,20 @@ impl Session {
         }
     }
 
-    fn silence_timeout(&self) -> u32 {
+    /// How long a partial response may wait for its next byte before it is stale (the
+    /// sensor stopped in the middle of it): the stream's silence limit, or the answer
+    /// timeout if shorter.
+    pub fn stale_input_ms(&self) -> u32 {
+        self.silence_limit_ms().min(self.config.response_timeout_ms)
+    }
+
+    /// The stream's silence limit, ms: [`SessionConfig::silence_timeout_ms`], or when
+    /// that is 0, [`STALL_FRAMES`] frame periods (scan period × (skip + 1), from PP's
+    /// SCAN; 100 ms before PP) plus [`STALL_MARGIN_MS`]. A UTM-30LX (25 ms) recovers
+    /// after 700 ms of silence, a URG-04LX (100 ms) after 1300 ms: a sensor that stalls
+    /// for 300 ms and resumes keeps its stream, and one that rebooted (which takes about
+    /// half a second) is answering by the time it is probed.
+    pub fn silence_limit_ms(&self) -> u32 {
         if self.config.silence_timeout_ms != 0 {
             return self.config.silence_timeout_ms;
         }
@@ -497,9 +635,9 @@ impl Session {
             .map_or(100, |us| us.div_ceil(1000));
         let skip = u32::from(self.config.scan.skip) + 1;
         period_ms
-            .saturating_mul(4)
+            .saturating_mul(STALL_FRAMES)
             .saturating_mul(skip)
-            .saturating_add(200)
+            .saturating_add(STALL_MARGIN_MS)
     }
 
     fn probe(&mut self, now: u64) {
@@ -620,6 +758,11 @@ fn same_command(echo: &Command, sent: &Command) -> bool {
         (Command::Scan(a), Command::Scan(b)) => a == b,
         (a, b) => core::mem::discriminant(a) == core::mem::discriminant(b),
     }
+}
+
+/// The status of a stream frame (`99`, or `0M` on SCIP 2.2).
+fn is_frame_status(status: Status) -> bool {
+    matches!(status, Status::Scip2([b'9', b'9'] | [b'0', b'M']))
 }
 
 /// A stream frame of `sent`: the same request but for the remaining count.

@@ -16,9 +16,24 @@
 //!          Recover: QT, RS, back-off (doubling, capped) ─▶ Probe
 //! ```
 //! Time sync on request: QT ▶ TM0 ▶ TM1 ▶ TM2 ▶ Start again.
+//!
+//! The PP answer is judged whole ([`scip::SensorParams::check`]: every field once and all
+//! digits, DMIN < DMAX, AMIN ≤ AFRT ≤ AMAX < ARES, SCAN plausible, the known model's
+//! values, the model VV named): a damaged or doubted answer is asked again up to
+//! `max_retries` times, then the sensor is recovered; the stream only starts on an
+//! established [`Geometry`], and while it is in doubt the bridge publishes no scan.
+//!
+//! Silence: a stream is lost after [`STALL_FRAMES`] frame periods plus
+//! [`STALL_MARGIN_MS`] without a line (700 ms at 40 Hz, 1.3 s at 10 Hz), so a sensor
+//! that stalls for 300 ms keeps its stream and its late scans. A response cut off in the
+//! middle (a reboot) is dropped by the bridge once its input has been silent for
+//! [`Session::stale_input_ms`], so that the sensor's next answer is read cleanly.
 
 mod config;
 mod machine;
 
 pub use config::{SessionConfig, SessionError};
-pub use machine::{Action, Notice, RecoverReason, Session, SessionStats, State};
+pub use machine::{
+    Action, Geometry, Notice, RecoverReason, Session, SessionStats, State, STALL_FRAMES,
+    STALL_MARGIN_MS,
+};
