@@ -795,30 +795,31 @@ impl ScanEncoder {
             frames: 0,
             lost: 0,
         };
-        let mut run = Run::default();
-        for p in points {
-            if l.stream.is_full() {
-                run.stop = Some(RunStop::TooManyPoints);
-                break;
-            }
+        let unit = enc.unit_exp;
+        let intensity = enc.intensity;
+        let code = |p: &T| {
             let (d, i) = point(p);
-            let range = rule.is_range(d);
-            let dc = if range {
-                code::range_code(d, enc.unit_exp)
+            let dc = if rule.is_range(d) {
+                code::range_code(d, unit)
             } else {
                 code::error_code(d)
             };
-            l.stream
-                .push(dc, u32::from(enc.intensity.encode(i)), &mut out)?;
-            run.points += 1;
-            run.invalid += u32::from(!code::is_range(dc));
-            if out.lost > 0 {
-                run.stop = Some(RunStop::NoSlot);
-                break;
-            }
-        }
-        run.frames = out.frames;
-        Ok(run)
+            (dc, intensity.encode(i))
+        };
+        let (taken, invalid) = l.stream.push_run(points, code, &mut out);
+        let stop = if out.lost > 0 {
+            Some(RunStop::NoSlot)
+        } else if taken < points.len() {
+            Some(RunStop::TooManyPoints)
+        } else {
+            None
+        };
+        Ok(Run {
+            points: taken as u32,
+            invalid: invalid as u32,
+            frames: out.frames,
+            stop,
+        })
     }
 
     /// The trailer of a lossless scan: the points of its whole segments count as sent.

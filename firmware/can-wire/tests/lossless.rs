@@ -276,3 +276,43 @@ fn golden_frames_from_the_spec() {
         ]
     );
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// A run of raw readings (`push_run`, the engine's direct path) makes the frames that
+    /// pushing the same points one by one makes, however the run is cut.
+    #[test]
+    fn runs_equal_single_points(
+        raw in prop::collection::vec((prop_oneof![0u32..30, 20u32..70_000, 65533u32..=65535], any::<u16>()), 1..700),
+        cuts in prop::collection::vec(1usize..80, 0..20),
+        format in format(),
+        ienc in intensity(),
+    ) {
+        let rule = RangeRule { min: 20, except: [65533, u32::MAX] };
+        let h = header(raw.len(), ienc, 0, 3);
+        let points: Vec<(Distance, u16)> = raw
+            .iter()
+            .map(|&(d, i)| (if matches!(rule.distance(d), Distance::Mm(_)) { Distance::Mm(d) } else { Distance::SensorError(d) }, i))
+            .collect();
+        let single = encode(&h, format, &points);
+        let ids = IdWindow::DEFAULT.node(1).unwrap();
+        let mut enc = ScanEncoder::new(ids, format).unwrap();
+        let mut sink = Sink(enc.begin(&h).unwrap().to_vec());
+        let mut rest: &[(u32, u16)] = &raw;
+        let mut cut = cuts.iter().cycle();
+        let mut invalid = 0;
+        while !rest.is_empty() {
+            let n = (*cut.next().unwrap_or(&7)).min(rest.len());
+            let (now, later) = rest.split_at(n);
+            let run = enc.push_run(now, rule, |p: &(u32, u16)| *p, &mut sink).unwrap();
+            prop_assert_eq!(run.points as usize, n);
+            invalid += run.invalid;
+            rest = later;
+        }
+        sink.0.extend(enc.finish(TrailerFlags::default()).unwrap());
+        prop_assert_eq!(sink.0, single);
+        let ranges = points.iter().filter(|p| matches!(p.0, Distance::Mm(_))).count();
+        prop_assert_eq!(invalid as usize, raw.len() - ranges);
+    }
+}

@@ -28,21 +28,27 @@ pub struct Out<'a, S: ?Sized> {
 
 /// Writes a scan's segments into data frames: a framing byte, then the stream's bytes,
 /// LSB first (stream bit `k` of a frame's payload is bit `k % 8` of byte `1 + k / 8`).
+///
+/// Fields gather in a 64-bit word that goes into the frame 32 bits at a time; the
+/// segment's CRC is taken over a frame's stream bytes in one pass when the frame is sent
+/// (and over the last frame's before the CRC goes in), not byte by byte.
 #[derive(Debug, Clone)]
 pub struct Writer {
-    /// Bits not yet in a whole byte (`nbits` of them, fewer than 8 between calls).
+    /// Bits not yet in the frame (`nbits` of them, fewer than 32 between calls).
     acc: u64,
     nbits: u32,
     /// The frame being filled: the framing byte, then `len - 1` stream bytes.
     buf: [u8; MAX_LEN],
     len: usize,
+    /// Bytes of `buf` from `crc_from` on are not in the segment's CRC yet.
+    crc_from: usize,
     /// Length of a full frame.
     full: usize,
     /// Counter of the next data frame of the scan.
     counter: u8,
     /// The open segment's CRC.
     crc: ScanCrc,
-    /// Stream bytes written (framing bytes and FD padding not counted).
+    /// Stream bytes of frames sent, and of frames sent without a slot.
     bytes: u32,
 }
 
@@ -55,6 +61,7 @@ impl Writer {
             nbits: 0,
             buf: [0; MAX_LEN],
             len: 1,
+            crc_from: 1,
             full: full.clamp(2, MAX_LEN),
             counter: 0,
             crc: ScanCrc::start(),
@@ -63,9 +70,9 @@ impl Writer {
     }
 
     /// Stream bytes written so far (the segments' bytes and CRCs, without the framing
-    /// bytes and padding).
+    /// bytes and padding; bits still gathering not counted).
     pub fn stream_bytes(&self) -> u32 {
-        self.bytes
+        self.bytes.wrapping_add(self.len.saturating_sub(1) as u32)
     }
 
     /// Data frames begun so far (the counter before it wraps).
@@ -92,18 +99,34 @@ impl Writer {
         self.put(fields, SEGMENT_HEADER_BITS, out);
     }
 
-    /// Put the `bits` low bits of `value` (at most 56; higher bits of `value` must be 0).
+    /// Put the `bits` low bits of `value` (at most 32; higher bits of `value` must be 0).
     #[inline(always)]
     pub fn put<S: FrameSink + ?Sized>(&mut self, value: u64, bits: u32, out: &mut Out<'_, S>) {
         self.acc |= value.wrapping_shl(self.nbits);
         self.nbits = self.nbits.wrapping_add(bits);
-        while self.nbits >= 8 {
-            let b = self.acc as u8;
-            self.crc.byte(b);
-            self.byte(b, out);
-            self.acc >>= 8;
-            self.nbits -= 8;
+        if self.nbits >= 32 {
+            self.word(out);
         }
+    }
+
+    /// Moves 32 gathered bits into the frame.
+    #[inline(always)]
+    fn word<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+        let word = (self.acc as u32).to_le_bytes();
+        let end = self.len.wrapping_add(4);
+        match self.buf.get_mut(self.len..end) {
+            Some(dst) if end < self.full => {
+                dst.copy_from_slice(&word);
+                self.len = end;
+            }
+            _ => {
+                for b in word {
+                    self.byte(b, out);
+                }
+            }
+        }
+        self.acc >>= 32;
+        self.nbits -= 32;
     }
 
     /// Put one value's Rice code with parameter `k`: the quotient `u >> k` in unary
@@ -124,12 +147,8 @@ impl Writer {
             let low = u64::from(u) & ((1u64 << k) - 1);
             self.put(ones | low << (q + 1), q + 1 + k, out);
         } else {
-            let ones = (1u64 << ESCAPE_ONES) - 1;
-            self.put(
-                ones | u64::from(value) << ESCAPE_ONES,
-                ESCAPE_ONES + value_bits,
-                out,
-            );
+            self.put((1u64 << ESCAPE_ONES) - 1, ESCAPE_ONES, out);
+            self.put(u64::from(value), value_bits, out);
         }
     }
 
@@ -137,17 +156,33 @@ impl Writer {
     /// endian), and its last frame sent at the shortest length that holds it. Returns
     /// the segment's CRC.
     pub fn end_segment<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) -> u16 {
-        if self.nbits > 0 {
-            self.put(0, 8 - self.nbits, out);
+        let whole = self.nbits.div_ceil(8);
+        let word = self.acc.to_le_bytes();
+        for &b in word.iter().take(whole as usize) {
+            self.byte(b, out);
         }
+        self.acc = 0;
+        self.nbits = 0;
+        self.crc_pending();
         let crc = self.crc.value().to_le_bytes();
         for b in crc {
             self.byte(b, out);
         }
+        // The CRC bytes are not part of what it covers.
+        self.crc_from = self.len;
         if self.len > 1 {
             self.emit(out);
         }
         u16::from_le_bytes(crc)
+    }
+
+    /// The frame's bytes not yet in the segment's CRC, into it.
+    #[inline(always)]
+    fn crc_pending(&mut self) {
+        if let Some(bytes) = self.buf.get(self.crc_from..self.len) {
+            self.crc.bytes(bytes);
+        }
+        self.crc_from = self.len;
     }
 
     #[inline(always)]
@@ -155,9 +190,9 @@ impl Writer {
         if let Some(slot) = self.buf.get_mut(self.len) {
             *slot = b;
         }
-        self.bytes = self.bytes.wrapping_add(1);
         self.len = self.len.wrapping_add(1);
         if self.len >= self.full {
+            self.crc_pending();
             self.emit(out);
         }
     }
@@ -184,8 +219,10 @@ impl Writer {
             }
             None => out.lost = out.lost.wrapping_add(1),
         }
+        self.bytes = self.bytes.wrapping_add(self.len.saturating_sub(1) as u32);
         self.counter = self.counter.wrapping_add(1);
         self.len = 1;
+        self.crc_from = 1;
         if let Some(b) = self.buf.first_mut() {
             *b = self.counter & COUNTER_MASK;
         }

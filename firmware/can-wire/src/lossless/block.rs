@@ -41,7 +41,8 @@ pub const fn width(v: u32) -> u32 {
     32 - v.leading_zeros()
 }
 
-/// The Rice parameter for `n` residuals summing to `sum`: about log2 of their mean.
+/// The Rice parameter for `n` residuals summing to `sum`: one less than the width of
+/// their mean.
 #[inline(always)]
 fn rice_k(sum: u32, n: u32) -> u32 {
     let mean = sum / n.max(1);
@@ -49,8 +50,8 @@ fn rice_k(sum: u32, n: u32) -> u32 {
 }
 
 /// Bits of the residuals `u` Rice-coded with parameter `k`, escapes counted.
-#[inline(always)]
-fn rice_bits(u: &[u32], k: u32) -> u32 {
+#[cold]
+fn rice_bits_exact(u: &[u32], k: u32) -> u32 {
     let mut bits = 0u32;
     for &x in u {
         let q = x >> k;
@@ -61,6 +62,23 @@ fn rice_bits(u: &[u32], k: u32) -> u32 {
         };
     }
     bits
+}
+
+/// Bits of the residuals `u` Rice-coded with parameters `k` and `k + 1`; `any` is the
+/// OR of all of them (when no quotient can reach an escape, the sum of the quotients
+/// is the cost).
+#[inline(always)]
+fn rice_bits(u: &[u32], any: u32, k: u32) -> (u32, u32) {
+    let n = u.len() as u32;
+    if (any >> k) >= ESCAPE_ONES {
+        return (rice_bits_exact(u, k), rice_bits_exact(u, k + 1));
+    }
+    let (mut q0, mut q1) = (0u32, 0u32);
+    for &x in u {
+        q0 = q0.wrapping_add(x >> k);
+        q1 = q1.wrapping_add(x >> (k + 1));
+    }
+    (q0 + n * (1 + k), q1 + n * (2 + k))
 }
 
 /// Write the block `values` (at most [`BLOCK_POINTS`], each at most [`MAX_VALUE`]) of a
@@ -76,14 +94,19 @@ pub fn put_block<S: FrameSink + ?Sized>(
     let n = values.len();
     let mut u1 = [0u32; BLOCK_POINTS];
     let mut u2 = [0u32; BLOCK_POINTS];
-    let (mut s1, mut s2, mut any) = (0u32, 0u32, 0u32);
+    let (mut s1, mut s2, mut or1, mut or2, mut any) = (0u32, 0u32, 0u32, 0u32, 0u32);
     let (mut a, mut b) = (h.h1 as i32, h.h2 as i32);
     for ((&v, x1), x2) in values.iter().zip(u1.iter_mut()).zip(u2.iter_mut()) {
+        // Values and residuals stay far inside i32 (values below 2^20).
         let v = v.min(MAX_VALUE) as i32;
-        *x1 = zigzag(v - a);
-        *x2 = zigzag(v - (2 * a - b));
-        s1 = s1.saturating_add(*x1);
-        s2 = s2.saturating_add(*x2);
+        let e1 = v.wrapping_sub(a);
+        let e2 = e1.wrapping_sub(a.wrapping_sub(b));
+        *x1 = zigzag(e1);
+        *x2 = zigzag(e2);
+        s1 = s1.wrapping_add(*x1);
+        s2 = s2.wrapping_add(*x2);
+        or1 |= *x1;
+        or2 |= *x2;
         any |= v as u32;
         b = a;
         a = v;
@@ -96,16 +119,19 @@ pub fn put_block<S: FrameSink + ?Sized>(
         w.put(Mode::Constant as u64, MODE_BITS, out);
         return Mode::Constant;
     }
-    let (mode, u, sum) = if s2 < s1 {
-        (Mode::Order2, &u2, s2)
+    let (mode, u, sum, or) = if s2 < s1 {
+        (Mode::Order2, &u2, s2, or2)
     } else {
-        (Mode::Order1, &u1, s1)
+        (Mode::Order1, &u1, s1, or1)
     };
     let u = u.get(..n).unwrap_or(&[]);
     let k0 = rice_k(sum, n32);
-    let k1 = (k0 + 1).min((1 << K_BITS) - 1);
-    let (c0, c1) = (rice_bits(u, k0), rice_bits(u, k1));
-    let (k, rice) = if c1 < c0 { (k1, c1) } else { (k0, c0) };
+    let (c0, c1) = rice_bits(u, or, k0);
+    let (k, rice) = if c1 < c0 && k0 < (1 << K_BITS) - 1 {
+        (k0 + 1, c1)
+    } else {
+        (k0, c0)
+    };
     let wv = width(any);
     let verbatim = WIDTH_BITS + n32 * wv;
     if verbatim <= K_BITS + rice {
@@ -124,8 +150,18 @@ pub fn put_block<S: FrameSink + ?Sized>(
         MODE_BITS + K_BITS,
         out,
     );
-    for (&v, &x) in values.iter().zip(u) {
-        w.put_rice(x, k, v.min(MAX_VALUE), VALUE_BITS, out);
+    if (or >> k) < ESCAPE_ONES {
+        // No escape: each code is one field of at most 31 bits.
+        let mask = (1u32 << k) - 1;
+        for &x in u {
+            let q = x >> k;
+            let code = ((1u64 << q) - 1) | u64::from(x & mask) << (q + 1);
+            w.put(code, q + 1 + k, out);
+        }
+    } else {
+        for (&v, &x) in values.iter().zip(u) {
+            w.put_rice(x, k, v.min(MAX_VALUE), VALUE_BITS, out);
+        }
     }
     mode
 }

@@ -134,6 +134,77 @@ impl ScanStream {
         Ok(())
     }
 
+    /// Take `points` in order, each turned by `code` into its distance code (at most
+    /// [`MAX_VALUE`]) and intensity code, like [`ScanStream::push`] for each but a block
+    /// at a time. Stops when the scan is full or after a frame the sink had no slot for.
+    /// Returns the points taken and how many of them were no range.
+    #[inline(always)]
+    pub fn push_run<T, F, S>(
+        &mut self,
+        points: &[T],
+        code: F,
+        out: &mut Out<'_, S>,
+    ) -> (usize, usize)
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        let (mut taken, mut ranges) = (0usize, 0usize);
+        let mut rest = points;
+        while !rest.is_empty() && self.pushed < self.point_count && out.lost == 0 {
+            if self.in_segment == 0 {
+                let Some((first, later)) = rest.split_first() else {
+                    break;
+                };
+                let (d, i) = code(first);
+                let d = d.min(MAX_VALUE);
+                ranges += usize::from(code::is_range(d));
+                self.valid += u16::from(code::is_range(d));
+                self.pushed += 1;
+                self.begin_segment(d, u32::from(i), out);
+                if self.in_segment >= self.segment_len {
+                    self.end_segment(out);
+                }
+                rest = later;
+                taken += 1;
+                continue;
+            }
+            let left = usize::from(self.point_count - self.pushed);
+            let room = (BLOCK_POINTS - self.gathered)
+                .min(self.segment_len - self.in_segment)
+                .min(rest.len())
+                .min(left);
+            let (now, later) = rest.split_at(room);
+            let at = self.gathered;
+            let (Some(dd), Some(ii)) =
+                (self.d.get_mut(at..at + room), self.i.get_mut(at..at + room))
+            else {
+                break;
+            };
+            let mut valid = 0usize;
+            for ((p, d), i) in now.iter().zip(dd.iter_mut()).zip(ii.iter_mut()) {
+                let (dc, ic) = code(p);
+                *d = dc.min(MAX_VALUE);
+                *i = u32::from(ic);
+                valid += usize::from(dc >= code::RANGE_BASE);
+            }
+            ranges += valid;
+            self.valid += valid as u16;
+            self.pushed += room as u16;
+            self.gathered += room;
+            self.in_segment += room;
+            taken += room;
+            rest = later;
+            if self.gathered == BLOCK_POINTS {
+                self.put_blocks(out);
+            }
+            if self.in_segment >= self.segment_len {
+                self.end_segment(out);
+            }
+        }
+        (taken, taken - ranges)
+    }
+
     #[cold]
     fn begin_segment<S: FrameSink + ?Sized>(&mut self, d: u32, i: u32, out: &mut Out<'_, S>) {
         let index = usize::from(self.pushed - 1) / SEGMENT_POINTS;
