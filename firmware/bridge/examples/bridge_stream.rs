@@ -1,7 +1,7 @@
 //! Runs the whole bridge core on a long UTM-30LX stream N times, for instruction counts
 //! under callgrind.
 //!
-//! `bridge_stream <N> [frames] [off|typical] [chunk]`
+//! `bridge_stream <N> [frames] [off|typical] [chunk] [d16|dl]`
 //!
 //! The stream: the `ME0000108001100` scan frame of the real UTM-30LX capture
 //! (`../shared/recordings/hokuyoaist_example_utm_30lx.rx.scip` beside the repository:
@@ -92,7 +92,7 @@ fn stream(frames: u32) -> (Vec<u8>, usize) {
     (out, len / frames.max(1) as usize)
 }
 
-fn config(typical: bool) -> BridgeConfig {
+fn config(typical: bool, distance: DistanceEncoding) -> BridgeConfig {
     let mut pipeline = PipelineConfig::default();
     if typical {
         pipeline.range_window = Some(RangeWindow {
@@ -106,7 +106,7 @@ fn config(typical: bool) -> BridgeConfig {
         session: SessionConfig::default(),
         pipeline,
         encoding: Encoding {
-            distance: DistanceEncoding::D16,
+            distance,
             intensity: IntensityEncoding::I16,
             unit_exp: 0,
         },
@@ -143,7 +143,7 @@ fn run(stream: &[u8], frame_len: usize, chunk: usize, config: BridgeConfig) -> (
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: bridge_stream <N> [frames=1000] [off|typical] [chunk=64]";
+    let usage = "usage: bridge_stream <N> [frames=1000] [off|typical] [chunk=64] [d16|dl]";
     let parse = |i: usize, default: usize| match args.get(i) {
         None => Some(default),
         Some(s) => s.parse().ok(),
@@ -164,6 +164,14 @@ fn main() {
             std::process::exit(2);
         }
     };
+    let distance = match args.get(4).map(String::as_str) {
+        None | Some("d16") => DistanceEncoding::D16,
+        Some("dl") => DistanceEncoding::Lossless,
+        Some(_) => {
+            eprintln!("{usage}");
+            std::process::exit(2);
+        }
+    };
     let (stream, frame_len) = stream(u32::try_from(frames).unwrap_or(u32::MAX));
     let mut last = (0, 0, 0);
     for _ in 0..n {
@@ -171,7 +179,7 @@ fn main() {
             black_box(&stream),
             frame_len,
             chunk.max(1),
-            black_box(config(typical)),
+            black_box(config(typical, distance)),
         );
     }
     println!(

@@ -29,13 +29,14 @@ pub struct Out<'a, S: ?Sized> {
 /// Writes a scan's segments into data frames: a framing byte, then the stream's bytes,
 /// LSB first (stream bit `k` of a frame's payload is bit `k % 8` of byte `1 + k / 8`).
 ///
-/// Fields gather in a 64-bit word that goes into the frame 32 bits at a time; the
+/// Fields gather in a 32-bit word that goes into the frame when full (32-bit operations
+/// only: the MCU has no 64-bit shifts); the
 /// segment's CRC is taken over a frame's stream bytes in one pass when the frame is sent
 /// (and over the last frame's before the CRC goes in), not byte by byte.
 #[derive(Debug, Clone)]
 pub struct Writer {
     /// Bits not yet in the frame (`nbits` of them, fewer than 32 between calls).
-    acc: u64,
+    acc: u32,
     nbits: u32,
     /// The frame being filled: the framing byte, then `len - 1` stream bytes.
     buf: [u8; MAX_LEN],
@@ -95,43 +96,47 @@ impl Writer {
             *b = SEGMENT_START | (self.counter & COUNTER_MASK);
         }
         self.crc = ScanCrc::start();
-        let fields = u64::from(seq_low & 0xF) | u64::from(segment & 0x1F) << 4;
+        let fields = u32::from(seq_low & 0xF) | u32::from(segment & 0x1F) << 4;
         self.put(fields, SEGMENT_HEADER_BITS, out);
     }
 
-    /// Put the `bits` low bits of `value` (at most 32; higher bits of `value` must be 0).
+    /// Put the `bits` low bits of `value` (at most 31; higher bits of `value` must be 0).
     #[inline(always)]
-    pub fn put<S: FrameSink + ?Sized>(&mut self, value: u64, bits: u32, out: &mut Out<'_, S>) {
+    pub fn put<S: FrameSink + ?Sized>(&mut self, value: u32, bits: u32, out: &mut Out<'_, S>) {
+        let total = self.nbits.wrapping_add(bits);
         self.acc |= value.wrapping_shl(self.nbits);
-        self.nbits = self.nbits.wrapping_add(bits);
-        if self.nbits >= 32 {
-            self.word(out);
+        if total >= 32 {
+            let word = self.acc;
+            // Here `nbits` >= 1 (a field has at most 31 bits): the bits that did not fit.
+            self.acc = value.wrapping_shr(32u32.wrapping_sub(self.nbits));
+            self.nbits = total - 32;
+            self.word(word, out);
+        } else {
+            self.nbits = total;
         }
     }
 
     /// Moves 32 gathered bits into the frame.
     #[inline(always)]
-    fn word<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
-        let word = (self.acc as u32).to_le_bytes();
+    fn word<S: FrameSink + ?Sized>(&mut self, word: u32, out: &mut Out<'_, S>) {
+        let bytes = word.to_le_bytes();
         let end = self.len.wrapping_add(4);
         match self.buf.get_mut(self.len..end) {
             Some(dst) if end < self.full => {
-                dst.copy_from_slice(&word);
+                dst.copy_from_slice(&bytes);
                 self.len = end;
             }
             _ => {
-                for b in word {
+                for b in bytes {
                     self.byte(b, out);
                 }
             }
         }
-        self.acc >>= 32;
-        self.nbits -= 32;
     }
 
-    /// Put one value's Rice code with parameter `k`: the quotient `u >> k` in unary
-    /// (that many ones and a zero) and the `k` low bits, or, for a quotient of at least
-    /// [`ESCAPE_ONES`], that many ones and `value` itself in `value_bits` bits.
+    /// Put one value's Rice code with parameter `k` (at most 15): the quotient `u >> k`
+    /// in unary (that many ones and a zero) and the `k` low bits, or, for a quotient of
+    /// at least [`ESCAPE_ONES`], that many ones and `value` itself in `value_bits` bits.
     #[inline(always)]
     pub fn put_rice<S: FrameSink + ?Sized>(
         &mut self,
@@ -143,12 +148,12 @@ impl Writer {
     ) {
         let q = u >> k;
         if q < ESCAPE_ONES {
-            let ones = (1u64 << q) - 1;
-            let low = u64::from(u) & ((1u64 << k) - 1);
+            let ones = (1u32 << q) - 1;
+            let low = u & ((1u32 << k) - 1);
             self.put(ones | low << (q + 1), q + 1 + k, out);
         } else {
-            self.put((1u64 << ESCAPE_ONES) - 1, ESCAPE_ONES, out);
-            self.put(u64::from(value), value_bits, out);
+            self.put((1u32 << ESCAPE_ONES) - 1, ESCAPE_ONES, out);
+            self.put(value, value_bits, out);
         }
     }
 
@@ -358,7 +363,7 @@ mod tests {
         };
         let mut w = Writer::new(12);
         w.begin_segment(1, 0, &mut out);
-        for i in 0..20u64 {
+        for i in 0..20u32 {
             w.put(i, 8, &mut out);
         }
         w.end_segment(&mut out);

@@ -97,8 +97,9 @@ pub fn put_block<S: FrameSink + ?Sized>(
     let (mut s1, mut s2, mut or1, mut or2, mut any) = (0u32, 0u32, 0u32, 0u32, 0u32);
     let (mut a, mut b) = (h.h1 as i32, h.h2 as i32);
     for ((&v, x1), x2) in values.iter().zip(u1.iter_mut()).zip(u2.iter_mut()) {
-        // Values and residuals stay far inside i32 (values below 2^20).
-        let v = v.min(MAX_VALUE) as i32;
+        // Values and residuals stay far inside i32 (values below 2^20; larger ones would
+        // only make wrong codes, and the stream never gives any).
+        let v = v as i32;
         let e1 = v.wrapping_sub(a);
         let e2 = e1.wrapping_sub(a.wrapping_sub(b));
         *x1 = zigzag(e1);
@@ -116,7 +117,7 @@ pub fn put_block<S: FrameSink + ?Sized>(
     h.h2 = b as u32;
     let n32 = n as u32;
     if s1 == 0 {
-        w.put(Mode::Constant as u64, MODE_BITS, out);
+        w.put(Mode::Constant as u32, MODE_BITS, out);
         return Mode::Constant;
     }
     let (mode, u, sum, or) = if s2 < s1 {
@@ -136,31 +137,27 @@ pub fn put_block<S: FrameSink + ?Sized>(
     let verbatim = WIDTH_BITS + n32 * wv;
     if verbatim <= K_BITS + rice {
         w.put(
-            Mode::Verbatim as u64 | u64::from(wv) << MODE_BITS,
+            Mode::Verbatim as u32 | wv << MODE_BITS,
             MODE_BITS + WIDTH_BITS,
             out,
         );
         for &v in values {
-            w.put(u64::from(v.min(MAX_VALUE)), wv, out);
+            w.put(v & MAX_VALUE, wv, out);
         }
         return Mode::Verbatim;
     }
-    w.put(
-        mode as u64 | u64::from(k) << MODE_BITS,
-        MODE_BITS + K_BITS,
-        out,
-    );
+    w.put(mode as u32 | k << MODE_BITS, MODE_BITS + K_BITS, out);
     if (or >> k) < ESCAPE_ONES {
         // No escape: each code is one field of at most 31 bits.
         let mask = (1u32 << k) - 1;
         for &x in u {
             let q = x >> k;
-            let code = ((1u64 << q) - 1) | u64::from(x & mask) << (q + 1);
+            let code = ((1u32 << q) - 1) | (x & mask) << (q + 1);
             w.put(code, q + 1 + k, out);
         }
     } else {
         for (&v, &x) in values.iter().zip(u) {
-            w.put_rice(x, k, v.min(MAX_VALUE), VALUE_BITS, out);
+            w.put_rice(x, k, v & MAX_VALUE, VALUE_BITS, out);
         }
     }
     mode

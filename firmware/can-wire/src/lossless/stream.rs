@@ -210,18 +210,12 @@ impl ScanStream {
         let index = usize::from(self.pushed - 1) / SEGMENT_POINTS;
         self.segment_len = segment_points(usize::from(self.point_count), index);
         self.w.begin_segment(self.seq_low, index as u8, out);
-        self.w.put(
-            u64::from(width(d)) | u64::from(d) << WIDTH_BITS,
-            WIDTH_BITS + width(d),
-            out,
-        );
+        self.w
+            .put(width(d) | d << WIDTH_BITS, WIDTH_BITS + width(d), out);
         self.hd = History::anchor(d);
         if self.intensity {
-            self.w.put(
-                u64::from(width(i)) | u64::from(i) << WIDTH_BITS,
-                WIDTH_BITS + width(i),
-                out,
-            );
+            self.w
+                .put(width(i) | i << WIDTH_BITS, WIDTH_BITS + width(i), out);
             self.hi = History::anchor(i);
         }
         self.in_segment = 1;
