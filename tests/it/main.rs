@@ -6,6 +6,7 @@ mod codec_props;
 mod emulate_e2e;
 mod icount;
 mod live_bridge;
+mod noise;
 mod qemu;
 mod recordings;
 mod sim_clients;
