@@ -8,6 +8,7 @@ pub mod decode;
 pub mod emulate;
 pub mod icount;
 pub mod live;
+pub mod noise;
 pub mod parse;
 pub mod plot;
 pub mod replay;

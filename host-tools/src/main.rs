@@ -51,6 +51,9 @@ enum Cmd {
     /// deterministic stream through the real firmware in QEMU (`-icount shift=0`),
     /// its CAN frames checked against the same core on the host.
     Icount(scip2can_host::icount::IcountArgs),
+    /// Statistics that decide a predictive coder's gain (range noise, edges, no-return
+    /// runs, intensities, ideal Rice cost), for recordings and simulators side by side.
+    Noise(scip2can_host::noise::NoiseArgs),
 }
 
 fn main() -> ExitCode {
@@ -76,6 +79,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Bridge(args) => scip2can_host::live::run(args),
         Cmd::Emulate(args) => scip2can_host::emulate::run(args),
         Cmd::Icount(args) => scip2can_host::icount::run(args),
+        Cmd::Noise(args) => scip2can_host::noise::run(args),
         Cmd::Parse { file } => {
             let out = BufWriter::new(io::stdout().lock());
             if file.as_os_str() == "-" {

@@ -185,13 +185,14 @@ fn a_wall_appears_at_the_right_steps_and_range() {
                 && expect <= f64::from(m.dmax)
                 && 20_000.0 * 0.8 / (expect / 1000.0).powi(2) >= 1.0
             {
-                // Hand formula: d = wall / cos θ; intensity = 20000 × 0.8 / d².
+                // Hand formula: d = wall / cos θ; intensity = 3500 × 0.8 × d^-0.2 (d in
+                // m, the law fitted to the UTM-30LX capture; see sim/measure.rs).
                 assert!(
                     (f64::from(d) - expect).abs() <= 1.0,
                     "{model} step {step}: {d} vs {expect}"
                 );
                 if m.intensity {
-                    let i = (20_000.0 * 0.8 / (f64::from(d) / 1000.0).powi(2)).min(262_143.0);
+                    let i = 3500.0 * 0.8 * (f64::from(d) / 1000.0).powf(-0.2);
                     assert!(
                         (f64::from(aux) - i).abs() <= 1.0,
                         "{model} step {step}: {aux} vs {i}"

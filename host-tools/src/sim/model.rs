@@ -49,6 +49,48 @@ impl ModelKind {
     }
 }
 
+/// What makes a simulated unit's values rougher than the scene: the measure of
+/// [`super::measure`]. The URG-04LX and UTM-30LX figures are fitted to the real captures
+/// (BENCHMARKS.md, "Simulated noise against the real captures"); the UST-10LX and
+/// UXM-30LX-E keep a constant σ (no capture of them to fit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Noise {
+    /// Range noise σ at 0 m, mm.
+    pub sigma_mm: f64,
+    /// Growth of the range noise σ per metre of range, mm.
+    pub sigma_per_m: f64,
+    /// Chance that a step repeats the value of the step before (real units send runs of
+    /// equal values: about 30 % of consecutive pairs in the captures).
+    pub hold: f64,
+    /// Intensity noise σ relative to the intensity.
+    pub intensity: f64,
+}
+
+impl Noise {
+    /// No noise at all: the scene's exact values.
+    pub const EXACT: Noise = Noise::constant(0.0);
+
+    /// A constant range noise σ of `sigma_mm`, nothing else (`--noise`).
+    pub const fn constant(sigma_mm: f64) -> Self {
+        Self {
+            sigma_mm,
+            sigma_per_m: 0.0,
+            hold: 0.0,
+            intensity: 0.0,
+        }
+    }
+
+    /// The range noise σ in mm at `distance_mm`.
+    pub fn sigma_at(&self, distance_mm: f64) -> f64 {
+        self.sigma_mm + self.sigma_per_m * distance_mm / 1000.0
+    }
+
+    /// Whether nothing is added to the scene's values.
+    pub fn is_exact(&self) -> bool {
+        self.sigma_mm <= 0.0 && self.sigma_per_m <= 0.0 && self.hold <= 0.0 && self.intensity <= 0.0
+    }
+}
+
 /// How the model talks to its host.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LinkKind {
@@ -97,8 +139,8 @@ pub struct Model {
     pub multi_echo: bool,
     /// Accepts `CR` (motor speed steps).
     pub motor_speed: bool,
-    /// Standard deviation of the range noise in mm.
-    pub noise_mm: f64,
+    /// Range noise, held values and intensity noise (see [`Noise`]).
+    pub noise: Noise,
     /// The II `TIME` as 4 SCIP chars (UST) instead of 6 hex digits.
     pub time_encoded: bool,
 }
@@ -138,7 +180,12 @@ impl Model {
                 intensity: false,
                 multi_echo: false,
                 motor_speed: true,
-                noise_mm: 10.0,
+                noise: Noise {
+                    sigma_mm: 1.0,
+                    sigma_per_m: 1.5,
+                    hold: 0.28,
+                    intensity: 0.013,
+                },
                 time_encoded: false,
             },
             ModelKind::Utm30lx => Self {
@@ -165,7 +212,12 @@ impl Model {
                 intensity: true,
                 multi_echo: true,
                 motor_speed: false,
-                noise_mm: 10.0,
+                noise: Noise {
+                    sigma_mm: 1.0,
+                    sigma_per_m: 0.4,
+                    hold: 0.28,
+                    intensity: 0.013,
+                },
                 time_encoded: false,
             },
             ModelKind::Ust10lx => Self {
@@ -192,7 +244,10 @@ impl Model {
                 intensity: true,
                 multi_echo: false,
                 motor_speed: false,
-                noise_mm: 15.0,
+                noise: Noise {
+                    intensity: 0.01,
+                    ..Noise::constant(15.0)
+                },
                 time_encoded: true,
             },
             ModelKind::Uxm30lxE => Self {
@@ -219,7 +274,10 @@ impl Model {
                 intensity: true,
                 multi_echo: true,
                 motor_speed: false,
-                noise_mm: 30.0,
+                noise: Noise {
+                    intensity: 0.01,
+                    ..Noise::constant(30.0)
+                },
                 time_encoded: false,
             },
         }

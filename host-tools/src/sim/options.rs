@@ -7,7 +7,7 @@ use anyhow::{anyhow, bail, Context};
 
 use super::faults::FaultConfig;
 use super::measure::{SceneSource, Source};
-use super::model::{Model, ModelKind};
+use super::model::{Model, ModelKind, Noise};
 use super::replay::{Recording, ReplaySource};
 use super::scene::Scene;
 use super::session::Sensor;
@@ -51,7 +51,8 @@ pub struct SimOptions {
     /// Scene: room, empty, or wall:MM (a flat wall MM millimetres ahead).
     #[arg(long, default_value = "room")]
     pub scene: SceneSpec,
-    /// Range noise σ in mm (default: the model's).
+    /// A constant range noise σ in mm instead of the model's noise (σ growing with range,
+    /// repeated values, intensity noise); 0 = the scene's exact values.
     #[arg(long)]
     pub noise: Option<f64>,
     /// Serve the scans (and VV/PP text) of a record file or raw capture instead of a scene.
@@ -199,7 +200,7 @@ impl SimOptions {
                     SceneSpec::Wall(mm) => Scene::wall(mm, 0.8),
                     SceneSpec::Empty => Scene::empty(),
                 };
-                let noise = self.noise.unwrap_or(model.noise_mm);
+                let noise = self.noise.map_or(model.noise, Noise::constant);
                 Box::new(SceneSource::new(scene, self.seed, noise))
             }
         };

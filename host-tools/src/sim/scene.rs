@@ -122,13 +122,15 @@ impl Scene {
         }
     }
 
-    /// A room from a seed: four walls 3 to 12 m apart around the sensor, one to three
-    /// boxes, a glass pane with a box behind it, and a cylinder walking across.
+    /// A room from a seed, furnished like the rooms of the real captures: four walls
+    /// 1.9 to 9.5 m apart around the sensor with a doorway onto a far corridor wall,
+    /// three to six boxes, four to ten thin posts (table and chair legs), a glass pane
+    /// with a box behind it, and a cylinder walking across.
     pub fn room(seed: u64) -> Self {
         let mut rng = fastrand::Rng::with_seed(seed ^ 0x5CE1_E000);
         let mut between = |lo: f64, hi: f64| lo + (hi - lo) * rng.f64();
-        let (w_neg, w_pos) = (between(1.5, 6.0), between(1.5, 6.0));
-        let (d_back, d_front) = (between(1.5, 6.0), between(3.0, 10.0));
+        let (w_neg, w_pos) = (between(0.7, 3.0), between(1.0, 3.5));
+        let (d_back, d_front) = (between(1.2, 3.5), between(2.0, 6.0));
         let mut segments = Vec::new();
         let wall = |a, b, r| Segment {
             a,
@@ -141,16 +143,22 @@ impl Scene {
             (-d_back, -w_neg),
             (d_front, -w_neg),
         ];
+        // The +y wall has a doorway (0.8 to 1.4 m) onto a corridor wall 4 to 10 m
+        // farther, out of a URG-04LX's reach: the beams through it find no echo.
+        let door_w = between(0.8, 1.4);
+        let door_x = between(-d_back + 0.2, d_front - 0.2 - door_w);
+        let corridor = w_pos + between(4.0, 10.0);
         for i in 0..4 {
             let r = between(0.5, 0.9);
-            segments.push(wall(corners[i], corners[(i + 1) % 4], r));
+            if i == 0 {
+                segments.push(wall(corners[0], (door_x + door_w, w_pos), r));
+                segments.push(wall((door_x, w_pos), corners[1], r));
+                segments.push(wall((100.0, corridor), (-100.0, corridor), r));
+            } else {
+                segments.push(wall(corners[i], corners[(i + 1) % 4], r));
+            }
         }
-        let boxes = 1 + (between(0.0, 2.999) as usize);
-        for _ in 0..boxes {
-            let cx = between(0.8, d_front - 0.6);
-            let cy = between(-w_neg + 0.5, w_pos - 0.5);
-            let half = between(0.15, 0.4);
-            let r = between(0.1, 1.0);
+        let square = |segments: &mut Vec<Segment>, (cx, cy): (f64, f64), half: f64, r| {
             let c = [
                 (cx - half, cy - half),
                 (cx + half, cy - half),
@@ -160,6 +168,25 @@ impl Scene {
             for i in 0..4 {
                 segments.push(wall(c[i], c[(i + 1) % 4], r));
             }
+        };
+        let boxes = 3 + (between(0.0, 3.999) as usize);
+        for _ in 0..boxes {
+            let at = (
+                between(-d_back + 0.45, d_front - 0.45),
+                between(-w_neg + 0.45, w_pos - 0.45),
+            );
+            // Not on top of the sensor.
+            let at = (at.0.abs().max(0.5).copysign(at.0), at.1);
+            square(&mut segments, at, between(0.1, 0.35), between(0.1, 1.0));
+        }
+        let posts = 4 + (between(0.0, 6.999) as usize);
+        for _ in 0..posts {
+            let at = (
+                between(-d_back + 0.1, d_front - 0.1),
+                between(-w_neg + 0.1, w_pos - 0.1),
+            );
+            let at = (at.0.abs().max(0.4).copysign(at.0), at.1);
+            square(&mut segments, at, between(0.015, 0.04), between(0.2, 0.9));
         }
         // A glass pane in front of the back-left region, with a white box behind it.
         let gx = -d_back * 0.5;
@@ -168,7 +195,7 @@ impl Scene {
             b: (gx, w_pos * 0.7),
             surface: Surface::GLASS,
         });
-        let bx = gx - 0.6;
+        let bx = -d_back * 0.75;
         let by = w_pos * 0.45;
         for (a, b) in [
             ((bx - 0.2, by - 0.2), (bx - 0.2, by + 0.2)),

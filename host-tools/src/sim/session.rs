@@ -763,11 +763,11 @@ impl Sensor {
 mod tests {
     use super::*;
     use crate::sim::measure::SceneSource;
-    use crate::sim::model::ModelKind;
+    use crate::sim::model::{ModelKind, Noise};
     use crate::sim::scene::Scene;
 
     fn sensor(kind: ModelKind, scip11: bool) -> Sensor {
-        let src = SceneSource::new(Scene::wall(1000.0, 0.8), 1, 0.0);
+        let src = SceneSource::new(Scene::wall(1000.0, 0.8), 1, Noise::EXACT);
         Sensor::new(
             Model::new(kind),
             Box::new(src),
@@ -843,7 +843,7 @@ ARES:1024;\\\nAMIN:44;7\nAMAX:725;o\nAFRT:384;6\nSCAN:600;e\n\n"[..]
 
     #[test]
     fn clock_wraps_and_tm_reads_it() {
-        let src = SceneSource::new(Scene::empty(), 1, 0.0);
+        let src = SceneSource::new(Scene::empty(), 1, Noise::EXACT);
         let mut s = Sensor::new(
             Model::new(ModelKind::Utm30lx),
             Box::new(src),
