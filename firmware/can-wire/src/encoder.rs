@@ -408,23 +408,18 @@ impl ScanEncoder {
         let s = self.scan.as_ref().ok_or(Error::NoScan)?;
         let classic = !self.format.is_fd();
         let (db, ib) = (s.distance_bits, s.intensity_bits);
-        // D16 and D12 without intensity get loops compiled for their widths; the other
-        // encodings share one with the widths as values (smaller, a bit slower).
+        // D16 without intensity gets loops compiled for its width; the other fixed-width
+        // encodings share one with the widths as values (smaller, a bit slower: flash is
+        // the boards' tight budget, and the lossless coding is the compact one).
         match (classic, db, ib) {
             (false, 16, 0) => {
                 self.run_fixed::<false, 16, 0, _, _, _>(db, ib, points, rule, &point, sink)
-            }
-            (false, 12, 0) => {
-                self.run_fixed::<false, 12, 0, _, _, _>(db, ib, points, rule, &point, sink)
             }
             (false, _, _) => {
                 self.run_fixed::<false, 0, 0, _, _, _>(db, ib, points, rule, &point, sink)
             }
             (true, 16, 0) => {
                 self.run_fixed::<true, 16, 0, _, _, _>(db, ib, points, rule, &point, sink)
-            }
-            (true, 12, 0) => {
-                self.run_fixed::<true, 12, 0, _, _, _>(db, ib, points, rule, &point, sink)
             }
             (true, _, _) => {
                 self.run_fixed::<true, 0, 0, _, _, _>(db, ib, points, rule, &point, sink)

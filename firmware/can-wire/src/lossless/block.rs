@@ -82,8 +82,9 @@ fn rice_bits(u: &[u32], any: u32, k: u32) -> (u32, u32) {
 }
 
 /// Write the block `values` (at most [`BLOCK_POINTS`], each at most [`MAX_VALUE`]) of a
-/// channel whose history is `h`, in its cheapest mode; returns the mode.
-#[inline(always)]
+/// channel whose history is `h`, in its cheapest mode; returns the mode. Not inlined:
+/// one copy serves both channels (flash is the boards' tight budget).
+#[inline(never)]
 pub fn put_block<S: FrameSink + ?Sized>(
     values: &[u32],
     h: &mut History,
