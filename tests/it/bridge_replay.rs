@@ -1,18 +1,21 @@
 //! Sensor stream → bridge engine → CAN frames → reassembling decoder, on the real
-//! recordings: what arrives is exactly the pipeline's expected scan; a lost frame costs
-//! only its points and is reported; a damaged UART line never yields an intact scan.
+//! recordings: what arrives is exactly what the capture holds (read by the tests'
+//! independent SCIP reader and, for a few points, by hand); a lost frame costs only its
+//! points and is reported; a damaged UART line never yields an intact scan; small scans
+//! go out as exactly the frames written by hand from SPEC.md
+//! (tests/golden/spec_frames_d16.txt).
 
 use bridge::engine::{Bridge, BridgeConfig};
 use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
+use bridge::pipeline::{PipelineConfig, StepWindow};
 use bridge::session::SessionConfig;
 use can_wire::bandwidth::BitRates;
 use can_wire::reassembly::{Completeness, Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{
     Distance, DistanceEncoding, Encoding, Frame, FrameFormat, IdWindow, IntensityEncoding,
 };
-use scip2can_host::parse::parse_bytes;
-use scip2can_tests::recordings_or_skip;
+use embedded_can::{Id, StandardId};
+use scip2can_tests::{oracle, recordings_or_skip};
 
 const Q: usize = 512;
 
@@ -69,29 +72,30 @@ fn reassemble(frames: &[Frame]) -> Vec<Got> {
     out
 }
 
-/// The expected points of each intact measurement response, from `scip2can parse`:
-/// error codes become invalid points; intensities when the encoding carries them.
+/// The expected points of each intact measurement response, read by the independent
+/// SCIP reader of the tests (not the decoder under test): error codes (below the
+/// stream's PP `DMIN`) become invalid points; intensities when the encoding carries
+/// them, saturated to 16 bits.
 fn expected(bytes: &[u8], with_intensity: bool) -> Vec<Vec<(Distance, Option<u16>)>> {
-    parse_bytes(bytes)
+    let dmin = oracle::dmin(bytes);
+    oracle::scans(bytes)
         .into_iter()
-        .filter(|r| !r.damaged && !r.distances.is_empty())
-        .map(|r| {
-            let codes: Vec<u64> = r
-                .errors
-                .iter()
-                .filter_map(|e| e.get("index")?.as_u64())
-                .collect();
-            r.distances
+        .filter(|s| !s.damaged)
+        .map(|s| {
+            s.distances
                 .iter()
                 .enumerate()
                 .map(|(i, &d)| {
-                    let dist = if codes.contains(&(i as u64)) {
-                        Distance::Invalid
-                    } else {
+                    let dist = if oracle::is_range(d, s.width, dmin) {
                         Distance::Mm(d)
+                    } else {
+                        Distance::Invalid
                     };
-                    let inten = (with_intensity && !r.intensities.is_empty())
-                        .then(|| u16::try_from(r.intensities[i]).unwrap_or(u16::MAX));
+                    let inten = s
+                        .intensities
+                        .get(i)
+                        .filter(|_| with_intensity)
+                        .map(|&v| u16::try_from(v).unwrap_or(u16::MAX));
                     (dist, inten)
                 })
                 .collect()
@@ -112,19 +116,63 @@ const D16_I16: Encoding = Encoding {
     unit_exp: 0,
 };
 
+/// Points read off the captures by hand (`sum((c - 0x30) << 6k)` over each value's
+/// chars): recording, point count, and (index, mm, intensity) of a few points. They
+/// anchor the test reader [`expected`] relies on.
+type HandRead = (&'static str, usize, &'static [(usize, u32, Option<u16>)]);
+const HAND_READ: [HandRead; 3] = [
+    // GD0044072501: first line `068068067061 05m…`, last value `06e`.
+    (
+        "hokuyoaist_example_urg_04lx.rx.scip",
+        682,
+        &[
+            (0, 392, None),
+            (2, 391, None),
+            (3, 385, None),
+            (4, 381, None),
+            (681, 437, None),
+        ],
+    ),
+    // ME0000108001100: `00]0LA` = 45 mm, 28*64+17; `00`0Kd`; last `00a0Ld`.
+    (
+        "hokuyoaist_example_utm_30lx.rx.scip",
+        1081,
+        &[
+            (0, 45, Some(1809)),
+            (1, 48, Some(1780)),
+            (1080, 49, Some(1844)),
+        ],
+    ),
+    // `06306J06_…`: 6*64+3, 6*64+26, 6*64+47, … the last `070`.
+    (
+        "snark_gd_0000_0010_tag.scip",
+        11,
+        &[
+            (0, 387, None),
+            (1, 410, None),
+            (2, 431, None),
+            (10, 448, None),
+        ],
+    ),
+];
+
 #[test]
 fn every_recorded_scan_arrives_exactly_as_sent() {
     let Some(dir) = recordings_or_skip("bridge replay") else {
         return;
     };
-    for name in [
-        "hokuyoaist_example_urg_04lx.rx.scip",
-        "hokuyoaist_example_utm_30lx.rx.scip",
-        "snark_gd_0000_0010_tag.scip",
-    ] {
+    for (name, count, read) in HAND_READ {
         let bytes = std::fs::read(dir.join(name)).expect("read");
         let want = expected(&bytes, true);
         assert_eq!(want.len(), 1, "{name}: one scan per recording");
+        assert_eq!(want[0].len(), count, "{name}");
+        for &(i, mm, intensity) in read {
+            assert_eq!(
+                want[0][i],
+                (Distance::Mm(mm), intensity),
+                "{name} point {i}"
+            );
+        }
         for format in [
             FrameFormat::Classic,
             FrameFormat::FD64,
@@ -237,5 +285,160 @@ fn a_damaged_uart_line_is_never_published_as_intact() {
                 assert_eq!(points(&g), want, "flip at {i} published wrong values");
             }
         }
+    }
+}
+
+/// One block of tests/golden/spec_frames_d16.txt: a capture, the bridge settings, and
+/// the frames written by hand from the SPEC.
+struct GoldenScan {
+    recording: String,
+    roi: (u16, u16),
+    frame_len: u8,
+    intensity: IntensityEncoding,
+    /// (identifier, CAN FD, data).
+    frames: Vec<(u16, bool, Vec<u8>)>,
+}
+
+fn hex_bytes(text: &str) -> Vec<u8> {
+    assert!(text.len() % 2 == 0, "odd hex {text:?}");
+    (0..text.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&text[i..i + 2], 16).expect("hex byte"))
+        .collect()
+}
+
+fn golden_scans(name: &str) -> Vec<GoldenScan> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("golden")
+        .join(name);
+    let text = std::fs::read_to_string(&path).expect("golden frames");
+    let mut out: Vec<GoldenScan> = Vec::new();
+    let mut open = false;
+    for line in text.lines().map(str::trim) {
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        if let Some(rest) = line.strip_prefix("scan ") {
+            assert!(!open, "scan inside a scan: {line}");
+            let mut words = rest.split_whitespace();
+            let recording = words.next().expect("recording").to_owned();
+            let (mut roi, mut frame_len, mut intensity) = (None, None, None);
+            for w in words {
+                match w.split_once('=').expect("key=value") {
+                    ("roi", v) => {
+                        let (a, b) = v.split_once(':').expect("FIRST:LAST");
+                        roi = Some((a.parse().expect("step"), b.parse().expect("step")));
+                    }
+                    ("len", v) => frame_len = Some(v.parse().expect("length")),
+                    ("intensity", "i16") => intensity = Some(IntensityEncoding::I16),
+                    ("intensity", "none") => intensity = Some(IntensityEncoding::None),
+                    other => panic!("unknown setting {other:?}"),
+                }
+            }
+            out.push(GoldenScan {
+                recording,
+                roi: roi.expect("roi="),
+                frame_len: frame_len.expect("len="),
+                intensity: intensity.expect("intensity="),
+                frames: Vec::new(),
+            });
+            open = true;
+        } else if line == "end" {
+            assert!(open, "end outside a scan");
+            open = false;
+        } else {
+            assert!(open, "frame outside a scan: {line}");
+            let (id, data) = line.split_once('#').expect("ID#DATA");
+            let id = u16::from_str_radix(id, 16).expect("hex id");
+            let (fd, hex) = match data.strip_prefix('#') {
+                // `ID##<flags><data>`: one hex digit of flags.
+                Some(fd) => (true, fd.get(1..).expect("flags")),
+                None => (false, data),
+            };
+            let scan = out.last_mut().expect("a scan");
+            scan.frames.push((id, fd, hex_bytes(hex)));
+        }
+    }
+    assert!(!open, "{name}: unterminated scan");
+    out
+}
+
+#[test]
+fn the_bridge_sends_the_golden_frames_written_from_the_spec() {
+    let Some(dir) = recordings_or_skip("SPEC golden frames") else {
+        return;
+    };
+    let golden = golden_scans("spec_frames_d16.txt");
+    assert_eq!(golden.len(), 3);
+    for g in &golden {
+        let bytes = std::fs::read(dir.join(&g.recording)).expect("read");
+        let format = if g.frame_len == 8 {
+            FrameFormat::Classic
+        } else {
+            FrameFormat::Fd {
+                max_len: g.frame_len,
+            }
+        };
+        let mut c = config(
+            format,
+            Encoding {
+                distance: DistanceEncoding::D16,
+                intensity: g.intensity,
+                unit_exp: 0,
+            },
+        );
+        c.pipeline.roi = Some(StepWindow {
+            first: g.roi.0,
+            last: g.roi.1,
+        });
+        let frames = replay(&bytes, c);
+        let got: Vec<(u16, bool, Vec<u8>)> = frames
+            .iter()
+            .map(|f| {
+                let Id::Standard(id) = f.id() else {
+                    panic!("an extended id")
+                };
+                (id.as_raw(), f.is_fd(), f.data().to_vec())
+            })
+            .collect();
+        let show = |v: &[(u16, bool, Vec<u8>)]| -> Vec<String> {
+            v.iter()
+                .map(|(id, fd, d)| {
+                    let hex: String = d.iter().map(|b| format!("{b:02X}")).collect();
+                    format!("{id:03X}#{}{hex}", if *fd { "#1" } else { "" })
+                })
+                .collect()
+        };
+        assert_eq!(
+            show(&got),
+            show(&g.frames),
+            "{} roi {:?} len {}",
+            g.recording,
+            g.roi,
+            g.frame_len
+        );
+
+        // The other way round: the golden frames reassemble to the points read by hand.
+        let golden_frames: Vec<Frame> = g
+            .frames
+            .iter()
+            .map(|(id, fd, d)| {
+                let id = StandardId::new(*id).expect("11-bit id");
+                Frame::new(Id::Standard(id), d, *fd).expect("valid frame")
+            })
+            .collect();
+        let scans = reassemble(&golden_frames);
+        assert_eq!(scans.len(), 1);
+        assert_eq!(scans[0].0, Completeness::Intact, "{}", g.recording);
+        let want = expected(&bytes, true).remove(0);
+        let (first, last) = (usize::from(g.roi.0), usize::from(g.roi.1));
+        // Point i of the scan is step `start + i` of the request (cluster 1): the GD
+        // starts at step 44, the ME at step 0.
+        let start = if g.recording.contains("urg_04lx") {
+            44
+        } else {
+            0
+        };
+        assert_eq!(points(&scans[0]), want[first - start..=last - start]);
     }
 }

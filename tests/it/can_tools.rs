@@ -1,7 +1,8 @@
 //! `scip2can replay` → candump log → `scip2can decode` / `plot`, on the real recordings
-//! and the simulator: the scans that come back are what `scip2can parse` reads from the
-//! sensor stream; the log is read by python-can and its fixed-layout frames by cantools
-//! with the project's DBC; a deleted frame is reported; the plot is a PNG.
+//! and the simulator: the scans that come back are what an independent reader finds in
+//! the captured bytes and what the simulated scene puts in front of the sensor; the log
+//! is read by python-can and its fixed-layout frames by cantools with the project's DBC;
+//! a deleted frame is reported; the plot is a PNG.
 
 use std::io::BufRead;
 use std::path::PathBuf;
@@ -18,10 +19,9 @@ use can_wire::{
 };
 use scip2can_host::candump::Record;
 use scip2can_host::decode::{decode_log, DecodedScan, Item, LogDecoder};
-use scip2can_host::parse::parse_bytes;
 use scip2can_host::replay::{replay_sim, replay_stream, Replayed};
 use scip2can_host::sim::SimOptions;
-use scip2can_tests::{recordings_or_skip, sensor_streams};
+use scip2can_tests::{oracle, recordings_or_skip, sensor_streams};
 use serde_json::Value;
 
 fn config(format: FrameFormat, distance: DistanceEncoding) -> BridgeConfig {
@@ -72,27 +72,22 @@ fn scans(items: &[Item]) -> Vec<&DecodedScan> {
         .collect()
 }
 
-/// `scip2can parse`'s measurement responses: (damaged, distances with error codes as
-/// None, intensities).
+/// The measurement responses of a capture, read by the tests' independent SCIP reader
+/// (not the decoder under test): (damaged, distances with error codes as None,
+/// intensities).
 type Expected = (bool, Vec<Option<u32>>, Vec<u32>);
 
 fn parsed_scans(bytes: &[u8]) -> Vec<Expected> {
-    parse_bytes(bytes)
+    let dmin = oracle::dmin(bytes);
+    oracle::scans(bytes)
         .into_iter()
-        .filter(|r| !r.distances.is_empty() && r.timestamp.is_some())
-        .map(|r| {
-            let codes: Vec<u64> = r
-                .errors
-                .iter()
-                .filter_map(|e| e.get("index")?.as_u64())
-                .collect();
-            let d = r
+        .map(|s| {
+            let d = s
                 .distances
                 .iter()
-                .enumerate()
-                .map(|(i, &d)| (!codes.contains(&(i as u64))).then_some(d))
+                .map(|&d| oracle::is_range(d, s.width, dmin).then_some(d))
                 .collect();
-            (r.damaged, d, r.intensities)
+            (s.damaged, d, s.intensities)
         })
         .collect()
 }
@@ -108,12 +103,11 @@ fn distances(s: &DecodedScan) -> Vec<Option<u32>> {
 }
 
 #[test]
-fn every_recording_replays_and_decodes_to_what_parse_reads() {
+fn every_recording_replays_and_decodes_to_what_the_capture_holds() {
     let Some(dir) = recordings_or_skip("replay → decode") else {
         return;
     };
     let streams = sensor_streams(&dir);
-    assert!(streams.len() >= 6, "{streams:?}");
     let mut checked = 0;
     for path in streams {
         let bytes = std::fs::read(&path).expect("read");
@@ -226,28 +220,31 @@ fn python_can_reads_the_log_and_cantools_decodes_headers_and_trailers() {
             let t = p["time"].as_f64().expect("time");
             assert!((t - rec.time_us as f64 / 1e6).abs() < 1e-6, "{t} {rec}");
         }
-        // The fixed-layout frames agree with the scan the Rust decoder reassembled.
-        let (items, _) = decode(&text);
-        let scan = scans(&items)[0].clone();
-        let h = scan.header;
+        // The fixed-layout frames, as cantools reads them with the DBC, hold what the
+        // capture says: the first scan (seq 0), its timestamp `BI9Y` read by hand
+        // (18 << 18 | 25 << 12 | 9 << 6 | 41), the PP geometry (AMIN 0, AFRT 540, ARES
+        // 1440), 1081 points of which the ranges (at least DMIN 23, below the D14
+        // out-of-range code 16383) are valid.
         let signals = |name: &str| -> &Value {
             &py.iter().find(|p| p["name"] == name).expect(name)["signals"]
         };
         let a = signals("ScanHeaderA");
-        assert_eq!(a["seq"], h.seq);
-        assert_eq!(a["timestamp"], h.timestamp_ms);
+        assert_eq!(a["seq"], 0);
+        assert_eq!(a["timestamp"], 4_821_609);
         assert_eq!(a["point_count"], 1081);
-        assert_eq!(a["unit_exp"], h.encoding.unit_exp);
+        assert_eq!(a["unit_exp"], 0);
         let b = signals("ScanHeaderB");
-        assert_eq!(b["distance_encoding"], DistanceEncoding::D14.code());
-        assert_eq!(b["intensity_encoding"], IntensityEncoding::I16.code());
-        assert_eq!(b["step_increment"], h.step_increment);
-        assert_eq!(b["first_step"], h.first_step);
-        assert_eq!(b["ares"], h.ares);
+        assert_eq!(b["distance_encoding"], 2, "D14 (SPEC section 4)");
+        assert_eq!(b["intensity_encoding"], 1, "I16");
+        assert_eq!(b["step_increment"], 1);
+        assert_eq!(b["first_step"], -540);
+        assert_eq!(b["ares"], 1440);
         let t = signals("ScanTrailer");
-        assert_eq!(t["seq"], h.seq);
+        assert_eq!(t["seq"], 0);
         assert_eq!(t["points_sent"], 1081);
-        let valid = distances(&scan).iter().filter(|d| d.is_some()).count();
+        let want = parsed_scans(&bytes).remove(0);
+        let valid = want.1.iter().flatten().filter(|&&d| d < 16383).count();
+        assert!(valid > 1000, "{valid}");
         assert_eq!(t["points_valid"], valid);
         assert_eq!(t["truncated"], 0);
         let heartbeat = signals("Status");
@@ -264,8 +261,6 @@ fn a_deleted_frame_is_one_lost_frame_and_an_incomplete_scan() {
     let r =
         replay_stream(&bytes, config(FrameFormat::FD64, DistanceEncoding::D16)).expect("replay");
     let text = log_text(&r, true);
-    let (items, _) = decode(&text);
-    let whole = scans(&items)[0].clone();
     // Delete the fifth data frame (ID 0x150 = node 0's data frames).
     let lines: Vec<&str> = text.lines().collect();
     let victim = lines
@@ -297,9 +292,14 @@ fn a_deleted_frame_is_one_lost_frame_and_an_incomplete_scan() {
     let (node, s) = stats[0];
     assert_eq!(node, 0);
     assert_eq!((s.frames_lost, s.scans_damaged, s.scans_intact), (1, 1, 0));
-    // Exactly points 60..75 are gone; the others are the intact scan's.
-    for (i, (p, w)) in got[0].points.iter().zip(&whole.points).enumerate() {
-        let want: Option<Point> = if (60..75).contains(&i) { None } else { *w };
+    // Exactly points 60..75 are gone; the others are what the capture holds.
+    let (_, d, inten) = parsed_scans(&bytes).remove(0);
+    assert_eq!(got[0].points.len(), d.len());
+    for (i, p) in got[0].points.iter().enumerate() {
+        let want = (!(60..75).contains(&i)).then(|| Point {
+            distance: d[i].map_or(Distance::Invalid, Distance::Mm),
+            intensity: Some(u16::try_from(inten[i]).unwrap_or(u16::MAX)),
+        });
         assert_eq!(*p, want, "point {i}");
     }
 }
@@ -342,6 +342,46 @@ fn the_simulator_streams_through_a_started_session() {
         }
     }
     assert_eq!(dec.stats()[0].1.scans_intact, 3);
+}
+
+/// The simulator's ground truth: a flat wall 2000 mm ahead, no noise. The beam of step
+/// `s` leaves at `θ = (s - AFRT) · 2π / ARES` and meets the wall at `2000 / cos θ`,
+/// rounded to the mm; beyond the URG-04LX's DMAX (5600 mm) or facing away, no echo.
+fn wall_truth(step: u32) -> Option<u32> {
+    let theta = (f64::from(step) - 384.0) * std::f64::consts::TAU / 1024.0;
+    let cos = theta.cos();
+    let mm = (cos > 1e-9).then(|| (2000.0 / cos).round())?;
+    (mm <= 5600.0).then_some(mm as u32)
+}
+
+#[test]
+fn a_simulated_wall_arrives_where_the_geometry_puts_it() {
+    let sim = SimOptions::from_spec("model=urg04lx,scene=wall:2000,noise=0").expect("spec");
+    // In 1 mm (D16) and in 2 mm codes (D12, unit 2^1): SPEC section 4 rounds a range r
+    // to the code (r + 1) >> 1, received as twice that.
+    let mut packed = config(FrameFormat::Classic, DistanceEncoding::D12);
+    packed.encoding.unit_exp = 1;
+    for (c, unit) in [
+        (config(FrameFormat::FD64, DistanceEncoding::D16), 1),
+        (packed, 2),
+    ] {
+        let r = replay_sim(&sim, 2, c, true).expect("sim");
+        let (items, _) = decode(&log_text(&r, c.budget.format.is_fd()));
+        let got = scans(&items);
+        assert_eq!(got.len(), 2, "unit {unit}");
+        for s in got {
+            assert_eq!(s.completeness, Completeness::Intact);
+            assert_eq!(s.header.point_count, 682);
+            let want: Vec<Option<u32>> = (44..=725)
+                .map(|step| wall_truth(step).map(|mm| (mm + unit / 2) / unit * unit))
+                .collect();
+            // Straight ahead (step 384, point 340) the wall is at 2000 mm; ±90° it is out
+            // of reach.
+            assert_eq!(want[340], Some(2000));
+            assert!(want.iter().filter(|w| w.is_none()).count() > 100);
+            assert_eq!(distances(s), want, "unit {unit}");
+        }
+    }
 }
 
 #[test]

@@ -192,18 +192,27 @@ impl ScanRequest {
     }
 
     /// Number of values per scan: `ceil((end - start + 1) / cluster)`, cluster 0 as 1.
-    /// 0 when `end < start`.
+    /// 0 when `end < start`; saturates at `u16::MAX` (only `0..=65535` in clusters of
+    /// 1 would need 65536; SCIP steps have 4 digits).
     pub const fn value_count(&self) -> u16 {
         if self.end < self.start {
             return 0;
         }
-        let steps = self.end - self.start + 1;
+        // `end >= start`: exact, at most 65536.
+        let steps = (self.end as u32)
+            .wrapping_sub(self.start as u32)
+            .wrapping_add(1);
         let c = if self.cluster == 0 {
             1
         } else {
-            self.cluster as u16
+            self.cluster as u32
         };
-        steps.div_ceil(c)
+        let n = steps.div_ceil(c);
+        if n > u16::MAX as u32 {
+            u16::MAX
+        } else {
+            n as u16
+        }
     }
 
     /// The two command letters.
@@ -370,7 +379,10 @@ struct Writer<'a> {
 
 impl Writer<'_> {
     fn bytes(&mut self, b: &[u8]) -> Result<(), EncodeError> {
-        let end = self.pos + b.len();
+        let end = self
+            .pos
+            .checked_add(b.len())
+            .ok_or(EncodeError::BufferTooSmall)?;
         self.out
             .get_mut(self.pos..end)
             .ok_or(EncodeError::BufferTooSmall)?
@@ -385,7 +397,8 @@ impl Writer<'_> {
         let mut v = value;
         let w = width as usize;
         for slot in buf.iter_mut().take(w).rev() {
-            *slot = b'0' + (v % 10) as u8;
+            // `v % 10` is a digit: never wraps.
+            *slot = b'0'.wrapping_add((v % 10) as u8);
             v /= 10;
         }
         self.bytes(buf.get(..w).unwrap_or(&[]))
@@ -489,13 +502,9 @@ impl Request {
 
     /// Parses an echo line (without LF): the command as the sensor received it.
     pub fn parse(line: &[u8]) -> Result<Self, EchoError> {
-        let (body, tag) = match line.iter().position(|&c| c == b';') {
-            Some(i) => (
-                line.get(..i).unwrap_or(&[]),
-                line.get(i + 1..).unwrap_or(&[]),
-            ),
-            None => (line, &[][..]),
-        };
+        let mut parts = line.splitn(2, |&c| c == b';');
+        let body = parts.next().unwrap_or(&[]);
+        let tag = parts.next().unwrap_or(&[]);
         let tag = Tag::new(tag).map_err(|_| EchoError::BadTag)?;
         Ok(Self {
             command: parse_command(body)?,
@@ -522,13 +531,9 @@ pub struct RawRequest<'a> {
 impl<'a> RawRequest<'a> {
     /// Splits a command line (without its line end). Never fails.
     pub fn split(line: &'a [u8]) -> Self {
-        let (body, tag) = match line.iter().position(|&c| c == b';') {
-            Some(i) => (
-                line.get(..i).unwrap_or(&[]),
-                Some(line.get(i + 1..).unwrap_or(&[])),
-            ),
-            None => (line, None),
-        };
+        let mut parts = line.splitn(2, |&c| c == b';');
+        let body = parts.next().unwrap_or(&[]);
+        let tag = parts.next();
         let code_len = if body.starts_with(b"SCIP") {
             body.len()
         } else if body.first() == Some(&b'%') {
@@ -556,14 +561,16 @@ impl<'a> RawRequest<'a> {
     }
 }
 
-/// Parses `n` decimal digits.
+/// Parses `n` decimal digits; `None` for a non-digit or a value beyond `u32`.
 fn decimal(digits: &[u8]) -> Option<u32> {
     if digits.is_empty() {
         return None;
     }
     digits.iter().try_fold(0u32, |acc, &c| {
         if c.is_ascii_digit() {
-            Some(acc * 10 + u32::from(c - b'0'))
+            // A digit: the subtraction never wraps.
+            acc.checked_mul(10)?
+                .checked_add(u32::from(c.wrapping_sub(b'0')))
         } else {
             None
         }
@@ -650,6 +657,20 @@ fn parse_command(body: &[u8]) -> Result<Command, EchoError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn value_count_and_decimal_do_not_overflow() {
+        // 65536 steps in clusters of 1: more values than a u16 holds.
+        let all = ScanRequest::distance(ScanMode::Single, 0, u16::MAX);
+        assert_eq!(all.value_count(), u16::MAX);
+        assert_eq!(
+            ScanRequest::distance(ScanMode::Single, 44, 725).value_count(),
+            682
+        );
+        assert_eq!(decimal(b"4294967295"), Some(u32::MAX));
+        assert_eq!(decimal(b"4294967296"), None);
+        assert_eq!(decimal(b"99999999999"), None);
+    }
 
     fn enc(r: Request) -> ([u8; REQUEST_MAX], usize) {
         let mut out = [0u8; REQUEST_MAX];

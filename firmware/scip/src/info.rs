@@ -121,7 +121,11 @@ fn whole_number(value: &[u8]) -> Option<u32> {
     Some(
         digits
             .iter()
-            .fold(0u32, |acc, &c| acc * 10 + u32::from(c - b'0')),
+            // At most 9 digits (< 10^9): never wraps.
+            .fold(0u32, |acc, &c| {
+                acc.wrapping_mul(10)
+                    .wrapping_add(u32::from(c.wrapping_sub(b'0')))
+            }),
     )
 }
 
@@ -553,7 +557,7 @@ impl SensorParams {
 
     /// Scan period in microseconds from `SCAN` (rpm), if known and non-zero.
     pub fn scan_period_us(&self) -> Option<u32> {
-        self.scan_rpm.filter(|&r| r > 0).map(|r| 60_000_000 / r)
+        self.scan_rpm.and_then(|r| 60_000_000u32.checked_div(r))
     }
 }
 

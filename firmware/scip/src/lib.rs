@@ -1,9 +1,26 @@
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
+// No panic on any input: no unwrap/expect/panic, no unchecked indexing, and every
+// operation that could overflow says what it does then (checked, wrapping, saturating).
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::indexing_slicing,
+        clippy::arithmetic_side_effects
+    )
+)]
 #![doc = include_str!("../README.md")]
 
 pub mod command;
+// TODO(lint): the streaming decoder still has 47 bare `+`/`-`: indices and lengths
+// bounded by its line buffer, and u32/u64 counters of bytes, responses and errors
+// (`DecoderStats`, which should wrap explicitly). Making each explicit is left to a
+// separate change of that file; the other four lints already hold there.
+#[allow(clippy::arithmetic_side_effects)]
 pub mod decoder;
 pub mod error;
 pub mod info;

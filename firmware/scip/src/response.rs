@@ -69,7 +69,8 @@ impl<F: FnMut(&[u8])> ResponseWriter<F> {
             .wrapping_sub(0x30)
             .wrapping_add(b':')
             .wrapping_add(checksum(value).wrapping_sub(0x30));
-        let s = (s & 0x3F) + 0x30;
+        // At most 0x3F + 0x30: never wraps.
+        let s = (s & 0x3F).wrapping_add(0x30);
         (self.out)(name);
         (self.out)(b":");
         (self.out)(value);
@@ -94,7 +95,11 @@ impl<F: FnMut(&[u8])> ResponseWriter<F> {
     /// Values too large for the width are clamped to its maximum.
     pub fn value(&mut self, v: u32, width: u8) {
         let w = usize::from(width.clamp(1, 4));
-        let max = (1u32 << (6 * w)) - 1;
+        // The largest value of w chars: 2^(6w) - 1.
+        let max = [0, 0x3F, 0xFFF, 0x3_FFFF, 0xFF_FFFF]
+            .get(w)
+            .copied()
+            .unwrap_or(0);
         let mut chars = [0u8; 4];
         let chars = chars.get_mut(..w).unwrap_or(&mut []);
         let _ = value::encode(v.min(max), chars);
@@ -121,7 +126,8 @@ impl<F: FnMut(&[u8])> ResponseWriter<F> {
     fn data_char(&mut self, c: u8) {
         if let Some(slot) = self.line.get_mut(self.len) {
             *slot = c;
-            self.len += 1;
+            // `len` indexed a slot of the line: never saturates.
+            self.len = self.len.saturating_add(1);
         }
         if self.len == DATA_CHARS {
             self.flush_data();

@@ -83,7 +83,12 @@ impl Status {
             b"02" if command == b"BM" || command == b"TM" => StatusKind::AlreadyDone,
             b"03" if matches!(command, b"SS" | b"CR" | b"TM") => StatusKind::AlreadyDone,
             [b'0', _] => StatusKind::Refused,
-            [d1 @ b'2'..=b'9', d2 @ b'0'..=b'9'] => match (d1 - b'0') * 10 + (d2 - b'0') {
+            // Two digits: at most 99, never wraps.
+            [d1 @ b'2'..=b'9', d2 @ b'0'..=b'9'] => match d1
+                .wrapping_sub(b'0')
+                .wrapping_mul(10)
+                .wrapping_add(d2.wrapping_sub(b'0'))
+            {
                 21..=49 => StatusKind::Stopped,
                 50..=97 => StatusKind::HardwareFault,
                 _ => StatusKind::Other,

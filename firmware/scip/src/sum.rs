@@ -5,7 +5,8 @@
 pub fn checksum(bytes: &[u8]) -> u8 {
     // Wrapping u8 addition keeps the low 6 bits exact and lets the compiler vectorise.
     let s = bytes.iter().fold(0u8, |acc, &b| acc.wrapping_add(b));
-    (s & 0x3F) + 0x30
+    // At most 0x3F + 0x30: never wraps.
+    (s & 0x3F).wrapping_add(0x30)
 }
 
 #[cfg(test)]

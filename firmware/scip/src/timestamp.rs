@@ -27,11 +27,13 @@ impl TimestampUnwrapper {
         let raw = raw & TIMESTAMP_MASK;
         if let Some(last) = self.last {
             if raw < last {
-                self.high += u64::from(TIMESTAMP_MASK) + 1;
+                // Saturates only after 2^40 wraps of the 24-bit counter (35 million
+                // years of 1 ms ticks); the result never decreases.
+                self.high = self.high.saturating_add(1 << 24);
             }
         }
         self.last = Some(raw);
-        self.high + u64::from(raw)
+        self.high.saturating_add(u64::from(raw))
     }
 
     /// Forgets the history (after a sensor reset, whose timer restarts at 0).

@@ -33,14 +33,19 @@ pub fn decode(chars: &[u8]) -> Option<u32> {
 /// Returns `None` when `value` does not fit in `6 * out.len()` bits or `out` is empty
 /// or longer than 4.
 pub fn encode(value: u32, out: &mut [u8]) -> Option<()> {
-    let n = out.len();
-    if n == 0 || n > 4 || u64::from(value) >= 1u64 << (6 * n) {
+    // 2^(6n): the first value that does not fit in n chars (0 for n = 0 or n > 4).
+    let limit = [0u32, 1 << 6, 1 << 12, 1 << 18, 1 << 24]
+        .get(out.len())
+        .copied()
+        .unwrap_or(0);
+    if value >= limit {
         return None;
     }
-    for (i, slot) in out.iter_mut().enumerate() {
-        let shift = 6 * (n - 1 - i);
-        // Masked to 6 bits, so the sum stays within 0x30..=0x6F.
-        *slot = ((value >> shift) & 0x3F) as u8 + CHAR_MIN;
+    let mut rest = value;
+    for slot in out.iter_mut().rev() {
+        // Masked to 6 bits, so the char stays within 0x30..=0x6F: never wraps.
+        *slot = ((rest & 0x3F) as u8).wrapping_add(CHAR_MIN);
+        rest >>= 6;
     }
     Some(())
 }

@@ -15,7 +15,7 @@
 //! | (empty) | nothing; answered OK (some clients send a bare CR) |
 
 use crate::frame::Frame;
-use crate::hex::Out;
+use crate::hex::{self, Out};
 use crate::Error;
 
 /// Nominal bit rates of `S0`..`S8`, bit/s (Lawicel's table: `S7` is 800 kbit/s).
@@ -70,7 +70,8 @@ impl Command {
         };
         let index = || -> Result<u8, Error> {
             match rest {
-                [d @ b'0'..=b'8'] => Ok(d - b'0'),
+                // Cannot wrap: `d` is a digit.
+                [d @ b'0'..=b'8'] => Ok(d.wrapping_sub(b'0')),
                 [b'0'..=b'9'] => Err(Error::BadBitRate),
                 [_] => Err(Error::BadDigit),
                 _ => Err(Error::BadLength),
@@ -114,8 +115,9 @@ impl Command {
             Command::BitRate(n) | Command::DataBitRate(n) if n > 8 => {
                 return Err(Error::BadBitRate)
             }
-            Command::BitRate(n) => out.bytes(&[b'S', b'0' + n])?,
-            Command::DataBitRate(n) => out.bytes(&[b'Y', b'0' + n])?,
+            // `n <= 8` here: its hex digit is its decimal digit.
+            Command::BitRate(n) => out.bytes(&[b'S', hex::upper(u32::from(n))])?,
+            Command::DataBitRate(n) => out.bytes(&[b'Y', hex::upper(u32::from(n))])?,
             Command::Timestamps(on) => out.bytes(&[b'Z', if on { b'1' } else { b'0' }])?,
             Command::Empty | Command::Transmit(_) => {}
         }

@@ -206,14 +206,18 @@ impl Frame {
             let raw = u16::try_from(raw).map_err(|_| Error::IdOutOfRange)?;
             Id::Standard(StandardId::new(raw).ok_or(Error::IdOutOfRange)?)
         };
-        let dlc = hex::digit(*rest.get(id_len).ok_or(Error::BadLength)?)?;
+        let (&dlc_char, body) = rest
+            .get(id_len..)
+            .and_then(<[u8]>::split_first)
+            .ok_or(Error::BadLength)?;
+        let dlc = hex::digit(dlc_char)?;
         let len = match kind {
             FrameKind::Data | FrameKind::Remote if dlc > 8 => return Err(Error::BadDlc),
             FrameKind::Remote => 0,
             _ => dlc_to_len(dlc).ok_or(Error::BadDlc)?,
         };
-        let body = rest.get(id_len + 1..).ok_or(Error::BadLength)?;
-        let (data_chars, tail) = body.split_at_checked(2 * len).ok_or(Error::BadLength)?;
+        let chars = len.checked_mul(2).ok_or(Error::BadLength)?;
+        let (data_chars, tail) = body.split_at_checked(chars).ok_or(Error::BadLength)?;
         let ts = match (tail.len(), timestamp) {
             (0, _) => None,
             (4, true) => Some(u16::try_from(hex::number(tail)?).map_err(|_| Error::BadDigit)?),

@@ -7,9 +7,10 @@ const DIGITS: &[u8; 16] = b"0123456789ABCDEF";
 /// The value of one hex digit (either case).
 pub(crate) fn digit(c: u8) -> Result<u8, Error> {
     match c {
-        b'0'..=b'9' => Ok(c - b'0'),
-        b'A'..=b'F' => Ok(c - b'A' + 10),
-        b'a'..=b'f' => Ok(c - b'a' + 10),
+        // None of these wraps: `c` lies in the matched range.
+        b'0'..=b'9' => Ok(c.wrapping_sub(b'0')),
+        b'A'..=b'F' => Ok(c.wrapping_sub(b'A').wrapping_add(10)),
+        b'a'..=b'f' => Ok(c.wrapping_sub(b'a').wrapping_add(10)),
         _ => Err(Error::BadDigit),
     }
 }
@@ -40,14 +41,17 @@ impl<'a> Out<'a> {
     pub(crate) fn byte(&mut self, b: u8) -> Result<(), Error> {
         let slot = self.buf.get_mut(self.len).ok_or(Error::BufferTooSmall)?;
         *slot = b;
-        self.len += 1;
+        // `len` indexed a slot of the buffer, so `len + 1 <= buf.len()`: never saturates.
+        self.len = self.len.saturating_add(1);
         Ok(())
     }
 
-    /// `digits` upper-case hex digits of `v`, most significant first.
+    /// `digits` upper-case hex digits of `v`, most significant first (digits above the
+    /// 8 of a `u32` are `0`).
     pub(crate) fn hex(&mut self, v: u32, digits: u32) -> Result<(), Error> {
         for i in (0..digits).rev() {
-            self.byte(upper(v >> (4 * i)))?;
+            let nibble = v.checked_shr(i.saturating_mul(4)).unwrap_or(0);
+            self.byte(upper(nibble))?;
         }
         Ok(())
     }

@@ -7,6 +7,9 @@
 
 use crate::{Error, BEL, CR, LINE_MAX};
 
+/// Longest line text, without its CR.
+const TEXT_MAX: usize = LINE_MAX - 1;
+
 /// What [`LineBuffer::feed`] found.
 #[derive(Debug, PartialEq, Eq)]
 pub enum Line<'a> {
@@ -53,23 +56,25 @@ impl LineBuffer {
             self.overflow = false;
             self.done = false;
         }
-        for (i, &b) in bytes.iter().enumerate() {
+        // `used` counts the bytes taken so far, this one included.
+        for (used, &b) in (1usize..).zip(bytes) {
             match b {
                 CR => {
                     self.done = true;
                     if self.overflow {
-                        return (i + 1, Some(Line::Error(Error::LineTooLong)));
+                        return (used, Some(Line::Error(Error::LineTooLong)));
                     }
                     let line = self.buf.get(..self.len).unwrap_or(&[]);
-                    return (i + 1, Some(Line::Text(line)));
+                    return (used, Some(Line::Text(line)));
                 }
-                BEL => return (i + 1, Some(Line::Bell)),
+                BEL => return (used, Some(Line::Bell)),
                 b'\n' => {}
                 _ => match self.buf.get_mut(self.len) {
                     // One byte stays free for the CR, so a line is at most LINE_MAX - 1.
-                    Some(slot) if self.len + 1 < LINE_MAX => {
+                    Some(slot) if self.len < TEXT_MAX => {
                         *slot = b;
-                        self.len += 1;
+                        // `len < TEXT_MAX`, so this never saturates.
+                        self.len = self.len.saturating_add(1);
                     }
                     _ => self.overflow = true,
                 },
