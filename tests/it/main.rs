@@ -10,3 +10,4 @@ mod qemu;
 mod recordings;
 mod sim_clients;
 mod sim_protocol;
+mod time_sync;
