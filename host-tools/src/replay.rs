@@ -7,7 +7,10 @@
 //! decodes. The stream is fed line by line; the time of a line is its end position in
 //! the stream at `--uart-baud` (10 bits per byte), so the same input always gives the
 //! same log, and the governor's bus-time budget sees the stream at the pace a UART at
-//! that rate delivers it.
+//! that rate delivers it. A recording without a PP answer gives scans whose geometry is
+//! unknown (SPEC 3.2: no angles) and whose error codes are read for an unknown model;
+//! `--model` names the sensor, whose parameters the bridge then assumes
+//! (`Bridge::assume_sensor`; a PP answer in the stream still wins).
 //!
 //! **`sim:key=value,...`** (the keys of `scip2can sim`): the bridge's session is started
 //! and talks to a simulated sensor in virtual time (1 ms steps): it probes, identifies
@@ -149,7 +152,20 @@ fn pp_scan_hz(bytes: &[u8]) -> Option<f64> {
 
 /// Replays a sensor → host stream through a listening bridge, line by line.
 pub fn replay_stream(bytes: &[u8], config: BridgeConfig) -> anyhow::Result<Replayed> {
+    replay_stream_as(bytes, config, None)
+}
+
+/// [`replay_stream`] of a sensor whose parameters are known where the stream has no PP
+/// answer (`Bridge::assume_sensor`).
+pub fn replay_stream_as(
+    bytes: &[u8],
+    config: BridgeConfig,
+    assumed: Option<scip::SensorParams>,
+) -> anyhow::Result<Replayed> {
     let mut driver = Driver::new(config)?;
+    if let Some(params) = assumed {
+        driver.bridge.assume_sensor(params);
+    }
     let mut pos = 0u64;
     for line in bytes.split_inclusive(|&b| b == b'\n') {
         pos += line.len() as u64;
@@ -358,7 +374,11 @@ fn percent(part: f64, whole: f64) -> f64 {
 /// `scip2can replay`.
 pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
     let config = args.bridge_config()?;
+    let assumed = args.model.map(|m| m.params());
     let mut replayed = if let Some(spec) = args.input.strip_prefix("sim:") {
+        if args.model.is_some() {
+            bail!("--model is for recorded streams; a sim: sensor has its own model");
+        }
         let sim = SimOptions::from_spec(spec)?;
         let p = &args.pipeline;
         let user_decimation = p.decimate.is_some() || p.every_nth.is_some() || p.max_rate.is_some();
@@ -377,10 +397,15 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         }
         let stream = crate::sensor::record_file::sensor_bytes(&contents)
             .with_context(|| format!("reading {}", args.input))?;
-        replay_stream(&stream, config)?
+        replay_stream_as(&stream, config, assumed)?
     };
     if args.scan_hz.is_some() {
         replayed.scan_hz = args.scan_hz;
+    }
+    if replayed.scan_hz.is_none() {
+        replayed.scan_hz = assumed
+            .and_then(|p| p.scan_rpm)
+            .map(|rpm| f64::from(rpm) / 60.0);
     }
     let records = replayed.records(&args.interface, args.can.brs());
     let write = |out: &mut dyn Write| -> io::Result<()> {

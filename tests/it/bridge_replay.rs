@@ -91,7 +91,8 @@ fn expected(bytes: &[u8], with_intensity: bool) -> Vec<Vec<(Distance, Option<u16
                         Distance::Mm(d)
                     };
                     let inten = (with_intensity && !r.intensities.is_empty())
-                        .then(|| u16::try_from(r.intensities[i]).unwrap_or(u16::MAX));
+                        // SPEC 4: the 16-bit intensity is min(4 × raw, 65535).
+                        .then(|| u16::try_from(r.intensities[i] * 4).unwrap_or(u16::MAX));
                     (dist, inten)
                 })
                 .collect()

@@ -8,6 +8,7 @@ mod icount;
 mod live_bridge;
 mod qemu;
 mod recordings;
+mod replay_model;
 mod sim_clients;
 mod sim_protocol;
 mod time_sync;
