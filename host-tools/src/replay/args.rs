@@ -97,7 +97,6 @@ impl KnownModel {
             afrt: Some(m.afrt),
             scan_rpm: Some(m.scan_rpm),
             family: Some(m.family),
-            ..Default::default()
         }
     }
 }
