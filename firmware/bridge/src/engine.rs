@@ -213,7 +213,8 @@ impl<const Q: usize> Bridge<Q> {
     /// Sensor parameters to assume where the sensor's own PP answer gives none (it
     /// always wins): for a recorded stream without PP, from a known model. Sets the
     /// geometry of scan headers (without it, and without PP, they say "geometry
-    /// unknown") and, when `params` gives `dmin` or `family`, the decoder's range limits.
+    /// unknown") and, when `params` gives `dmin` or `family`, the decoder's range limits
+    /// (the decoder starts afresh then: call this before the first bytes).
     pub fn assume_sensor(&mut self, params: scip::SensorParams) {
         self.core.assumed = params;
         if params.dmin.is_some() || params.family.is_some() {
@@ -523,7 +524,7 @@ impl<const Q: usize> Core<Q> {
                 // the readings rewritten as ranges (at least 1) or 0 for none, as the
                 // decimation path writes its points.
                 let (_, readings, mut out) = self.split();
-                let mut k = 0;
+                let mut k = 0usize;
                 for (slot, r) in readings.iter_mut().zip(line.readings) {
                     slot.distance = if test.is_range(r.distance) {
                         r.distance.max(1)
@@ -531,7 +532,8 @@ impl<const Q: usize> Core<Q> {
                         0
                     };
                     slot.aux = r.aux;
-                    k += 1;
+                    // At most the line's readings.
+                    k = k.wrapping_add(1);
                 }
                 let points = readings.get(..k).unwrap_or(&[]);
                 out.encode_run(points, can_wire::RangeRule::at_least(1), reading_point)
