@@ -30,15 +30,15 @@ fn main() {
     let build = match std::env::var("SCIP2CAN_BUILD") {
         Ok(v) => hex24(&v).unwrap_or(0),
         Err(_) => {
-            // Rebuild when the commit changes: HEAD, the branch it names, packed refs.
-            for path in ["HEAD", "packed-refs"] {
+            // Rebuild when the commit changes: HEAD, the branch it names, packed refs
+            // (those that exist: cargo reruns a script always for a missing path).
+            let branch = git(&["symbolic-ref", "-q", "HEAD"]);
+            let refs = ["HEAD", "packed-refs"].into_iter().chain(branch.as_deref());
+            for path in refs {
                 if let Some(p) = git(&["rev-parse", "--git-path", path]) {
-                    println!("cargo:rerun-if-changed={p}");
-                }
-            }
-            if let Some(branch) = git(&["symbolic-ref", "-q", "HEAD"]) {
-                if let Some(p) = git(&["rev-parse", "--git-path", &branch]) {
-                    println!("cargo:rerun-if-changed={p}");
+                    if std::path::Path::new(&p).exists() {
+                        println!("cargo:rerun-if-changed={p}");
+                    }
                 }
             }
             git(&["rev-parse", "--short=6", "HEAD"])
