@@ -147,8 +147,8 @@ struct Core<const Q: usize> {
     clock: scip::TimestampUnwrapper,
     /// Bridge ms minus extended sensor ms at the last TM sync, while it holds.
     sync_offset: Option<i64>,
-    /// Sensor parameters assumed where no PP answer gave them ([`Bridge::assume_sensor`]).
-    assumed: scip::SensorParams,
+    /// `(ARES, AFRT)` assumed where no PP answer gave them ([`Bridge::assume_sensor`]).
+    assumed: (Option<u32>, Option<u32>),
     /// The model the sensor's `MODL` or `PROD` text named (status page 4).
     model: Option<can_wire::SensorModel>,
 }
@@ -189,7 +189,7 @@ impl<const Q: usize> Bridge<Q> {
                 decimated: [scip::Reading::default(); scip::MAX_READINGS],
                 clock: scip::TimestampUnwrapper::new(),
                 sync_offset: None,
-                assumed: scip::SensorParams::default(),
+                assumed: (None, None),
                 model: None,
                 config,
             },
@@ -216,7 +216,7 @@ impl<const Q: usize> Bridge<Q> {
     /// unknown") and, when `params` gives `dmin` or `family`, the decoder's range limits
     /// (the decoder starts afresh then: call this before the first bytes).
     pub fn assume_sensor(&mut self, params: scip::SensorParams) {
-        self.core.assumed = params;
+        self.core.assumed = (params.ares, params.afrt);
         if params.dmin.is_some() || params.family.is_some() {
             let mut limits = self.decoder.limits();
             limits.dmin = params.dmin.unwrap_or(limits.dmin);
@@ -853,8 +853,8 @@ impl<const Q: usize> Core<Q> {
     /// [`Bridge::assume_sensor`]) gave both; `None`: unknown (SPEC 3.2, `ares` = 0).
     fn geometry(&self) -> Option<(u16, u32)> {
         let params = self.session.params();
-        let ares = params.ares.or(self.assumed.ares);
-        let afrt = params.afrt.or(self.assumed.afrt);
+        let ares = params.ares.or(self.assumed.0);
+        let afrt = params.afrt.or(self.assumed.1);
         let ares = ares
             .and_then(|a| u16::try_from(a).ok())
             .filter(|&a| a > 0)?;
