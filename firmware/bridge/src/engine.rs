@@ -167,13 +167,16 @@ impl<const Q: usize> Bridge<Q> {
             return Err(BridgeError::UartBitRate);
         }
         config.encoding.validate().map_err(BridgeError::Wire)?;
+        let session = Session::new(config.session).map_err(BridgeError::Session)?;
+        let pipeline = Pipeline::new(config.pipeline).map_err(BridgeError::Pipeline)?;
+        let encoder =
+            ScanEncoder::new(config.ids, config.budget.format).map_err(BridgeError::Wire)?;
         Ok(Self {
             decoder: Decoder::new(),
             core: Core {
-                session: Session::new(config.session).map_err(BridgeError::Session)?,
-                pipeline: Pipeline::new(config.pipeline).map_err(BridgeError::Pipeline)?,
-                encoder: ScanEncoder::new(config.ids, config.budget.format)
-                    .map_err(BridgeError::Wire)?,
+                session,
+                pipeline,
+                encoder,
                 governor: Governor::new(config.budget),
                 queue: FrameQueue::new(),
                 phase: Phase::None,
