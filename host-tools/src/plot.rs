@@ -49,7 +49,7 @@ pub fn points_xy(scan: &DecodedScan) -> Vec<(f64, f64)> {
             let Distance::Mm(mm) = p.as_ref()?.distance else {
                 return None;
             };
-            let a = f64::from(h.angle_rad(u16::try_from(i).ok()?));
+            let a = f64::from(h.angle(u16::try_from(i).ok()?)?);
             let r = f64::from(mm) / 1000.0;
             Some((r * a.cos(), r * a.sin()))
         })
@@ -145,6 +145,14 @@ pub fn run(args: PlotArgs) -> anyhow::Result<()> {
     };
     if chosen.is_empty() {
         bail!("{}: no such scan in the log", args.log);
+    }
+    if let Some(s) = chosen.iter().find(|s| !s.header.geometry_known()) {
+        bail!(
+            "{}: scan {} has no geometry (ares 0: the bridge knew no ARES/AFRT), so its \
+             points have no angles; replay the capture with --model to give the sensor",
+            args.log,
+            s.header.seq
+        );
     }
     if !(10..=8192).contains(&args.size) {
         bail!("--size must be 10..=8192 pixels");

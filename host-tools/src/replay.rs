@@ -9,7 +9,11 @@
 //! same log, and the governor's bus-time budget sees the stream at the pace a UART at
 //! that rate delivers it. The input is read in chunks and each frame is written as it
 //! leaves the bus, so memory does not grow with the input (a line longer than
-//! [`LINE_CAP`] bytes, which SCIP never sends, is fed in pieces of that size).
+//! [`LINE_CAP`] bytes, which SCIP never sends, is fed in pieces of that size). A recording
+//! without a PP answer gives scans whose geometry is unknown (SPEC 3.2: no angles) and
+//! whose error codes are read for an unknown model; `--model` names the sensor, whose
+//! parameters the bridge then assumes (`Bridge::assume_sensor`; a PP answer in the
+//! stream still wins).
 //!
 //! **`sim:key=value,...`** (the keys of `scip2can sim`): the bridge's session is started
 //! and talks to a simulated sensor in virtual time (1 ms steps): it probes, identifies
@@ -197,12 +201,22 @@ impl PpWatch {
 /// Replays a sensor → host stream through a listening bridge, line by line; the frames
 /// are collected in [`Replayed::frames`].
 pub fn replay_stream(bytes: &[u8], config: BridgeConfig) -> anyhow::Result<Replayed> {
+    replay_stream_as(bytes, config, None)
+}
+
+/// [`replay_stream`] of a sensor whose parameters are known where the stream has no PP
+/// answer (`Bridge::assume_sensor`).
+pub fn replay_stream_as(
+    bytes: &[u8],
+    config: BridgeConfig,
+    assumed: Option<scip::SensorParams>,
+) -> anyhow::Result<Replayed> {
     let mut frames = Vec::new();
     let mut sink = |f: &TimedFrame| {
         frames.push(*f);
         Ok(())
     };
-    let mut r = replay_reader(bytes, config, &mut sink)?;
+    let mut r = replay_reader(bytes, config, assumed, &mut sink)?;
     r.frames = frames;
     Ok(r)
 }
@@ -213,9 +227,13 @@ pub fn replay_stream(bytes: &[u8], config: BridgeConfig) -> anyhow::Result<Repla
 pub fn replay_reader(
     mut input: impl Read,
     config: BridgeConfig,
+    assumed: Option<scip::SensorParams>,
     sink: FrameSink<'_>,
 ) -> anyhow::Result<Replayed> {
     let mut driver = Driver::new(config, sink)?;
+    if let Some(params) = assumed {
+        driver.bridge.assume_sensor(params);
+    }
     let mut pp = PpWatch::default();
     let mut chunk = vec![0u8; READ_CHUNK];
     // The start of a line whose end has not been read yet.
@@ -510,7 +528,11 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
             &Record::from_frame(f.time_ns / 1000, interface, &f.frame, brs),
         )
     };
+    let assumed = args.model.map(|m| m.params());
     let mut replayed = if let Some(spec) = args.input.strip_prefix("sim:") {
+        if args.model.is_some() {
+            bail!("--model is for recorded streams; a sim: sensor has its own model");
+        }
         let sim = SimOptions::from_spec(spec)?;
         let p = &args.pipeline;
         let user_decimation = p.decimate.is_some() || p.every_nth.is_some() || p.max_rate.is_some();
@@ -523,12 +545,17 @@ pub fn run(args: ReplayArgs) -> anyhow::Result<()> {
         };
         let stream = crate::sensor::record_file::sensor_side(input)
             .with_context(|| format!("reading {}", args.input))?;
-        replay_reader(stream, config, &mut sink)
+        replay_reader(stream, config, assumed, &mut sink)
             .with_context(|| format!("replaying {}", args.input))?
     };
     out.flush().context("writing the log")?;
     if args.scan_hz.is_some() {
         replayed.scan_hz = args.scan_hz;
+    }
+    if replayed.scan_hz.is_none() {
+        replayed.scan_hz = assumed
+            .and_then(|p| p.scan_rpm)
+            .map(|rpm| f64::from(rpm) / 60.0);
     }
     eprint!("{}", replayed.report());
     Ok(())

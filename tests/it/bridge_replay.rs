@@ -95,7 +95,8 @@ fn expected(bytes: &[u8], with_intensity: bool) -> Vec<Vec<(Distance, Option<u16
                         .intensities
                         .get(i)
                         .filter(|_| with_intensity)
-                        .map(|&v| u16::try_from(v).unwrap_or(u16::MAX));
+                        // SPEC 4: the 16-bit intensity is min(4 × raw, 65535).
+                        .map(|&v| u16::try_from(v.saturating_mul(4)).unwrap_or(u16::MAX));
                     (dist, inten)
                 })
                 .collect()

@@ -135,7 +135,8 @@ fn every_recording_replays_and_decodes_to_what_the_capture_holds() {
                     .iter()
                     .filter_map(|p| p.and_then(|p| p.intensity).map(u32::from))
                     .collect();
-                let wi: Vec<u32> = i.iter().map(|&v| v.min(65535)).collect();
+                // SPEC 4: the 16-bit intensity is min(4 × raw, 65535).
+                let wi: Vec<u32> = i.iter().map(|&v| (v * 4).min(65535)).collect();
                 assert_eq!(gi, wi, "{name}");
             }
             let lost: u32 = dec.stats().iter().map(|(_, s)| s.frames_lost).sum();

@@ -375,7 +375,7 @@ fn replay_reads_lines_across_reads_and_bounds_an_overlong_line() {
         frames.push(*f);
         Ok(())
     };
-    let trickled = replay_reader(Trickle(&bytes), config(), &mut sink).expect("replay");
+    let trickled = replay_reader(Trickle(&bytes), config(), None, &mut sink).expect("replay");
     assert_eq!(frames, whole.frames);
     assert!(trickled.frames.is_empty());
     assert_eq!(trickled.stats.scans_sent, 2);

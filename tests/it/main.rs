@@ -12,6 +12,8 @@ mod noise;
 mod pp_faults;
 mod qemu;
 mod recordings;
+mod replay_model;
 mod session_timing;
 mod sim_clients;
 mod sim_protocol;
+mod time_sync;

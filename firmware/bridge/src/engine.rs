@@ -13,7 +13,8 @@
 //!
 //! Every measurement response is a scan: a single scan (G*/H*, status 00) or a stream
 //! frame (M*/N*, status 99 or 0M). Only the first echo of multi-echo steps is published.
-//! Intensities above 65535 are saturated to 65535 before the wire encoding.
+//! Intensities are scaled to 16 bits before the wire encoding (`4 × raw`, saturating:
+//! SPEC 4).
 //!
 //! The frame queue (capacity `Q`) always keeps one slot for a scan's trailer or abort:
 //! a data frame that finds fewer than two free slots is not queued, and the scan ends with
@@ -156,6 +157,14 @@ struct Core<const Q: usize> {
     admitted: Option<can_wire::bandwidth::ScanCost>,
     /// A data line's points out of [`Pipeline::decimate_run`], as readings.
     decimated: [scip::Reading; scip::MAX_READINGS],
+    /// The sensor's 24-bit ms clock, extended (SPEC 3.1); reset when the sensor restarts.
+    clock: scip::TimestampUnwrapper,
+    /// Bridge ms minus extended sensor ms at the last TM sync, while it holds.
+    sync_offset: Option<i64>,
+    /// `(ARES, AFRT)` assumed where no PP answer gave them ([`Bridge::assume_sensor`]).
+    assumed: (Option<u32>, Option<u32>),
+    /// The model the sensor's `MODL` or `PROD` text named (status page 4).
+    model: Option<can_wire::SensorModel>,
 }
 
 /// The bridge. `Q` is the capacity of the CAN transmit queue, in frames (at least 4).
@@ -174,14 +183,17 @@ impl<const Q: usize> Bridge<Q> {
             return Err(BridgeError::UartBitRate);
         }
         config.encoding.validate().map_err(BridgeError::Wire)?;
+        let session = Session::new(config.session).map_err(BridgeError::Session)?;
+        let pipeline = Pipeline::new(config.pipeline).map_err(BridgeError::Pipeline)?;
+        let encoder =
+            ScanEncoder::new(config.ids, config.budget.format).map_err(BridgeError::Wire)?;
         Ok(Self {
             decoder: Decoder::new(),
             last_uart_ms: 0,
             core: Core {
-                session: Session::new(config.session).map_err(BridgeError::Session)?,
-                pipeline: Pipeline::new(config.pipeline).map_err(BridgeError::Pipeline)?,
-                encoder: ScanEncoder::new(config.ids, config.budget.format)
-                    .map_err(BridgeError::Wire)?,
+                session,
+                pipeline,
+                encoder,
                 governor: Governor::new(config.budget),
                 queue: FrameQueue::new(),
                 phase: Phase::None,
@@ -199,14 +211,47 @@ impl<const Q: usize> Bridge<Q> {
                 plan: None,
                 admitted: None,
                 decimated: [scip::Reading::default(); scip::MAX_READINGS],
+                clock: scip::TimestampUnwrapper::new(),
+                sync_offset: None,
+                assumed: (None, None),
+                model: None,
                 config,
             },
         })
     }
 
-    /// Starts the sensor session.
+    /// Starts the sensor session. The extended sensor clock and any time sync start
+    /// over (the sensor may have restarted while the bridge was not streaming).
     pub fn start(&mut self, now_ms: u64) {
-        self.core.session.start(now_ms);
+        self.core.start_session(now_ms);
+    }
+
+    /// Asks the session for a time sync (SCIP `TM`); a running stream stops for it and
+    /// starts again after. Once it answered, header timestamps are in the caller's clock
+    /// (the `now_ms` this bridge is given, truncated to 32 bits) and marked
+    /// `time_synced`, until the sensor restarts or the session is started again.
+    pub fn request_time_sync(&mut self, now_ms: u64) {
+        self.core.session.request_time_sync(now_ms);
+    }
+
+    /// Sensor parameters to assume where the sensor's own PP answer gives none (it
+    /// always wins): for a recorded stream without PP, from a known model. Sets the
+    /// geometry of scan headers (without it, and without PP, they say "geometry
+    /// unknown") and, when `params` gives `dmin` or `family`, the decoder's range limits
+    /// (the decoder starts afresh then: call this before the first bytes).
+    pub fn assume_sensor(&mut self, params: scip::SensorParams) {
+        self.core.assumed = (params.ares, params.afrt);
+        if params.dmin.is_some() || params.family.is_some() {
+            let mut limits = self.decoder.limits();
+            limits.dmin = params.dmin.unwrap_or(limits.dmin);
+            limits.family = params.family.unwrap_or(limits.family);
+            self.decoder = Decoder::with_limits(limits);
+        }
+    }
+
+    /// Whether header timestamps are mapped to the caller's clock (a time sync held).
+    pub fn time_synced(&self) -> bool {
+        self.core.sync_offset.is_some()
     }
 
     /// Stops the stream (and aborts a scan in progress).
@@ -366,6 +411,13 @@ impl<const Q: usize> Core<Q> {
     fn event(&mut self, event: &Event<'_>, now: u64) {
         if let Some(n) = self.session.on_event(event, now) {
             self.notice(n);
+        }
+        if let Event::Field(f) = event {
+            if f.name == b"MODL" || f.name == b"PROD" {
+                if let Some(model) = crate::status::model_from_text(f.value) {
+                    self.model = Some(model);
+                }
+            }
         }
         match (event, self.phase) {
             (Event::Start { request, .. }, phase) => {
@@ -534,15 +586,36 @@ impl<const Q: usize> Core<Q> {
             self.pipeline.count_invalid(invalid);
             return;
         }
-        let [a, b] = test.exceptions();
-        let rule = can_wire::RangeRule {
-            min: test.min(),
-            except: [a, b],
+        let (taken, mut invalid) = match test.exceptions() {
+            Some(except) => {
+                let rule = can_wire::RangeRule {
+                    min: test.min(),
+                    except,
+                };
+                self.split()
+                    .2
+                    .encode_run(line.readings, rule, reading_point)
+            }
+            None => {
+                // More error codes above DMIN than a rule holds (the Ethernet codes):
+                // the readings rewritten as ranges (at least 1) or 0 for none, as the
+                // decimation path writes its points.
+                let (_, readings, mut out) = self.split();
+                let mut k = 0usize;
+                for (slot, r) in readings.iter_mut().zip(line.readings) {
+                    slot.distance = if test.is_range(r.distance) {
+                        r.distance.max(1)
+                    } else {
+                        0
+                    };
+                    slot.aux = r.aux;
+                    // At most the line's readings.
+                    k = k.wrapping_add(1);
+                }
+                let points = readings.get(..k).unwrap_or(&[]);
+                out.encode_run(points, can_wire::RangeRule::at_least(1), reading_point)
+            }
         };
-        let (taken, mut invalid) = self
-            .split()
-            .2
-            .encode_run(line.readings, rule, reading_point);
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = line.readings.get(taken..).unwrap_or(&[]);
@@ -647,13 +720,13 @@ impl<const Q: usize> Core<Q> {
     fn apply(&mut self, apply: crate::control::Apply, now: u64) {
         use crate::control::Apply;
         match apply {
-            Apply::Start => self.session.start(now),
+            Apply::Start => self.start_session(now),
             Apply::Stop => {
                 self.abort_scan(AbortReason::Stopped);
                 self.session.stop(now);
             }
             Apply::SensorInfo => {
-                let pages = crate::status::info_pages(self.session.params());
+                let pages = crate::status::info_pages(self.session.params(), self.model);
                 for page in pages.into_iter().rev() {
                     self.push_status(page);
                 }
@@ -721,9 +794,30 @@ impl<const Q: usize> Core<Q> {
         }
     }
 
+    fn start_session(&mut self, now: u64) {
+        self.model = None;
+        self.clock.reset();
+        self.sync_offset = None;
+        self.session.start(now);
+    }
+
     fn notice(&mut self, notice: Notice) {
         if notice == Notice::Streaming && self.auto_decimation {
             self.apply_plan();
+        }
+        if let Notice::TimeSync { sensor_ms, now_ms } = notice {
+            // The TM reading is one more reading of the sensor's clock, in order with the
+            // scans' timestamps: extended the same way.
+            let sensor = self.clock.unwrap(sensor_ms);
+            self.sync_offset = i64::try_from(now_ms)
+                .ok()
+                .zip(i64::try_from(sensor).ok())
+                .map(|(now, sensor)| now.wrapping_sub(sensor));
+        }
+        if notice == Notice::Recovering(RecoverReason::Reboot) {
+            // The sensor's clock restarted at 0: the extension and the sync are void.
+            self.clock.reset();
+            self.sync_offset = None;
         }
         if let Notice::Recovering(reason) = notice {
             self.abort_scan(match reason {
@@ -735,9 +829,16 @@ impl<const Q: usize> Core<Q> {
         self.notice = Some(notice);
     }
 
-    fn begin_scan(&mut self, s: ScanRequest, timestamp: u32, now: u64) {
+    fn begin_scan(&mut self, s: ScanRequest, raw_timestamp: u32, now: u64) {
         self.stats.scans_in += 1;
         self.phase = Phase::Ignored;
+        // SPEC 3.1: the sensor's 24-bit clock extended (modulo 2^32), or with a time
+        // sync the caller's clock.
+        let sensor_ms = self.clock.unwrap(raw_timestamp);
+        let (timestamp, time_synced) = match self.sync_offset {
+            Some(offset) => ((sensor_ms as i64).wrapping_add(offset) as u32, true),
+            None => (sensor_ms as u32, false),
+        };
         if !self.session.geometry().allows_scans() {
             // The last PP answer was damaged or doubted: no angles to publish it with.
             self.lose_scan();
@@ -745,7 +846,7 @@ impl<const Q: usize> Core<Q> {
         }
         let info = ScanInfo {
             seq: u32::from(self.seq),
-            timestamp_ms: timestamp,
+            timestamp_ms: sensor_ms as u32,
             first_step: s.start,
             last_step: s.end,
             cluster: u16::from(s.cluster),
@@ -781,16 +882,11 @@ impl<const Q: usize> Core<Q> {
             timestamp_ms: timestamp,
             point_count,
             encoding,
-            time_synced: false,
+            time_synced,
             grouping: self.grouping(&s),
             step_increment: u8::try_from(self.step_increment(&s)).unwrap_or(u8::MAX),
             first_step: self.first_output_step(&s),
-            ares: self
-                .session
-                .params()
-                .ares
-                .and_then(|a| u16::try_from(a).ok())
-                .unwrap_or(1440),
+            ares: self.geometry().map_or(0, |(ares, _)| ares),
         };
         if let Some(format) = self.pending_format.take() {
             // Between scans: cannot fail for a validated format.
@@ -837,7 +933,20 @@ impl<const Q: usize> Core<Q> {
         }
     }
 
-    /// Step of the first output point, relative to the sensor's front step (AFRT).
+    /// The sensor's geometry, `(ARES, AFRT)`, when a PP answer (or
+    /// [`Bridge::assume_sensor`]) gave both; `None`: unknown (SPEC 3.2, `ares` = 0).
+    fn geometry(&self) -> Option<(u16, u32)> {
+        let params = self.session.params();
+        let ares = params.ares.or(self.assumed.0);
+        let afrt = params.afrt.or(self.assumed.1);
+        let ares = ares
+            .and_then(|a| u16::try_from(a).ok())
+            .filter(|&a| a > 0)?;
+        Some((ares, afrt?))
+    }
+
+    /// Step of the first output point, relative to the sensor's front step (AFRT); with
+    /// the geometry unknown, the sensor step itself (SPEC 3.2).
     fn first_output_step(&self, s: &ScanRequest) -> i16 {
         let cluster = u32::from(s.cluster.max(1));
         let mut first = u32::from(s.start);
@@ -847,7 +956,7 @@ impl<const Q: usize> Core<Q> {
                 first += (lo - first).div_ceil(cluster) * cluster;
             }
         }
-        let afrt = self.session.params().afrt.unwrap_or(0);
+        let afrt = self.geometry().map_or(0, |(_, afrt)| afrt);
         let rel = i64::from(first) - i64::from(afrt);
         i16::try_from(rel).unwrap_or(i16::MIN)
     }
@@ -863,7 +972,7 @@ impl<const Q: usize> Core<Q> {
         let flags = TrailerFlags {
             truncated: false,
             sensor_error: false,
-            filtered: self.filtered,
+            filtered: self.filtered || self.pipeline.filtered(),
         };
         self.settle_lossless();
         match self.encoder.finish(flags) {
@@ -930,10 +1039,10 @@ impl<const Q: usize> Core<Q> {
 
 /// A reading as the encoder takes it: its distance (range or error code, the run's rule
 /// tells) and its second value as the intensity (0 for data sets without one, as the
-/// decoder gives them), saturated to 16 bits. A plain function, so that every run of
-/// readings shares one compiled encoder loop per encoding.
+/// decoder gives them), scaled to 16 bits (SPEC 4). A plain function, so that every run
+/// of readings shares one compiled encoder loop per encoding.
 fn reading_point(r: &scip::Reading) -> (u32, u16) {
-    (r.distance, u16::try_from(r.aux).unwrap_or(u16::MAX))
+    (r.distance, can_wire::IntensityEncoding::from_sensor(r.aux))
 }
 
 /// The parts of the engine a run of output points goes through.
@@ -958,7 +1067,7 @@ impl<const Q: usize> Output<'_, Q> {
         };
         let intensity = p
             .intensity
-            .map_or(0, |i| u16::try_from(i).unwrap_or(u16::MAX));
+            .map_or(0, can_wire::IntensityEncoding::from_sensor);
         // A due data frame is built in a new back slot of the queue, not moved into it.
         let mut slots = DataSlots(self.queue);
         match self.encoder.push_point_to(distance, intensity, &mut slots) {

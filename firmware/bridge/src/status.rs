@@ -13,19 +13,30 @@ pub const FIRMWARE_VERSION: (u8, u8, u8) = (
     parse_u8(env!("CARGO_PKG_VERSION_PATCH")),
 );
 
+/// Build number reported on status page 3: the first 6 hex digits of the git commit the
+/// firmware was built from (0 when built outside a git checkout), or the
+/// `SCIP2CAN_BUILD` environment variable of the build (6 hex digits).
+pub const FIRMWARE_BUILD: u32 = parse_u32(env!("SCIP2CAN_BUILD")) & 0xFF_FFFF;
+
 const fn parse_u8(s: &str) -> u8 {
-    let b = s.as_bytes();
-    let mut i = 0;
-    let mut v: u32 = 0;
-    while i < b.len() {
-        v = v * 10 + (b[i] - b'0') as u32;
-        i += 1;
-    }
+    let v = parse_u32(s);
     if v > 255 {
         255
     } else {
         v as u8
     }
+}
+
+/// A decimal number (digits only; anything else ends it), saturating.
+const fn parse_u32(s: &str) -> u32 {
+    let b = s.as_bytes();
+    let mut i = 0;
+    let mut v: u32 = 0;
+    while i < b.len() && b[i].is_ascii_digit() {
+        v = v.saturating_mul(10).saturating_add((b[i] - b'0') as u32);
+        i += 1;
+    }
+    v
 }
 
 /// Bus-side counters and loads, kept by the engine.
@@ -159,8 +170,27 @@ pub fn bridge_state(state: SessionState) -> BridgeState {
     }
 }
 
-/// The sensor model reported for a PP `MODL` family and DMAX.
-pub fn sensor_model(params: &scip::SensorParams) -> SensorModel {
+/// The model a `MODL` (PP, II) or `PROD` (VV) text names, if one of those SPEC 5 lists.
+pub fn model_from_text(text: &[u8]) -> Option<SensorModel> {
+    let has = |needle: &[u8]| text.windows(needle.len()).any(|w| w == needle);
+    [
+        (&b"URG-04LX"[..], SensorModel::Urg04lx),
+        (b"UTM-30LX", SensorModel::Utm30lx),
+        (b"UXM-30LX-E", SensorModel::Uxm30lxE),
+        (b"UST-10LX", SensorModel::Ust10lx),
+        (b"UST-20LX", SensorModel::Ust20lx),
+    ]
+    .into_iter()
+    .find(|(name, _)| has(name))
+    .map(|(_, model)| model)
+}
+
+/// The sensor model reported: the one the sensor's text named
+/// ([`model_from_text`]), else a guess from the PP `MODL` family and DMAX.
+pub fn sensor_model(params: &scip::SensorParams, named: Option<SensorModel>) -> SensorModel {
+    if let Some(model) = named {
+        return model;
+    }
     match (params.family, params.dmax) {
         (Some(scip::ModelFamily::Urg04lx), _) => SensorModel::Urg04lx,
         (Some(scip::ModelFamily::Utm), Some(100_000)) => SensorModel::Uxm30lxE,
@@ -210,7 +240,7 @@ pub fn periodic_pages(
 }
 
 /// The four sensor-information pages (firmware, range, steps, timing).
-pub fn info_pages(params: &scip::SensorParams) -> [Status; 4] {
+pub fn info_pages(params: &scip::SensorParams, named: Option<SensorModel>) -> [Status; 4] {
     let (major, minor, patch) = FIRMWARE_VERSION;
     let u16c = |v: Option<u32>| v.map_or(0, |v| u16::try_from(v).unwrap_or(u16::MAX));
     [
@@ -219,10 +249,10 @@ pub fn info_pages(params: &scip::SensorParams) -> [Status; 4] {
             major,
             minor,
             patch,
-            build: 0,
+            build: FIRMWARE_BUILD,
         },
         Status::SensorRange {
-            model: sensor_model(params),
+            model: sensor_model(params, named),
             dmin_mm: u16c(params.dmin),
             dmax_mm: params.dmax.unwrap_or(0).min(0xFF_FFFF),
         },
@@ -244,6 +274,75 @@ mod tests {
     use can_wire::bandwidth::{frame_bits, BitRates};
     use can_wire::frame::FD_LENGTHS;
     use embedded_can::{Id, StandardId};
+
+    #[test]
+    fn models_are_told_by_their_text() {
+        // PP MODL / VV PROD texts as the sensors give them.
+        let cases: [(&[u8], Option<SensorModel>); 7] = [
+            (
+                b"URG-04LX(Hokuyo Automatic Co.,Ltd.)",
+                Some(SensorModel::Urg04lx),
+            ),
+            (
+                b"SOKUIKI Sensor TOP-URG UTM-30LX",
+                Some(SensorModel::Utm30lx),
+            ),
+            (
+                b"UXM-30LX-E(Hokuyo Automatic Co.,Ltd.)",
+                Some(SensorModel::Uxm30lxE),
+            ),
+            (b"UST-10LX", Some(SensorModel::Ust10lx)),
+            (b"SOKUIKI Sensor UST-20LX", Some(SensorModel::Ust20lx)),
+            (
+                b"UST-20LX(Hokuyo Automatic Co.,Ltd.)",
+                Some(SensorModel::Ust20lx),
+            ),
+            (b"foo", None),
+        ];
+        for (text, model) in cases {
+            assert_eq!(model_from_text(text), model, "{text:?}");
+        }
+        // The named model wins over the guess from family and DMAX (a UST-20LX is an
+        // Ethernet model with DMAX 60000, which alone would read as a UTM-30LX-EW).
+        let params = scip::SensorParams {
+            family: Some(scip::ModelFamily::Ethernet),
+            dmax: Some(60_000),
+            ..Default::default()
+        };
+        assert_eq!(sensor_model(&params, None), SensorModel::Utm30lx);
+        assert_eq!(
+            sensor_model(&params, Some(SensorModel::Ust20lx)),
+            SensorModel::Ust20lx
+        );
+    }
+
+    #[test]
+    fn page_3_carries_the_build_number() {
+        let [fw, ..] = info_pages(&scip::SensorParams::default(), None);
+        let Status::Firmware { build, .. } = fw else {
+            panic!("page 3 first");
+        };
+        assert_eq!(build, FIRMWARE_BUILD);
+        // The commit the tests were built from, asked of git here (as the build script
+        // did), unless the build was given a number.
+        if std::env::var_os("SCIP2CAN_BUILD").is_none() {
+            let git = std::process::Command::new("git")
+                .args(["rev-parse", "--short=6", "HEAD"])
+                .output()
+                .ok()
+                .filter(|o| o.status.success());
+            let want = git.map_or(0, |o| {
+                let text = String::from_utf8(o.stdout).unwrap();
+                u32::from_str_radix(&text.trim()[..6], 16).unwrap()
+            });
+            assert_eq!(build, want);
+            if want != 0 {
+                assert_ne!(build, 0);
+            }
+        }
+        assert_eq!(parse_u32("3372080"), 3_372_080);
+        assert_eq!(parse_u32(""), 0);
+    }
 
     #[test]
     fn data_length_codes_round_trip() {

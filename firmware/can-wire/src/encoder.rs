@@ -1419,9 +1419,9 @@ mod tests {
             Err(Error::TooManyPoints)
         );
         let mut bad = header(1, D12);
-        bad.ares = 0;
+        bad.step_increment = 0;
         e.finish(TrailerFlags::default()).unwrap();
-        assert_eq!(e.begin(&bad), Err(Error::OutOfRange { offset: 6 }));
+        assert_eq!(e.begin(&bad), Err(Error::OutOfRange { offset: 3 }));
         assert!(!e.in_progress());
     }
 }

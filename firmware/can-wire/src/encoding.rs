@@ -118,6 +118,18 @@ impl IntensityEncoding {
         !matches!(self, IntensityEncoding::None)
     }
 
+    /// The 16-bit intensity of a sensor's raw intensity value (SPEC 4):
+    /// `min(4 × raw, 65535)`. Hokuyo sensors report intensities below 2^14, so every
+    /// such value keeps all its bits (`raw = intensity / 4`) and I8 and I12 get their
+    /// full range; larger values saturate.
+    pub const fn from_sensor(raw: u32) -> u16 {
+        if raw >= 1 << 14 {
+            u16::MAX
+        } else {
+            (raw << 2) as u16
+        }
+    }
+
     /// The code of a 16-bit intensity.
     pub const fn encode(self, intensity: u16) -> u16 {
         match self {
@@ -535,6 +547,30 @@ mod tests {
         assert_eq!(IntensityEncoding::I12.encode(0xABCD), 0xABC);
         assert_eq!(IntensityEncoding::I16.encode(0xABCD), 0xABCD);
         assert_eq!(IntensityEncoding::None.encode(0xABCD), 0);
+    }
+
+    #[test]
+    fn sensor_intensities_scale_by_four_saturating() {
+        // SPEC 4 worked by hand: raw 2439 (the median of the UTM-30LX capture) is
+        // 9756 = 0x261C: I16 9756, I12 0x261 = 609, I8 0x26 = 38; raw 16219 (its
+        // largest) is 64876 = 0xFD6C: I8 0xFD = 253; 16383 the largest exact value.
+        let cases = [
+            (0, 0, 0, 0),
+            (1, 4, 0, 0),
+            (2439, 9756, 609, 38),
+            (16219, 64876, 4054, 253),
+            (16383, 65532, 4095, 255),
+            (16384, 65535, 4095, 255),
+            ((1 << 18) - 1, 65535, 4095, 255),
+            (u32::MAX, 65535, 4095, 255),
+        ];
+        for (raw, i16, i12, i8) in cases {
+            let v = IntensityEncoding::from_sensor(raw);
+            assert_eq!(v, i16, "raw {raw}");
+            assert_eq!(IntensityEncoding::I16.encode(v), i16, "raw {raw}");
+            assert_eq!(IntensityEncoding::I12.encode(v), i12, "raw {raw}");
+            assert_eq!(IntensityEncoding::I8.encode(v), i8, "raw {raw}");
+        }
     }
 
     #[test]

@@ -92,9 +92,10 @@ pub struct ScanHeader {
     pub grouping: Grouping,
     /// Sensor steps between consecutive points, ≥ 1.
     pub step_increment: u8,
-    /// Step of point 0 relative to the sensor's front step.
+    /// Step of point 0 relative to the sensor's front step; with the geometry unknown
+    /// (`ares` 0), the sensor step of point 0.
     pub first_step: i16,
-    /// Steps per revolution, ≥ 1.
+    /// Steps per revolution; 0: geometry unknown, no angles (SPEC 3.2).
     pub ares: u16,
 }
 
@@ -109,18 +110,27 @@ impl ScanHeader {
                 offset: field::STEP_INCREMENT as u8,
             });
         }
-        if self.ares == 0 {
-            return Err(Error::OutOfRange {
-                offset: field::ARES.start as u8,
-            });
-        }
         Ok(())
     }
 
-    /// Angle of point `index` in radians (0 = sensor front, counter-clockwise).
-    pub fn angle_rad(&self, index: u16) -> f32 {
+    /// Whether the header gives the sensor's geometry (`ares` ≠ 0), so points have angles.
+    pub fn geometry_known(&self) -> bool {
+        self.ares != 0
+    }
+
+    /// Angle of point `index` in radians (0 = sensor front, counter-clockwise); `None`
+    /// when the geometry is unknown.
+    pub fn angle(&self, index: u16) -> Option<f32> {
+        if !self.geometry_known() {
+            return None;
+        }
         let step = i32::from(self.first_step) + i32::from(index) * i32::from(self.step_increment);
-        step as f32 * core::f32::consts::TAU / f32::from(self.ares.max(1))
+        Some(step as f32 * core::f32::consts::TAU / f32::from(self.ares))
+    }
+
+    /// [`ScanHeader::angle`], NaN when the geometry is unknown.
+    pub fn angle_rad(&self, index: u16) -> f32 {
+        self.angle(index).unwrap_or(f32::NAN)
     }
 
     /// The header A frame bytes.
@@ -217,7 +227,7 @@ pub struct HeaderB {
     pub step_increment: u8,
     /// Step of point 0 relative to the front.
     pub first_step: i16,
-    /// Steps per revolution (≥ 1).
+    /// Steps per revolution; 0: geometry unknown.
     pub ares: u16,
 }
 
@@ -242,11 +252,6 @@ impl HeaderB {
             });
         }
         let ares = le16(data, field::ARES);
-        if ares == 0 {
-            return Err(Error::OutOfRange {
-                offset: field::ARES.start as u8,
-            });
-        }
         Ok(HeaderB {
             seq_low: byte(data, field::SEQ_LOW),
             distance,
@@ -338,10 +343,20 @@ mod tests {
         let mut b = B;
         b[3] = 0;
         assert_eq!(HeaderB::parse(&b), Err(Error::OutOfRange { offset: 3 }));
-        let mut b = B;
-        b[6] = 0;
-        b[7] = 0;
-        assert_eq!(HeaderB::parse(&b), Err(Error::OutOfRange { offset: 6 }));
+    }
+
+    #[test]
+    fn geometry_unknown() {
+        // SPEC 3.2: ares 0 is a valid header whose points have no angles; first_step is
+        // then the sensor step of point 0 (here 44 = 0x002C).
+        let b = [0x34, 0x33, 0x03, 0x01, 0x2C, 0x00, 0x00, 0x00];
+        let h =
+            ScanHeader::join(&HeaderA::parse(&A).unwrap(), &HeaderB::parse(&b).unwrap()).unwrap();
+        assert_eq!((h.ares, h.first_step), (0, 44));
+        assert!(!h.geometry_known());
+        assert_eq!(h.angle(0), None);
+        assert!(h.angle_rad(0).is_nan());
+        assert_eq!(h.emit_b(), Ok(b));
     }
 
     #[test]
@@ -352,9 +367,6 @@ mod tests {
         let mut h = header();
         h.step_increment = 0;
         assert_eq!(h.emit_b(), Err(Error::OutOfRange { offset: 3 }));
-        let mut h = header();
-        h.ares = 0;
-        assert_eq!(h.emit_b(), Err(Error::OutOfRange { offset: 6 }));
     }
 
     #[test]

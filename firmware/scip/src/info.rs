@@ -355,8 +355,14 @@ impl RangeLimits {
             if width == 2 && distance == 4095 {
                 return Range::Error(RangeError::OverRange);
             }
-            if self.family == ModelFamily::Ethernet && distance == 65533 {
-                return Range::Error(RangeError::NoEcho);
+            if width > 2 && self.has_band() && ETHERNET_CODES.contains(&distance) {
+                // 65533 is the Ethernet models' no echo (`?om`); with the model unknown,
+                // the codes of the model it may be (no Hokuyo measures 65.5 m).
+                return Range::Error(if distance == 65533 {
+                    RangeError::NoEcho
+                } else {
+                    RangeError::Other
+                });
             }
             return Range::Mm(distance);
         }
@@ -377,22 +383,37 @@ impl RangeLimits {
     }
 }
 
+/// The Ethernet models' error codes above DMIN (65533 = `?om`, no echo). They are error
+/// codes for the Ethernet family and also while the model is unknown (a stream without
+/// PP may come from one).
+pub const ETHERNET_CODES: core::ops::RangeInclusive<u32> = 65533..=65535;
+
+impl RangeLimits {
+    /// Whether [`ETHERNET_CODES`] are error codes for this family.
+    fn has_band(&self) -> bool {
+        matches!(self.family, ModelFamily::Ethernet | ModelFamily::Unknown)
+    }
+}
+
 /// The test [`RangeLimits::classify`] makes of whether a value is a range, with its
 /// constants worked out once for one value width: for loops over a line's values.
 /// Exact for every value a SCIP field can hold (below `2^24`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RangeTest {
     min: u32,
-    /// Values at or above `min` that are still error codes (`u32::MAX` when none).
+    /// A value at or above `min` that is still an error code (`u32::MAX` when none).
     not_a: u32,
-    not_b: u32,
+    /// [`ETHERNET_CODES`] are error codes too.
+    band: bool,
 }
 
 impl RangeTest {
     /// Whether `distance` is a range (`Range::Mm`).
     #[inline(always)]
     pub fn is_range(&self, distance: u32) -> bool {
-        distance >= self.min && distance != self.not_a && distance != self.not_b
+        distance >= self.min
+            && distance != self.not_a
+            && !(self.band && distance.wrapping_sub(*ETHERNET_CODES.start()) <= 2)
     }
 
     /// The smallest range (DMIN).
@@ -400,10 +421,11 @@ impl RangeTest {
         self.min
     }
 
-    /// The values at or above [`RangeTest::min`] that are error codes; `u32::MAX`
-    /// (never a SCIP value) stands for none.
-    pub fn exceptions(&self) -> [u32; 2] {
-        [self.not_a, self.not_b]
+    /// The values at or above [`RangeTest::min`] that are error codes, when they are at
+    /// most two; `u32::MAX` (never a SCIP value) stands for none. `None` when the test
+    /// also excludes [`ETHERNET_CODES`] (three values).
+    pub fn exceptions(&self) -> Option<[u32; 2]> {
+        (!self.band).then_some([self.not_a, u32::MAX])
     }
 }
 
@@ -413,11 +435,8 @@ impl RangeLimits {
         RangeTest {
             min: self.dmin,
             not_a: if width == 2 { 4095 } else { u32::MAX },
-            not_b: if self.family == ModelFamily::Ethernet {
-                65533
-            } else {
-                u32::MAX
-            },
+            // A 2-char value is at most 4095.
+            band: width > 2 && self.has_band(),
         }
     }
 }
@@ -787,6 +806,15 @@ mod tests {
             family: ModelFamily::Ethernet,
         };
         assert_eq!(ust.classify(65533, 3), Range::Error(RangeError::NoEcho));
+        assert_eq!(ust.classify(65535, 3), Range::Error(RangeError::Other));
+        assert_eq!(ust.classify(65532, 3), Range::Mm(65532));
+        // Model unknown (a stream without PP): the Ethernet codes are no ranges.
+        let unknown = RangeLimits::default();
+        assert_eq!(unknown.classify(65533, 3), Range::Error(RangeError::NoEcho));
+        assert_eq!(unknown.classify(65534, 3), Range::Error(RangeError::Other));
+        assert_eq!(unknown.classify(65535, 4), Range::Error(RangeError::Other));
+        assert_eq!(unknown.classify(65536, 3), Range::Mm(65536));
+        assert_eq!(unknown.classify(65532, 3), Range::Mm(65532));
     }
 
     #[test]

@@ -7,7 +7,8 @@
 //!   `abort_reason`/`abort_detail` where they apply, `flags` (the trailer's, null without
 //!   it), `point_count`, `received`, the geometry (`first_step` relative to the sensor's
 //!   front, `step_increment`, `ares`, `first_angle_rad`, `angle_increment_rad`, angles
-//!   counter-clockwise from the front), `grouping`, `encoding`, `unit_mm`, `time_synced`,
+//!   counter-clockwise from the front; with `ares` 0 the geometry is unknown, the angles
+//!   null and `first_step` the sensor step), `grouping`, `encoding`, `unit_mm`, `time_synced`,
 //!   `distances` (mm; null for invalid and missing points; one per point the scan
 //!   lists: the trailer's `points_sent` when it arrived, so a truncated scan has fewer
 //!   than `point_count`, and none for an aborted scan, whose points a receiver discards
@@ -20,7 +21,8 @@
 //! - `"control"`: `node`, `time`, `token`, `command`.
 //!
 //! **CSV**: `seq,index,angle_rad,distance_mm,intensity,valid`, one row per point of
-//! every scan; distance and intensity are empty where unknown, `valid` is 1 for a range.
+//! every scan; angle (geometry unknown), distance and intensity are empty where
+//! unknown, `valid` is 1 for a range.
 //!
 //! **Summary** (standard error): frames read, malformed log lines skipped, and per
 //! bridge `LossStats`.
@@ -91,7 +93,9 @@ pub fn scan(s: &DecodedScan) -> Value {
     o.insert("step_increment".into(), h.step_increment.into());
     o.insert("ares".into(), h.ares.into());
     o.insert("first_angle_rad".into(), f64::from(h.angle_rad(0)).into());
-    let inc = std::f64::consts::TAU * f64::from(h.step_increment) / f64::from(h.ares.max(1));
+    // Geometry unknown (ares 0): no angles, null.
+    let inc = (h.ares != 0)
+        .then(|| std::f64::consts::TAU * f64::from(h.step_increment) / f64::from(h.ares));
     o.insert("angle_increment_rad".into(), inc.into());
     o.insert("grouping".into(), format!("{:?}", h.grouping).into());
     let e = &h.encoding;
@@ -253,7 +257,7 @@ pub fn write_csv(out: &mut dyn Write, s: &DecodedScan) -> io::Result<()> {
     let h = &s.header;
     for (i, p) in s.points.iter().enumerate() {
         let index = u16::try_from(i).unwrap_or(u16::MAX);
-        let angle = h.angle_rad(index);
+        let angle = h.angle(index).map_or(String::new(), |a| format!("{a:.6}"));
         let (dist, valid) = match p.map(|p| p.distance) {
             Some(Distance::Mm(mm)) => (mm.to_string(), 1),
             _ => (String::new(), 0),
@@ -261,7 +265,7 @@ pub fn write_csv(out: &mut dyn Write, s: &DecodedScan) -> io::Result<()> {
         let intensity = p
             .and_then(|p| p.intensity)
             .map_or(String::new(), |v| v.to_string());
-        writeln!(out, "{},{i},{angle:.6},{dist},{intensity},{valid}", h.seq)?;
+        writeln!(out, "{},{i},{angle},{dist},{intensity},{valid}", h.seq)?;
     }
     Ok(())
 }

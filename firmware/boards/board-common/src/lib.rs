@@ -10,6 +10,7 @@
 //!   bus-off recovery, and the CPU load. A board implements [`sensor::Board`].
 //! - [`recovery`]: the bus-off recovery policy (sans-IO, tested on the host).
 //! - [`load`]: CPU load from the executor's busy time.
+//! - [`tdc`]: the CAN FD transmitter delay compensation offset of a data bit timing.
 //!
 //! The CAN transmit and receive tasks stay in the board crates: their frame types are the
 //! controller's (FDCAN or bxCAN).
@@ -29,6 +30,7 @@ pub mod load;
 pub mod recovery;
 pub mod sensor;
 pub mod shared;
+pub mod tdc;
 
 pub use config::Bridge;
 pub use shared::Shared;

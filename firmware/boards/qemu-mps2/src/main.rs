@@ -69,7 +69,10 @@ fn main() -> ! {
     hw::rx0_use_ring();
     let mut watchdog = hw::Watchdog::start(config::WATCHDOG_MS);
 
-    let Some(Ok(mut bridge)) = config::bridge().map(Bridge::<{ config::QUEUE }>::new) else {
+    let Some(bridge_config) = config::bridge() else {
+        hw::exit()
+    };
+    let Ok(mut bridge) = Bridge::<{ config::QUEUE }>::new(bridge_config) else {
         hw::exit()
     };
     let ids = bridge.config().ids;

@@ -23,13 +23,16 @@
 //!
 //! **CAN FD data phase.** 5 Mbit/s needs transmitter delay compensation, which embassy
 //! does not configure: `TDCR.TDCO` and `DBTP.TDC` are written right after start-up
-//! (`enable_delay_compensation`).
+//! (`enable_delay_compensation`). The offset is derived from the data bit timing embassy
+//! programmed (read back from `DBTP`): its sample point in kernel clock periods
+//! (`board_common::tdc`; 14 for 5 Mbit/s on the 80 MHz kernel clock).
 //!
 //! Register access that embassy does not offer (`CCCR.INIT`, `ECR.CEL`, `TDCR`,
 //! `DBTP.TDC`) goes through `embassy_stm32::pac` (the `unstable-pac` feature).
 
 use board_common::config::CanBus;
 use board_common::sensor::now_ms;
+use board_common::tdc::DataBitTiming;
 use board_common::Shared;
 use can_wire::BusState;
 use embassy_stm32::can::config::{GlobalFilter, TxBufferMode};
@@ -45,14 +48,6 @@ use embassy_stm32::pac;
 use embassy_stm32::peripherals::FDCAN1;
 use embassy_stm32::Peri;
 use embedded_can::Id;
-
-/// Transmitter delay compensation offset, in minimum time quanta (kernel clock periods,
-/// 12.5 ns): the secondary sample point sits this far behind the measured transmitter
-/// loop delay, at the data phase's own sample point (CiA 601-3). Embassy's timing for
-/// 5 Mbit/s on an 80 MHz kernel clock is prescaler 2 × (1 + 6 + 1) time quanta, sample
-/// point after 1 + 6 of them: 2 × 7 = 14. Needed above about 1 Mbit/s, where the
-/// transceiver's loop delay is a large part of a bit.
-const TDC_OFFSET: u8 = 14;
 
 /// Reads of `CCCR` to wait for `INIT` to take effect (a few kernel clock cycles; the bound
 /// only keeps a faulty controller from hanging the boot).
@@ -110,9 +105,25 @@ pub fn start(
 /// Sets `TDCR.TDCO` and `DBTP.TDC`. Embassy 0.6 takes a delay-compensation flag but
 /// never writes either (and rewrites `DBTP` when it starts the controller), so they are
 /// set here, in a short stay in configuration mode right after start-up, before any
-/// frame is queued (both registers are writable only with `INIT` and `CCE` set).
+/// frame is queued (both registers are writable only with `INIT` and `CCE` set). The
+/// offset is the sample point of the data bit timing `DBTP` holds; a timing whose sample
+/// point does not fit `TDCO` leaves compensation off (logged).
 fn enable_delay_compensation() {
     let regs = pac::FDCAN1;
+    let dbtp = regs.dbtp().read();
+    let timing = DataBitTiming {
+        dbrp: dbtp.dbrp(),
+        dtseg1: dbtp.dtseg1(),
+        dtseg2: dbtp.dtseg2(),
+    };
+    let Some(offset) = timing.tdc_offset() else {
+        defmt::warn!(
+            "CAN FD: data sample point {} kernel clocks does not fit TDCO; no delay compensation",
+            timing.sample_point_mtq()
+        );
+        return;
+    };
+    defmt::info!("CAN FD: delay compensation offset {} kernel clocks", offset);
     regs.cccr().modify(|w| w.set_init(true));
     for _ in 0..INIT_ACK_READS {
         if regs.cccr().read().init() {
@@ -121,7 +132,7 @@ fn enable_delay_compensation() {
     }
     regs.cccr().modify(|w| w.set_cce(true));
     regs.tdcr().write(|w| {
-        w.set_tdco(TDC_OFFSET);
+        w.set_tdco(offset);
         w.set_tdcf(0);
     });
     regs.dbtp().modify(|w| w.set_tdc(true));

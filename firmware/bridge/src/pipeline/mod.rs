@@ -145,6 +145,8 @@ pub struct Pipeline {
     median: CentredWindow,
     decimator: Decimator,
     stats: Stats,
+    /// A filter changed or invalidated a point of the current (or last) scan.
+    filtered: bool,
 }
 
 impl Pipeline {
@@ -160,6 +162,7 @@ impl Pipeline {
             median: CentredWindow::new(window::median_half(config.median)),
             decimator: Decimator::new(config.decimation),
             stats: Stats::default(),
+            filtered: false,
         })
     }
 
@@ -182,6 +185,14 @@ impl Pipeline {
         &self.stats
     }
 
+    /// Whether a filter (range window, intensity threshold, speckle removal or median)
+    /// made a valid point of the current scan, or of the last one once it ended, invalid
+    /// or changed its range: the trailer's `filtered` flag (SPEC 3.4). Error codes,
+    /// the region of interest and decimation do not count (the header describes them).
+    pub fn filtered(&self) -> bool {
+        self.filtered
+    }
+
     /// Whether a published scan is open (its points are being processed).
     pub fn is_publishing(&self) -> bool {
         matches!(self.open, Open::Active(_))
@@ -195,6 +206,7 @@ impl Pipeline {
     pub fn begin_scan(&mut self, info: ScanInfo) -> ScanStart {
         bump(&mut self.stats.scans_begun);
         self.abandon();
+        self.filtered = false;
         if let Some(config) = self.next_config.take() {
             self.config = config;
             self.median = CentredWindow::new(window::median_half(config.median));
@@ -425,7 +437,8 @@ impl Pipeline {
                 self.feed_median(p, sink);
             }
         }
-        while let Some(p) = self.median.pop_tail().map(|w| window::median(&w)) {
+        while let Some((p, changed)) = self.median.pop_tail().map(|w| median_changed(&w)) {
+            self.filtered |= changed;
             self.feed_decimator(p, sink);
         }
         if let Some(p) = self.decimator.flush() {
@@ -481,12 +494,14 @@ impl Pipeline {
         if let Some(w) = self.config.range_window {
             if !w.contains(raw.distance) {
                 bump(&mut self.stats.invalid_out_of_range);
+                self.filtered = true;
                 return invalid;
             }
         }
         if let (Some(min), Some(i)) = (self.config.min_intensity, raw.intensity) {
             if i < min {
                 bump(&mut self.stats.invalid_low_intensity);
+                self.filtered = true;
                 return invalid;
             }
         }
@@ -501,6 +516,7 @@ impl Pipeline {
             Verdict::Keep(p) => p,
             Verdict::Invalidated(p) => {
                 bump(&mut self.stats.invalid_speckle);
+                self.filtered = true;
                 p
             }
         }
@@ -524,7 +540,8 @@ impl Pipeline {
         if self.config.median.is_none() {
             return self.feed_decimator(p, sink);
         }
-        if let Some(m) = self.median.push(p).map(|w| window::median(&w)) {
+        if let Some((m, changed)) = self.median.push(p).map(|w| median_changed(&w)) {
+            self.filtered |= changed;
             self.feed_decimator(m, sink);
         }
     }
@@ -545,6 +562,13 @@ impl Pipeline {
         }
         sink.point(p);
     }
+}
+
+/// The median of a window, and whether it changed the centre's range.
+fn median_changed(w: &window::Window<'_>) -> (Point, bool) {
+    let before = w.centre_point().range_mm;
+    let p = window::median(w);
+    (p, p.range_mm != before)
 }
 
 #[cfg(test)]
