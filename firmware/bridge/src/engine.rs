@@ -552,12 +552,26 @@ impl<const Q: usize> Core<Q> {
             // Decimation the only stage: the line's output points, then one encoder run.
             // Written as readings (a range, or 0 for none; the intensity as aux), so that
             // the encoder runs the same code as for a line's readings.
+            // A point without a range: 0 for the fixed-width encodings (invalid to the
+            // rule "at least 1"), a value no sensor sends for the lossless coding (coded
+            // invalid, not as the sensor's error code 0).
+            let lossless = self.encoder.lossless_progress().is_some();
+            let (none, rule) = if lossless {
+                let no_value = can_wire::lossless::code::NO_SENSOR_VALUE;
+                let rule = can_wire::RangeRule {
+                    band: Some(no_value),
+                    ..can_wire::RangeRule::at_least(1)
+                };
+                (no_value, rule)
+            } else {
+                (0, can_wire::RangeRule::at_least(1))
+            };
             let (pipeline, decimated, mut out) = self.split();
             let mut k = 0;
             let n = pipeline.decimate_run(first, line.readings, raw, |p| {
                 if let Some(slot) = decimated.get_mut(k) {
                     // A range of 0 mm is coded 1 either way.
-                    slot.distance = p.range_mm.map_or(0, |mm| mm.max(1));
+                    slot.distance = p.range_mm.map_or(none, |mm| mm.max(1));
                     slot.aux = p.intensity.unwrap_or(0);
                     // At most the line's readings.
                     k = k.wrapping_add(1);
@@ -566,7 +580,7 @@ impl<const Q: usize> Core<Q> {
             if n.is_some() {
                 if !*out.overflow {
                     let points = decimated.get(..k).unwrap_or(&[]);
-                    out.encode_run(points, can_wire::RangeRule::at_least(1), reading_point);
+                    out.encode_run(points, rule, reading_point);
                 }
                 return;
             }
@@ -586,36 +600,15 @@ impl<const Q: usize> Core<Q> {
             self.pipeline.count_invalid(invalid);
             return;
         }
-        let (taken, mut invalid) = match test.exceptions() {
-            Some(except) => {
-                let rule = can_wire::RangeRule {
-                    min: test.min(),
-                    except,
-                };
-                self.split()
-                    .2
-                    .encode_run(line.readings, rule, reading_point)
-            }
-            None => {
-                // More error codes above DMIN than a rule holds (the Ethernet codes):
-                // the readings rewritten as ranges (at least 1) or 0 for none, as the
-                // decimation path writes its points.
-                let (_, readings, mut out) = self.split();
-                let mut k = 0usize;
-                for (slot, r) in readings.iter_mut().zip(line.readings) {
-                    slot.distance = if test.is_range(r.distance) {
-                        r.distance.max(1)
-                    } else {
-                        0
-                    };
-                    slot.aux = r.aux;
-                    // At most the line's readings.
-                    k = k.wrapping_add(1);
-                }
-                let points = readings.get(..k).unwrap_or(&[]);
-                out.encode_run(points, can_wire::RangeRule::at_least(1), reading_point)
-            }
+        let rule = can_wire::RangeRule {
+            min: test.min(),
+            except: [test.exception(), u32::MAX],
+            band: test.band(),
         };
+        let (taken, mut invalid) = self
+            .split()
+            .2
+            .encode_run(line.readings, rule, reading_point);
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = line.readings.get(taken..).unwrap_or(&[]);

@@ -147,6 +147,44 @@ fn ethernet_no_echo_is_no_range_and_geometry_is_unknown_without_pp() {
     assert_eq!(h.angle(0), None);
 }
 
+/// The same frame in the lossless coding: each no-echo value arrives as the sensor's
+/// code 65533 by its identity (SPEC 4.2.1), the ranges exact; on the direct path, and
+/// through angular decimation (a group without a range is invalid, not a sensor code).
+#[test]
+fn ethernet_codes_keep_their_identity_in_the_lossless_coding() {
+    let mut c = config();
+    c.encoding = Encoding {
+        distance: can_wire::DistanceEncoding::Lossless,
+        ..Encoding::PLAIN_MM
+    };
+    let mut b = bridge(c);
+    b.on_uart(NO_ECHO, 0);
+    let d = decoded(&mut b);
+    let mut want = vec![(Distance::SensorError(65533), None); 9];
+    want.extend([(Distance::Mm(1689), None), (Distance::Mm(1683), None)]);
+    assert_eq!(d[0].points, want);
+    assert_eq!(d[0].points_valid, 2);
+
+    c.pipeline.decimation = Some(bridge::pipeline::Decimation {
+        factor: 3,
+        mode: bridge::pipeline::DecimationMode::First,
+    });
+    let mut b = bridge(c);
+    b.on_uart(NO_ECHO, 0);
+    let d = decoded(&mut b);
+    // Groups of 3: steps 100-102, 103-105, 106-108 all no echo; 109-110 from 1689.
+    let got: Vec<Distance> = d[0].points.iter().map(|p| p.0).collect();
+    assert_eq!(
+        got,
+        [
+            Distance::Invalid,
+            Distance::Invalid,
+            Distance::Invalid,
+            Distance::Mm(1689)
+        ]
+    );
+}
+
 #[test]
 fn ethernet_codes_are_no_ranges_through_the_pipeline_too() {
     // The same frame through the filter path (a range window that keeps all ranges).

@@ -139,7 +139,9 @@ pub enum RunStop {
 
 /// Which raw distances of a [`ScanEncoder::push_run`] are ranges: those at least `min`
 /// that are none of `except` (error codes above `min`; `u32::MAX` fills an unused
-/// place). The others are [`Distance::Invalid`].
+/// place) and not in the band of three values from `band` (the Ethernet models'
+/// 65533..=65535). The others are [`Distance::Invalid`] (in the lossless coding, sensor
+/// error codes by their value: see [`crate::lossless::code::error_code`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RangeRule {
@@ -147,6 +149,8 @@ pub struct RangeRule {
     pub min: u32,
     /// Error codes at or above `min`.
     pub except: [u32; 2],
+    /// The first of three consecutive error codes at or above `min`, if any.
+    pub band: Option<u32>,
 }
 
 impl RangeRule {
@@ -155,6 +159,7 @@ impl RangeRule {
         RangeRule {
             min,
             except: [u32::MAX; 2],
+            band: None,
         }
     }
 
@@ -172,15 +177,15 @@ impl RangeRule {
     fn swapped(self) -> RangeRule {
         let [a, b] = self.except;
         RangeRule {
-            min: self.min,
             except: [b, a],
+            ..self
         }
     }
 
     #[inline(always)]
     fn is_range(&self, d: u32) -> bool {
         let [a, b] = self.except;
-        d >= self.min && d != a && d != b
+        d >= self.min && d != a && d != b && self.band.is_none_or(|s| d.wrapping_sub(s) > 2)
     }
 }
 
@@ -408,13 +413,11 @@ impl ScanEncoder {
         let s = self.scan.as_ref().ok_or(Error::NoScan)?;
         let classic = !self.format.is_fd();
         let (db, ib) = (s.distance_bits, s.intensity_bits);
-        // D16 without intensity gets loops compiled for its width; the other fixed-width
-        // encodings share one with the widths as values (smaller, a bit slower: flash is
-        // the boards' tight budget, and the lossless coding is the compact one).
+        // D16 without intensity on classic CAN gets a loop compiled for its width; the
+        // other fixed-width cases share one per frame kind with the widths as values
+        // (smaller, a bit slower: flash is the boards' tight budget, and the lossless
+        // coding is the compact one).
         match (classic, db, ib) {
-            (false, 16, 0) => {
-                self.run_fixed::<false, 16, 0, _, _, _>(db, ib, points, rule, &point, sink)
-            }
             (false, _, _) => {
                 self.run_fixed::<false, 0, 0, _, _, _>(db, ib, points, rule, &point, sink)
             }
@@ -918,7 +921,7 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     codes: &mut [u32],
 ) -> (u16, u32) {
     let simple = rule.except == [u32::MAX; 2];
-    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() {
+    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() && rule.band.is_none() {
         // The counting loops need every exception to be a range otherwise and below
         // the out-of-range code (or unused).
         let max = s.coder.max_code();
@@ -1238,6 +1241,7 @@ mod tests {
                     [u32::MAX, 65533],
                     [65533, 4095],
                 ][rule_except],
+                band: [None, Some(65533)][rule_except % 2],
             };
             // Raw distances: some below the minimum, some exactly an exception.
             let points: Vec<(u32, u16)> = seed

@@ -284,12 +284,12 @@ proptest! {
     /// pushing the same points one by one makes, however the run is cut.
     #[test]
     fn runs_equal_single_points(
-        raw in prop::collection::vec((prop_oneof![0u32..30, 20u32..70_000, 65533u32..=65535], any::<u16>()), 1..700),
+        raw in prop::collection::vec((prop_oneof![0u32..30, 20u32..70_000, 65530u32..=65537, Just(4095u32)], any::<u16>()), 1..700),
         cuts in prop::collection::vec(1usize..80, 0..20),
         format in format(),
         ienc in intensity(),
     ) {
-        let rule = RangeRule { min: 20, except: [65533, u32::MAX] };
+        let rule = RangeRule { min: 20, except: [4095, u32::MAX], band: Some(65533) };
         let h = header(raw.len(), ienc, 0, 3);
         let points: Vec<(Distance, u16)> = raw
             .iter()

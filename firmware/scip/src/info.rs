@@ -427,6 +427,18 @@ impl RangeTest {
     pub fn exceptions(&self) -> Option<[u32; 2]> {
         (!self.band).then_some([self.not_a, u32::MAX])
     }
+
+    /// The value at or above [`RangeTest::min`] that is an error code besides the
+    /// [`RangeTest::band`] (`u32::MAX` when none).
+    pub fn exception(&self) -> u32 {
+        self.not_a
+    }
+
+    /// The first of the three error codes [`ETHERNET_CODES`] when the test excludes
+    /// them.
+    pub fn band(&self) -> Option<u32> {
+        self.band.then_some(*ETHERNET_CODES.start())
+    }
 }
 
 impl RangeLimits {

@@ -116,8 +116,8 @@ impl Writer {
         }
     }
 
-    /// Moves 32 gathered bits into the frame.
-    #[inline(always)]
+    /// Moves 32 gathered bits into the frame (once per 4 bytes: not inlined).
+    #[inline(never)]
     fn word<S: FrameSink + ?Sized>(&mut self, word: u32, out: &mut Out<'_, S>) {
         let bytes = word.to_le_bytes();
         let end = self.len.wrapping_add(4);
@@ -137,7 +137,7 @@ impl Writer {
     /// Put one value's Rice code with parameter `k` (at most 15): the quotient `u >> k`
     /// in unary (that many ones and a zero) and the `k` low bits, or, for a quotient of
     /// at least [`ESCAPE_ONES`], that many ones and `value` itself in `value_bits` bits.
-    #[inline(always)]
+    #[inline(never)]
     pub fn put_rice<S: FrameSink + ?Sized>(
         &mut self,
         u: u32,
@@ -190,7 +190,7 @@ impl Writer {
         self.crc_from = self.len;
     }
 
-    #[inline(always)]
+    #[inline(never)]
     fn byte<S: FrameSink + ?Sized>(&mut self, b: u8, out: &mut Out<'_, S>) {
         if let Some(slot) = self.buf.get_mut(self.len) {
             *slot = b;

@@ -39,10 +39,16 @@ pub const fn distance_code(d: Distance, unit_exp: u8) -> u32 {
     }
 }
 
+/// Values at or above this are no sensor's (a SCIP field holds at most 24 bits): a run
+/// writes one for a point that has no sensor value, which is coded [`INVALID`].
+pub const NO_SENSOR_VALUE: u32 = 1 << 24;
+
 /// The code of a sensor error value (anything the sensor sent that is no range).
 #[inline(always)]
 pub const fn error_code(v: u32) -> u32 {
-    if v < ERROR_CODES {
+    if v >= NO_SENSOR_VALUE {
+        INVALID
+    } else if v < ERROR_CODES {
         v
     } else if v >= HIGH_ERROR_VALUE && v <= HIGH_ERROR_VALUE + 2 {
         HIGH_ERRORS + (v - HIGH_ERROR_VALUE)
@@ -111,6 +117,8 @@ mod tests {
         assert_eq!(distance_code(Distance::SensorError(65533), 0), 125);
         assert_eq!(distance_code(Distance::SensorError(65534), 0), 126);
         assert_eq!(distance_code(Distance::SensorError(65535), 0), 127);
+        assert_eq!(error_code(NO_SENSOR_VALUE), 123);
+        assert_eq!(error_code(u32::MAX), 123);
         assert_eq!(distance_code(Distance::Mm(0), 0), 128);
         assert_eq!(distance_code(Distance::Mm(5600), 0), 5728);
         assert_eq!(distance_code(Distance::Mm(100_000), 0), 100_128);
