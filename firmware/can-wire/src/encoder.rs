@@ -921,6 +921,16 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     codes: &mut [u32],
 ) -> (u16, u32) {
     let simple = rule.except == [u32::MAX; 2];
+    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() && simple {
+        if let Some(band) = rule.band {
+            // The Ethernet models' rule: DMIN and the band of three codes.
+            let rule = RangeRule {
+                except: [band, u32::MAX],
+                ..rule
+            };
+            return code_mm::<IB, 3, T, F>(points, rule, point, s, codes);
+        }
+    }
     if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() && rule.band.is_none() {
         // The counting loops need every exception to be a range otherwise and below
         // the out-of-range code (or unused).
@@ -944,7 +954,8 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
 
 /// The loop of [`code_block`] for the usual cases: the unit is 1 mm, `rule.min` is not
 /// 0 and below the out-of-range code, and the rule's first `EXC` error codes above DMIN (the
-/// only ones it has) are ranges otherwise, below the out-of-range code. Then the valid codes are the points less
+/// only ones it has) are ranges otherwise, below the out-of-range code; or, for `EXC` 3,
+/// the rule's only exceptions are the band of three codes from `except[0]`. Then the valid codes are the points less
 /// those below DMIN, those that are an error code and those at or past the out-of-range
 /// code: counted, not tested point by point.
 #[inline(always)]
@@ -963,10 +974,16 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
         let is_range = match EXC {
             0 => d >= min,
             1 => d >= min && d != a,
-            _ => d >= min && d != a && d != b,
+            2 => d >= min && d != a && d != b,
+            // A band of three error codes from `a`, which may reach the out-of-range code.
+            _ => d >= min && d.wrapping_sub(a) > 2,
         };
         invalid += u32::from(!is_range);
-        over += u32::from(d >= max);
+        over += if EXC == 3 {
+            u32::from(d >= max && is_range)
+        } else {
+            u32::from(d >= max)
+        };
         n += 1;
         // Ranges (at least `min`, so never 0 mm) at or past the out-of-range code are
         // coded so.
@@ -1226,6 +1243,7 @@ mod tests {
             mix in proptest::prelude::any::<bool>(),
             rule_min in 0u32..40,
             rule_except in 0usize..4,
+            band in proptest::prelude::any::<bool>(),
         ) {
             let enc = Encoding {
                 distance: DistanceEncoding::ALL[d],
@@ -1241,7 +1259,7 @@ mod tests {
                     [u32::MAX, 65533],
                     [65533, 4095],
                 ][rule_except],
-                band: [None, Some(65533)][rule_except % 2],
+                band: band.then_some(65533),
             };
             // Raw distances: some below the minimum, some exactly an exception.
             let points: Vec<(u32, u16)> = seed
@@ -1250,6 +1268,8 @@ mod tests {
                 .map(|&(mm, int)| match mm % 50 {
                     0 => (4095, int),
                     1 => (65533, int),
+                    2 => (65534, int),
+                    3 => (65535, int),
                     _ => (mm, int),
                 })
                 .collect();
