@@ -43,7 +43,7 @@ fi
 # size, address; stack-usage.py's last line is "STACK <bytes>").
 measure() {
     local stack run
-    if ! python3 stack-usage.py "$release/$1" --boot '(^|[^a-z])setup' > "$tmp/$1.stack"; then
+    if ! python3 stack-usage.py "$release/$1" --boot '(^|[^a-z])(setup|shared_bridge)' > "$tmp/$1.stack"; then
         echo "FAIL: stack-usage.py on $1" >&2
         exit 1
     fi

@@ -111,6 +111,48 @@ impl InProgress {
     }
 }
 
+/// The scan in progress, if any.
+#[derive(Debug, Clone, Default)]
+enum Open {
+    /// None.
+    #[default]
+    None,
+    /// In a fixed-width encoding.
+    Fixed(InProgress),
+    /// In the lossless coding.
+    Lossless(Lossless),
+}
+
+impl Open {
+    fn fixed(&self) -> Option<&InProgress> {
+        match self {
+            Open::Fixed(s) => Some(s),
+            _ => None,
+        }
+    }
+
+    fn fixed_mut(&mut self) -> Option<&mut InProgress> {
+        match self {
+            Open::Fixed(s) => Some(s),
+            _ => None,
+        }
+    }
+
+    fn lossless(&self) -> Option<&Lossless> {
+        match self {
+            Open::Lossless(l) => Some(l),
+            _ => None,
+        }
+    }
+
+    fn lossless_mut(&mut self) -> Option<&mut Lossless> {
+        match self {
+            Open::Lossless(l) => Some(l),
+            _ => None,
+        }
+    }
+}
+
 /// A scan in the lossless coding: its header and its segment stream.
 #[derive(Debug, Clone)]
 struct Lossless {
@@ -208,9 +250,8 @@ pub struct Run {
 pub struct ScanEncoder {
     ids: NodeIds,
     format: FrameFormat,
-    scan: Option<InProgress>,
-    /// A scan in the lossless coding (then `scan` is `None`).
-    lossless: Option<Lossless>,
+    /// The scan in progress: its fixed-width or lossless state share their room.
+    open: Open,
     /// The codes of the block of points a run is framing (see [`code_block`]), after
     /// the pending codes of a classic frame begun by the last run.
     codes: [u32; CODES],
@@ -223,8 +264,7 @@ impl ScanEncoder {
         Ok(ScanEncoder {
             ids,
             format,
-            scan: None,
-            lossless: None,
+            open: Open::None,
             codes: [0; CODES],
         })
     }
@@ -246,13 +286,14 @@ impl ScanEncoder {
 
     /// Whether a scan is in progress.
     pub fn in_progress(&self) -> bool {
-        self.scan.is_some() || self.lossless.is_some()
+        !matches!(self.open, Open::None)
     }
 
     /// For a lossless scan in progress: its points taken so far and the stream bytes
     /// they took (what a bandwidth governor learns the coding's real cost from).
     pub fn lossless_progress(&self) -> Option<(u16, u32)> {
-        self.lossless
+        self.open
+            .lossless()
             .as_ref()
             .map(|l| (l.stream.pushed(), l.stream.stream_bytes()))
     }
@@ -274,7 +315,7 @@ impl ScanEncoder {
         ];
         let enc = header.encoding;
         if enc.distance.is_lossless() {
-            self.lossless = Some(Lossless {
+            self.open = Open::Lossless(Lossless {
                 header: *header,
                 stream: ScanStream::new(
                     header.seq,
@@ -292,7 +333,7 @@ impl ScanEncoder {
         let capacity = u16::try_from(enc.capacity(self.format.max_len()))
             .unwrap_or(u16::MAX)
             .max(1);
-        self.scan = Some(InProgress {
+        self.open = Open::Fixed(InProgress {
             header: *header,
             crc: ScanCrc::new(&a, &b),
             pushed: 0,
@@ -319,7 +360,7 @@ impl ScanEncoder {
         distance: Distance,
         intensity: u16,
     ) -> Result<Option<Frame>, Error> {
-        if self.lossless.is_some() {
+        if matches!(self.open, Open::Lossless(_)) {
             return Err(Error::NeedsSink);
         }
         if !self.add(distance, intensity)? {
@@ -343,7 +384,7 @@ impl ScanEncoder {
         intensity: u16,
         slot: impl FnOnce() -> Option<&'f mut Frame>,
     ) -> Result<bool, Error> {
-        if self.lossless.is_some() {
+        if matches!(self.open, Open::Lossless(_)) {
             return Err(Error::NeedsSink);
         }
         if !self.add(distance, intensity)? {
@@ -360,7 +401,7 @@ impl ScanEncoder {
     /// point-by-point pushing and [`ScanEncoder::finish`] expect a frame's points.
     #[cold]
     fn settle_pending(&mut self) {
-        let Some(s) = self.scan.as_mut() else {
+        let Some(s) = self.open.fixed_mut() else {
             return;
         };
         let n = core::mem::take(&mut s.pending);
@@ -372,10 +413,10 @@ impl ScanEncoder {
     /// Packs a point; returns whether a data frame is due (full, or the scan's last).
     #[inline(always)]
     fn add(&mut self, distance: Distance, intensity: u16) -> Result<bool, Error> {
-        if self.scan.as_ref().is_some_and(|s| s.pending > 0) {
+        if self.open.fixed().is_some_and(|s| s.pending > 0) {
             self.settle_pending();
         }
-        let s = self.scan.as_mut().ok_or(Error::NoScan)?;
+        let s = self.open.fixed_mut().ok_or(Error::NoScan)?;
         if s.pushed >= s.header.point_count {
             return Err(Error::TooManyPoints);
         }
@@ -407,10 +448,10 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        if self.lossless.is_some() {
+        if matches!(self.open, Open::Lossless(_)) {
             return self.run_lossless(points, rule, &point, sink);
         }
-        let s = self.scan.as_ref().ok_or(Error::NoScan)?;
+        let s = self.open.fixed().ok_or(Error::NoScan)?;
         let classic = !self.format.is_fd();
         let (db, ib) = (s.distance_bits, s.intensity_bits);
         // D16 without intensity on classic CAN gets a loop compiled for its width; the
@@ -475,7 +516,7 @@ impl ScanEncoder {
         let id = self.ids.id(Kind::Data);
         let fd = self.format.is_fd();
         let codes_buf = &mut self.codes;
-        let s = self.scan.as_mut().ok_or(Error::NoScan)?;
+        let s = self.open.fixed_mut().ok_or(Error::NoScan)?;
         let mut run = Run::default();
         let (count, capacity) = (s.header.point_count, s.capacity);
         let mut rest = points;
@@ -579,7 +620,7 @@ impl ScanEncoder {
     {
         let id = self.ids.id(Kind::Data);
         let codes_buf = &mut self.codes;
-        let s = self.scan.as_mut().ok_or(Error::NoScan)?;
+        let s = self.open.fixed_mut().ok_or(Error::NoScan)?;
         let mut run = Run::default();
         let bits = db + ib;
         // Points in a full classic frame: 48 bits after the data header.
@@ -718,7 +759,7 @@ impl ScanEncoder {
     fn flush_into(&mut self, out: &mut Frame) -> Result<(), Error> {
         let id = self.ids.id(Kind::Data);
         let fd = self.format.is_fd();
-        let s = self.scan.as_mut().ok_or(Error::NoScan)?;
+        let s = self.open.fixed_mut().ok_or(Error::NoScan)?;
         flush(s, id, fd, out)
     }
 
@@ -731,7 +772,7 @@ impl ScanEncoder {
         intensity: u16,
         sink: &mut S,
     ) -> Result<Run, Error> {
-        if let Some(l) = self.lossless.as_mut() {
+        if let Some(l) = self.open.lossless_mut() {
             let enc = l.header.encoding;
             let mut out = Out {
                 sink,
@@ -760,8 +801,8 @@ impl ScanEncoder {
         })?;
         let valid = matches!(distance, Distance::Mm(_))
             && self
-                .scan
-                .as_ref()
+                .open
+                .fixed()
                 .is_some_and(|s| s.coder.code_valid(distance).1);
         Ok(Run {
             points: 1,
@@ -784,7 +825,7 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        let l = self.lossless.as_mut().ok_or(Error::NoScan)?;
+        let l = self.open.lossless_mut().ok_or(Error::NoScan)?;
         let enc = l.header.encoding;
         let mut out = Out {
             sink,
@@ -844,18 +885,22 @@ impl ScanEncoder {
     /// the scan is truncated) and the trailer. `flags.truncated` is set from the counts.
     /// A truncated lossless scan sends the points of its whole segments only.
     pub fn finish(&mut self, flags: TrailerFlags) -> Result<Emitted, Error> {
-        if let Some(l) = self.lossless.take() {
-            return self.finish_lossless(l, flags);
+        if matches!(self.open, Open::Lossless(_)) {
+            if let Open::Lossless(l) = core::mem::take(&mut self.open) {
+                return self.finish_lossless(l, flags);
+            }
         }
         self.settle_pending();
         let mut out = Emitted::new();
-        let buffered = self.scan.as_ref().ok_or(Error::NoScan)?.buffered;
+        let buffered = self.open.fixed().ok_or(Error::NoScan)?.buffered;
         if buffered > 0 {
             let mut f = Frame::default();
             self.flush_into(&mut f)?;
             out.push(f).map_err(|_| Error::FrameTooLong)?;
         }
-        let s = self.scan.take().ok_or(Error::NoScan)?;
+        let Open::Fixed(s) = core::mem::take(&mut self.open) else {
+            return Err(Error::NoScan);
+        };
         let mut t = Trailer {
             seq: s.header.seq,
             points_sent: s.sent,
@@ -874,10 +919,10 @@ impl ScanEncoder {
 
     /// Abandon the scan: buffered points are dropped; returns the abort frame.
     pub fn abort(&mut self, reason: AbortReason, detail: u8) -> Result<Frame, Error> {
-        let (seq, sent) = match (self.lossless.take(), self.scan.take()) {
-            (Some(l), _) => (l.header.seq, l.stream.sent()),
-            (None, Some(s)) => (s.header.seq, s.sent),
-            (None, None) => return Err(Error::NoScan),
+        let (seq, sent) = match core::mem::take(&mut self.open) {
+            Open::Lossless(l) => (l.header.seq, l.stream.sent()),
+            Open::Fixed(s) => (s.header.seq, s.sent),
+            Open::None => return Err(Error::NoScan),
         };
         let a = Abort {
             seq,

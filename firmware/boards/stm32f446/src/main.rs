@@ -125,16 +125,22 @@ struct Setup {
     can: Can<'static>,
 }
 
+/// The shared bridge, built in a frame of its own before `setup` runs (never inlined):
+/// the bridge's temporaries (it is built on the stack, then moved into its static) are
+/// then never on the stack together with `setup`'s peripherals.
+#[inline(never)]
+fn shared_bridge() -> &'static Shared {
+    SHARED.init_with(|| Shared::new(defmt::unwrap!(config::bridge(BUS))))
+}
+
 /// Initialises the chip and the peripherals. A plain function outside the async main
 /// and never inlined into it: its temporaries then take no room in the main task's
 /// static future, and its stack frame exists once at boot, not on every poll.
 #[inline(never)]
-fn setup() -> Setup {
+fn setup(shared: &'static Shared) -> Setup {
     let p = embassy_stm32::init(clocks());
     info!("scip2can-stm32f446 {}", env!("CARGO_PKG_VERSION"));
 
-    let shared: &'static Shared =
-        SHARED.init_with(|| Shared::new(defmt::unwrap!(config::bridge(BUS))));
     let control_id = shared.with(|b| b.config().ids.id(can_wire::Kind::Control));
 
     // Sensor: USART1, TX PA9, RX PA10 (Arduino D8 and D2), 8N1; DMA2 streams 7 and 2
@@ -178,11 +184,12 @@ fn setup() -> Setup {
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
+    let shared = shared_bridge();
     let Setup {
         shared,
         mut board,
         mut can,
-    } = setup();
+    } = setup(shared);
     // The halves do not borrow `can`; the transmit task keeps `can` (dropping it would
     // reset the controller) and enables it, so that a bus that never goes idle holds
     // up only the CAN side, not the sensor loop and its watchdog.

@@ -121,16 +121,22 @@ struct Setup {
     can_rx: embassy_stm32::can::CanRx<'static>,
 }
 
+/// The shared bridge, built in a frame of its own before `setup` runs (never inlined):
+/// the bridge's temporaries (it is built on the stack, then moved into its static) are
+/// then never on the stack together with `setup`'s peripherals.
+#[inline(never)]
+fn shared_bridge() -> &'static Shared {
+    SHARED.init_with(|| Shared::new(defmt::unwrap!(config::bridge(BUS))))
+}
+
 /// Initialises the chip and the peripherals. A plain function outside the async main
 /// and never inlined into it: its temporaries then take no room in the main task's
 /// static future, and its stack frame exists once at boot, not on every poll.
 #[inline(never)]
-fn setup() -> Setup {
+fn setup(shared: &'static Shared) -> Setup {
     let p = embassy_stm32::init(clocks());
     info!("scip2can-stm32g474 {}", env!("CARGO_PKG_VERSION"));
 
-    let shared: &'static Shared =
-        SHARED.init_with(|| Shared::new(defmt::unwrap!(config::bridge(BUS))));
     let control_id = shared.with(|b| b.config().ids.id(can_wire::Kind::Control));
 
     // Sensor: USART1, TX PC4, RX PC5 (morpho CN10 pins 34 and 6), 8N1.
@@ -175,12 +181,13 @@ fn setup() -> Setup {
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
+    let shared = shared_bridge();
     let Setup {
         shared,
         mut board,
         can_tx,
         can_rx,
-    } = setup();
+    } = setup(shared);
     spawner.spawn(defmt::unwrap!(fdcan::tx_task(shared, can_tx)));
     spawner.spawn(defmt::unwrap!(fdcan::rx_task(shared, can_rx)));
     sensor::run(shared, &mut board).await
