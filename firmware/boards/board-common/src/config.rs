@@ -94,6 +94,14 @@ impl CanBus {
     };
 }
 
+/// The scan encoding: the lossless predictive coding (SPEC 4.2), millimetre-exact and
+/// about 6 bits per point on real scans; a control frame (opcode 0x20) selects another.
+pub const ENCODING: Encoding = Encoding {
+    distance: can_wire::DistanceEncoding::Lossless,
+    intensity: can_wire::IntensityEncoding::I16,
+    unit_exp: 0,
+};
+
 /// The bridge configuration of a board on `bus`.
 pub fn bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
     Ok(BridgeConfig {
@@ -103,7 +111,7 @@ pub fn bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
             ..SessionConfig::default()
         },
         pipeline: PipelineConfig::default(),
-        encoding: Encoding::PLAIN_MM,
+        encoding: ENCODING,
         budget: Budget {
             rates: bus.rates,
             format: bus.format,
