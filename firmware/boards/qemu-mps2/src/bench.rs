@@ -35,6 +35,14 @@ const CHUNK: usize = 64;
 /// The byte that ends the stream.
 const EOT: u8 = 0x04;
 
+/// The bridge, built in a frame of its own (never inlined): `run`'s frame then holds
+/// one bridge, not the temporaries of its construction too (the board has 24 KiB of
+/// RAM for everything).
+#[inline(never)]
+fn new_bridge(encoding: Encoding) -> Option<Bridge<{ config::QUEUE }>> {
+    config::bridge_with(encoding).and_then(|c| Bridge::new(c).ok())
+}
+
 /// Runs the benchmark with the board's configuration in `encoding`.
 pub fn run(encoding: Encoding) -> ! {
     let Some(cp) = cortex_m::Peripherals::take() else {
@@ -48,10 +56,22 @@ pub fn run(encoding: Encoding) -> ! {
     else {
         hw::exit()
     };
-    let Some(Ok(mut bridge)) = config::bridge_with(encoding).map(Bridge::<{ config::QUEUE }>::new)
-    else {
+    // Borrowed where it was returned: a binding by value would be a second copy.
+    let mut made = new_bridge(encoding);
+    let Some(bridge) = made.as_mut() else {
         hw::exit()
     };
+    measure(bridge, &mut sensor, &mut output)
+}
+
+/// The measurement loop, in a frame of its own (never inlined into `run`, whose frame
+/// holds the bridge).
+#[inline(never)]
+fn measure(
+    bridge: &mut Bridge<{ config::QUEUE }>,
+    sensor: &mut hw::Uart,
+    output: &mut hw::Uart,
+) -> ! {
     let _ = write!(output, "{BANNER}\r\n");
 
     let mut hash = frame_hash::FrameHash::default();

@@ -116,21 +116,42 @@ impl Writer {
         }
     }
 
-    /// Moves 32 gathered bits into the frame (once per 4 bytes: not inlined).
+    /// Moves 32 gathered bits into the frame (once per 4 bytes: not inlined); a word
+    /// that reaches the frame's end fills it, sends it, and begins the next frame.
     #[inline(never)]
     fn word<S: FrameSink + ?Sized>(&mut self, word: u32, out: &mut Out<'_, S>) {
         let bytes = word.to_le_bytes();
-        let end = self.len.wrapping_add(4);
-        match self.buf.get_mut(self.len..end) {
-            Some(dst) if end < self.full => {
+        let room = self.full.saturating_sub(self.len);
+        if room > 4 {
+            if let Some(dst) = self.buf.get_mut(self.len..self.len + 4) {
                 dst.copy_from_slice(&bytes);
-                self.len = end;
             }
-            _ => {
-                for b in bytes {
-                    self.byte(b, out);
+            self.len += 4;
+            return;
+        }
+        if room >= 2 && self.full >= 6 {
+            // The frame's last `room` bytes (at most 4), then the rest in the next one,
+            // which has room for them (a frame holds at least 5 stream bytes).
+            // Byte by byte: a copy of a length known only at run time is a call.
+            let (now, next) = bytes.split_at(room.min(4));
+            for &b in now {
+                if let Some(d) = self.buf.get_mut(self.len) {
+                    *d = b;
                 }
+                self.len += 1;
             }
+            self.crc_pending();
+            self.emit(out);
+            for &b in next {
+                if let Some(d) = self.buf.get_mut(self.len) {
+                    *d = b;
+                }
+                self.len += 1;
+            }
+            return;
+        }
+        for b in bytes {
+            self.byte(b, out);
         }
     }
 

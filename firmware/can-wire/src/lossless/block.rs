@@ -35,6 +35,14 @@ impl History {
     }
 }
 
+/// Room for a block's residuals under both predictors, kept by the sender between blocks
+/// (a fresh array per block would be cleared each time).
+#[derive(Debug, Clone, Default)]
+pub struct Scratch {
+    u1: [u32; BLOCK_POINTS],
+    u2: [u32; BLOCK_POINTS],
+}
+
 /// Width of a value: bits up to its highest one bit (0 for 0).
 #[inline(always)]
 pub const fn width(v: u32) -> u32 {
@@ -88,13 +96,13 @@ fn rice_bits(u: &[u32], any: u32, k: u32) -> (u32, u32) {
 pub fn put_block<S: FrameSink + ?Sized>(
     values: &[u32],
     h: &mut History,
+    scratch: &mut Scratch,
     w: &mut Writer,
     out: &mut Out<'_, S>,
 ) -> Mode {
     let values = values.get(..values.len().min(BLOCK_POINTS)).unwrap_or(&[]);
     let n = values.len();
-    let mut u1 = [0u32; BLOCK_POINTS];
-    let mut u2 = [0u32; BLOCK_POINTS];
+    let Scratch { u1, u2 } = scratch;
     let (mut s1, mut s2, mut or1, mut or2, mut any) = (0u32, 0u32, 0u32, 0u32, 0u32);
     let (mut a, mut b) = (h.h1 as i32, h.h2 as i32);
     for ((&v, x1), x2) in values.iter().zip(u1.iter_mut()).zip(u2.iter_mut()) {
@@ -122,9 +130,9 @@ pub fn put_block<S: FrameSink + ?Sized>(
         return Mode::Constant;
     }
     let (mode, u, sum, or) = if s2 < s1 {
-        (Mode::Order2, &u2, s2, or2)
+        (Mode::Order2, &*u2, s2, or2)
     } else {
-        (Mode::Order1, &u1, s1, or1)
+        (Mode::Order1, &*u1, s1, or1)
     };
     let u = u.get(..n).unwrap_or(&[]);
     let k0 = rice_k(sum, n32);
@@ -247,8 +255,9 @@ mod tests {
         w.begin_segment(0, 0, &mut out);
         let mut h = History::anchor(anchor);
         let mut modes = vec![];
+        let mut scratch = Scratch::default();
         for b in blocks {
-            modes.push(put_block(b, &mut h, &mut w, &mut out));
+            modes.push(put_block(b, &mut h, &mut scratch, &mut w, &mut out));
         }
         w.end_segment(&mut out);
         let mut stream = vec![];

@@ -2,7 +2,7 @@
 //! frames out, and the scan CRC over the headers and the segments' CRCs.
 
 use super::bits::{Out, Writer};
-use super::block::{put_block, width, History};
+use super::block::{put_block, width, History, Scratch};
 use super::code;
 use super::{segment_points, BLOCK_POINTS, MAX_VALUE, SEGMENT_POINTS, WIDTH_BITS};
 use crate::crc::ScanCrc;
@@ -33,6 +33,7 @@ pub struct ScanStream {
     gathered: usize,
     hd: History,
     hi: History,
+    scratch: Scratch,
     /// Headers, then each segment's CRC.
     crc: ScanCrc,
 }
@@ -64,6 +65,7 @@ impl ScanStream {
             gathered: 0,
             hd: History::default(),
             hi: History::default(),
+            scratch: Scratch::default(),
             crc: ScanCrc::new(a, b),
         }
     }
@@ -224,17 +226,20 @@ impl ScanStream {
 
     fn put_blocks<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
         let n = self.gathered;
+        let (w, scratch) = (&mut self.w, &mut self.scratch);
         put_block(
             self.d.get(..n).unwrap_or(&[]),
             &mut self.hd,
-            &mut self.w,
+            scratch,
+            w,
             out,
         );
         if self.intensity {
             put_block(
                 self.i.get(..n).unwrap_or(&[]),
                 &mut self.hi,
-                &mut self.w,
+                scratch,
+                w,
                 out,
             );
         }
