@@ -42,7 +42,7 @@ pub fn bridge() -> Option<BridgeConfig> {
     bridge_with(ENCODING)
 }
 
-/// [`bridge`] with another scan encoding.
+/// [`bridge()`] with another scan encoding.
 pub fn bridge_with(encoding: Encoding) -> Option<BridgeConfig> {
     let ids: NodeIds = IdWindow::DEFAULT.node(NODE).ok()?;
     Some(BridgeConfig {
