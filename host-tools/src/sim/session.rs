@@ -34,6 +34,8 @@ use super::model::{LinkKind, Model};
 const LINE_MAX: usize = 64;
 /// Time a reboot takes, µs.
 const BOOT_US: u64 = 500_000;
+/// SCIP 2.2 `RB`: the second `RB` must follow the first within this time, µs.
+const RB_WINDOW_US: u64 = 1_000_000;
 
 /// An M*/N* stream in progress.
 #[derive(Debug, Clone, Copy)]
@@ -81,6 +83,10 @@ pub struct Sensor {
     epoch_scan: u64,
     stream: Option<Stream>,
     booting_until: u64,
+    /// When the first `RB` of a pair was answered (SCIP 2.2).
+    reboot_armed_at: Option<u64>,
+    /// Reboots on request since the last [`Sensor::take_rebooted`].
+    rebooted: bool,
     line: Vec<u8>,
     queue: VecDeque<Pending>,
     responses: u64,
@@ -130,6 +136,8 @@ impl Sensor {
             epoch_scan: 0,
             stream: None,
             booting_until: 0,
+            reboot_armed_at: None,
+            rebooted: false,
             line: Vec::new(),
             queue: VecDeque::new(),
             responses: 0,
@@ -200,6 +208,7 @@ impl Sensor {
         self.high_sensitivity = false;
         self.stream = None;
         self.line.clear();
+        self.reboot_armed_at = None;
         self.speed_step = 0;
         self.set_rpm(now, self.model.scan_rpm);
         self.bit_rate = self.model.default_bit_rate();
@@ -328,6 +337,13 @@ impl Sensor {
             return;
         }
         let raw = RawRequest::split(line);
+        if self.model.scip22
+            && raw.code == b"RB"
+            && raw.params.is_empty()
+            && raw.check_tag().is_ok()
+        {
+            return self.reboot_cmd(now, line);
+        }
         if let Err(e) = raw.check_tag() {
             let status = if e == scip::EncodeError::TagTooLong {
                 *b"0G"
@@ -548,6 +564,29 @@ impl Sensor {
             ("TIME".into(), time),
             ("STAT".into(), "Sensor works well.".into()),
         ]
+    }
+
+    /// RB (SCIP 2.2): the first `RB` is answered `01` (send it again to confirm); a
+    /// second one within a second is answered `00` and the sensor reboots once the
+    /// answer has left. An `RB` more than a second after the first starts over.
+    fn reboot_cmd(&mut self, now: u64, line: &[u8]) {
+        let confirmed = self
+            .reboot_armed_at
+            .is_some_and(|at| now.saturating_sub(at) <= RB_WINDOW_US);
+        if !confirmed {
+            self.reboot_armed_at = Some(now);
+            return self.simple(now, line, *b"01");
+        }
+        self.simple(now, line, *b"00");
+        let at = self.queue.back().map_or(now, |p| p.at);
+        self.power_on(at, true);
+        self.rebooted = true;
+    }
+
+    /// True once after the sensor rebooted on request (`RB` twice): an Ethernet
+    /// sensor's connection ends there.
+    pub fn take_rebooted(&mut self) -> bool {
+        core::mem::take(&mut self.rebooted)
     }
 
     /// SS: Ethernet → `0F` (SCIP 2.2) / `04`; a rate not in the list → `04`; the rate in
@@ -914,5 +953,36 @@ ARES:1024;\\\nAMIN:44;7\nAMAX:725;o\nAFRT:384;6\nSCAN:600;e\n\n"[..]
             ask(&mut s, 400_000, b"GD0540054001\n")[..16],
             *b"GD0540054001\n10Q"
         );
+    }
+
+    #[test]
+    fn scip22_rb_asks_for_confirmation_then_reboots() {
+        let mut s = sensor(ModelKind::Ust10lx, false);
+        // SCIP 2.2: the first RB is answered 01, a second within 1 s 00 (then reboot).
+        assert_eq!(ask(&mut s, 0, b"RB\n"), b"RB\n01Q\n\n");
+        // More than a second later: the first of a new pair again.
+        assert_eq!(ask(&mut s, 1_200_000, b"RB\n"), b"RB\n01Q\n\n");
+        ask(&mut s, 1_300_000, b"MD0000108001000\n");
+        assert!(s.is_streaming());
+        let t = 1_900_000;
+        s.receive(t, b"RB;x\n");
+        let out = s.take_output(t);
+        assert!(
+            out.ends_with(b"RB;x\n00P\n\n"),
+            "{}",
+            String::from_utf8_lossy(&out)
+        );
+        assert!(s.take_rebooted());
+        assert!(!s.take_rebooted());
+        // Booting: the stream is gone and commands go unanswered for a while.
+        assert!(!s.is_streaming());
+        assert_eq!(ask(&mut s, t + 100_000, b"%ST\n"), b"");
+        assert_eq!(ask(&mut s, t + 600_000, b"%ST\n"), b"%ST\n00P\n000@\n\n");
+        // The pair does not carry over the reboot.
+        assert_eq!(ask(&mut s, t + 700_000, b"RB\n"), b"RB\n01Q\n\n");
+        // SCIP 2.0 sensors do not know RB.
+        let mut utm = sensor(ModelKind::Utm30lx, false);
+        assert_eq!(ask(&mut utm, 0, b"RB\n"), b"RB\n0Ee\n\n");
+        assert_eq!(ask(&mut utm, 0, b"RB\n"), b"RB\n0Ee\n\n");
     }
 }
