@@ -37,6 +37,25 @@ const BOOT_US: u64 = 500_000;
 /// SCIP 2.2 `RB`: the second `RB` must follow the first within this time, µs.
 const RB_WINDOW_US: u64 = 1_000_000;
 
+/// What the sensor meant to send for one scan, before any fault: the ground truth a
+/// receiver's output is judged against.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ScanTruth {
+    /// Scan number of the sensor's scan clock.
+    pub scan: u64,
+    /// The request as echoed (for a stream frame: the count = scans remaining).
+    pub request: ScanRequest,
+    /// The status sent (`99` for stream frames, `00` for G* answers).
+    pub status: [u8; 2],
+    /// The scan's timestamp, 24-bit ms.
+    pub timestamp: u32,
+    /// Per value (step or cluster), its first echo: (distance or error code, second
+    /// value; 0 without one).
+    pub values: Vec<Value>,
+    /// Extra echoes of multi-echo scans: (value index, echo number 1.., value).
+    pub extra: Vec<(u16, u8, Value)>,
+}
+
 /// An M*/N* stream in progress.
 #[derive(Debug, Clone, Copy)]
 struct Stream {
@@ -93,6 +112,8 @@ pub struct Sensor {
     frames: u64,
     values: Vec<Value>,
     faults_seen: usize,
+    /// Ground truth of the scans written, when asked for ([`Sensor::record_truth`]).
+    truth: Option<Vec<ScanTruth>>,
 }
 
 impl core::fmt::Debug for Sensor {
@@ -144,6 +165,7 @@ impl Sensor {
             frames: 0,
             values: Vec::new(),
             faults_seen: 0,
+            truth: None,
         };
         s.power_on(0, false);
         s.timer_offset_ms = i64::from(clock_start_ms);
@@ -166,6 +188,27 @@ impl Sensor {
         let new = log.get(self.faults_seen..).unwrap_or(&[]);
         self.faults_seen = log.len();
         new
+    }
+
+    /// Starts (or stops) keeping the ground truth of every scan written, for
+    /// [`Sensor::take_truth`].
+    pub fn record_truth(&mut self, on: bool) {
+        self.truth = on.then(Vec::new);
+    }
+
+    /// The ground truth of the scans written since the last call, oldest first.
+    pub fn take_truth(&mut self) -> Vec<ScanTruth> {
+        self.truth.as_mut().map(core::mem::take).unwrap_or_default()
+    }
+
+    /// Replaces the line noise from now on (e.g. after a clean start-up exchange).
+    pub fn set_line_noise(&mut self, noise: super::faults::LineNoise) {
+        self.faults.set_line_noise(noise);
+    }
+
+    /// What line noise did so far.
+    pub fn line_noise_stats(&self) -> super::faults::LineNoiseStats {
+        *self.faults.line_stats()
     }
 
     /// The current bit rate (serial and USB models), changed by SS after its answer.
@@ -307,6 +350,7 @@ impl Sensor {
     fn push(&mut self, at: u64, bytes: Vec<u8>, after: Option<After>) {
         // Responses leave in order: none before the one ahead of it.
         let at = self.queue.back().map_or(at, |p| p.at.max(at));
+        let bytes = self.faults.line(bytes);
         self.queue.push_back(Pending { at, bytes, after });
         self.responses += 1;
     }
@@ -758,6 +802,14 @@ impl Sensor {
         let ares = u64::from(self.model.ares.max(1));
         let mut values = core::mem::take(&mut self.values);
         let mut best: Vec<Value> = Vec::new();
+        let mut truth = self.truth.is_some().then(|| ScanTruth {
+            scan: k,
+            request: *scan,
+            status,
+            timestamp: clock,
+            values: Vec::new(),
+            extra: Vec::new(),
+        });
         let mut w = ResponseWriter::new(|b: &[u8]| buf.extend_from_slice(b));
         w.echo(req);
         w.status(status);
@@ -784,10 +836,18 @@ impl Sensor {
             let mut echoes = best.iter();
             if let Some(&(d, aux)) = echoes.next() {
                 w.step(d, aux);
+                if let Some(t) = truth.as_mut() {
+                    t.values.push((d, aux));
+                }
             }
             if scan.multi_echo {
-                for &(d, aux) in echoes.take(2) {
+                for (e, &(d, aux)) in echoes.take(2).enumerate() {
                     w.extra_echo(d, aux);
+                    if let Some(t) = truth.as_mut() {
+                        let index = u16::try_from(t.values.len().saturating_sub(1));
+                        t.extra
+                            .push((index.unwrap_or(u16::MAX), e as u8 + 1, (d, aux)));
+                    }
                 }
             }
             step += cluster;
@@ -795,6 +855,9 @@ impl Sensor {
         w.end();
         let _ = w.into_inner();
         self.values = values;
+        if let (Some(log), Some(t)) = (self.truth.as_mut(), truth) {
+            log.push(t);
+        }
     }
 }
 
