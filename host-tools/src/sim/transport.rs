@@ -81,8 +81,11 @@ pub fn reader_thread<R: Read + Send + 'static>(
     rx
 }
 
-/// Serves one connection until its input ends or `stop` is set. With `pace`, output
-/// is written no faster than the sensor's bit rate (a serial line).
+/// Serves one connection until its input ends or `stop` is set. With `pace`, the
+/// sensor sends no faster than its bit rate through its bounded transmit buffer (a
+/// serial line, see [`Sensor::set_paced`]); the loop hands its bytes on as they leave
+/// and reads the host's input in between, so that a `QT` is seen while a stream is
+/// being written.
 pub fn serve_connection(
     sensor: &mut Sensor,
     clock: &Clock,
@@ -92,6 +95,7 @@ pub fn serve_connection(
     stop: &AtomicBool,
     log: &mut dyn FnMut(&str),
 ) -> io::Result<()> {
+    sensor.set_paced(pace);
     loop {
         if stop.load(Ordering::Relaxed) {
             return Ok(());
@@ -101,7 +105,8 @@ pub fn serve_connection(
             log(&format!("fault: {f:?}"));
         }
         if !bytes.is_empty() {
-            write_paced(sensor, clock, out, &bytes, pace)?;
+            out.write_all(&bytes)?;
+            out.flush()?;
         }
         let wait = sensor
             .next_wakeup()
@@ -115,33 +120,6 @@ pub fn serve_connection(
             }
         }
     }
-}
-
-fn write_paced(
-    sensor: &Sensor,
-    clock: &Clock,
-    out: &mut dyn Write,
-    bytes: &[u8],
-    pace: bool,
-) -> io::Result<()> {
-    match (pace, sensor.bit_rate()) {
-        (true, Some(rate)) => {
-            for chunk in bytes.chunks(64) {
-                let t = Instant::now();
-                out.write_all(chunk)?;
-                out.flush()?;
-                let left = clock
-                    .wire_time(chunk.len(), rate)
-                    .saturating_sub(t.elapsed());
-                std::thread::sleep(left);
-            }
-        }
-        _ => {
-            out.write_all(bytes)?;
-            out.flush()?;
-        }
-    }
-    Ok(())
 }
 
 /// Serves TCP clients one after another on `listener` until `stop` is set. The
