@@ -458,3 +458,32 @@ fn pty_urg_at_19200_skips_scans_it_cannot_send_and_answers_qt_after_the_frame_on
     read_until(&mut link, &mut got, 1, |_| false);
     assert_eq!(got.len(), end, "{:?}", String::from_utf8_lossy(&got[end..]));
 }
+
+#[test]
+fn tcp_ust_reboots_on_a_confirmed_rb_and_drops_the_connection() {
+    let server = tcp_sim("model=ust10lx,speed=10");
+    let mut c = tcp_client(&server);
+    // SCIP 2.2: 01 asks for confirmation, a second RB within a second gets 00.
+    assert_eq!(ask(&mut c, "RB").status_str(), "01");
+    let md = ask(&mut c, "MD0000108001000");
+    assert_eq!(md.status_str(), "00", "{md:?}");
+    let rb = ask(&mut c, "RB");
+    assert_eq!(rb.status_str(), "00", "{rb:?}");
+    // Then the sensor reboots: the connection ends.
+    let deadline = Instant::now() + TIMEOUT;
+    let closed = loop {
+        match c.next_response(Duration::from_millis(100)) {
+            Err(_) => break true,
+            Ok(_) if Instant::now() > deadline => break false,
+            Ok(_) => {}
+        }
+    };
+    assert!(closed, "the connection stayed up");
+    // Back after the boot: idle, laser off, and a lone RB starts a new pair.
+    std::thread::sleep(Duration::from_millis(100));
+    let mut c = tcp_client(&server);
+    check_statuses(
+        &mut c,
+        &[("%ST", "00"), ("GD0000108001", "10"), ("RB", "01")],
+    );
+}

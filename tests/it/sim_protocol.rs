@@ -422,36 +422,12 @@ fn ust_speaks_scip22() {
     assert_eq!((time[4], time[6]), (b';', b'\n'));
 }
 
-/// What a line-noise run published, judged against the simulator's ground truth.
-#[derive(Debug, Default)]
-struct Judged {
-    /// Scans the sensor sent.
-    sent: u64,
-    /// Scans the bridge published as intact.
-    intact: u64,
-    /// Of those, scans whose timestamp, geometry or values differ from what the sensor
-    /// meant to send: (why, scan timestamp as published).
-    wrong: Vec<(&'static str, u32)>,
-    noise: scip2can_host::sim::faults::LineNoiseStats,
-}
-
-/// A URG-04LX streams `MD0044072501000` (682 steps, 2134 bytes a frame) through line
-/// noise into a bridge (a replay: the engine decodes and publishes, no session); every
-/// scan the CAN side reassembles as intact is compared with the sensor's ground truth.
-fn line_noise_run(noise: scip2can_host::sim::faults::LineNoise, scans: u64, seed: u64) -> Judged {
-    use bridge::engine::{Bridge, BridgeConfig};
+/// The bridge config of the runs below: CAN FD 64, 16-bit distances, no intensity.
+fn bridge_config() -> bridge::engine::BridgeConfig {
     use bridge::governor::Budget;
     use can_wire::bandwidth::BitRates;
-    use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
-    use can_wire::IntensityEncoding;
-    use can_wire::{Distance, DistanceEncoding, Encoding, FrameFormat, IdWindow};
-    use std::collections::HashMap;
-
-    let mut s = sensor(&format!(
-        "model=urg04lx,scip11=0,scene=room,seed=3,fault_seed={seed}"
-    ));
-    s.record_truth(true);
-    let config = BridgeConfig {
+    use can_wire::{DistanceEncoding, Encoding, FrameFormat, IdWindow, IntensityEncoding};
+    bridge::engine::BridgeConfig {
         session: bridge::session::SessionConfig::default(),
         pipeline: bridge::pipeline::PipelineConfig::default(),
         encoding: Encoding {
@@ -469,7 +445,87 @@ fn line_noise_run(noise: scip2can_host::sim::faults::LineNoise, scans: u64, seed
         uart_bit_rate: 115_200,
         status_period_ms: 0,
         fd_capable: true,
-    };
+    }
+}
+
+#[test]
+fn the_bridge_streams_again_after_the_sensor_reboots_on_request() {
+    use bridge::engine::Bridge;
+    use bridge::session::{Action, State};
+    use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
+    use can_wire::IdWindow;
+    // A UST-10LX (SCIP 2.2) streams to a live bridge session; at 2 s someone else on
+    // the link reboots it (RB twice). The sensor goes silent for its boot, comes back
+    // idle with its clock at 0; the bridge must bring the stream back.
+    let mut s = sensor("model=ust10lx,scene=wall:2000,noise=0");
+    let mut b: Box<Bridge<512>> = Box::new(Bridge::new(bridge_config()).expect("config"));
+    let mut can: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
+    b.start(0);
+    let mut scans: Vec<(u64, u32)> = Vec::new();
+    let mut reboot_answers = Vec::new();
+    for ms in 0..8_000u64 {
+        let now = ms * 1000;
+        while let Some(action) = b.poll(ms) {
+            if let Action::Send(request) = action {
+                let mut buf = [0u8; scip::REQUEST_MAX];
+                let n = scip::Request::encode(&request, &mut buf).unwrap();
+                s.receive(now, &buf[..n]);
+            }
+        }
+        if ms == 2_000 || ms == 2_100 {
+            s.receive(now, b"RB\n");
+        }
+        let out = s.take_output(now);
+        if let Some(i) = out.windows(3).position(|w| w == b"RB\n") {
+            reboot_answers.push(out[i..i + 6].to_vec());
+        }
+        b.on_uart(&out, ms);
+        while let Some(f) = b.pop_frame() {
+            if let Ok(Some(CanEvent::Scan { scan, .. })) = can.push_frame(&f) {
+                if scan.is_intact() {
+                    scans.push((ms, scan.header().timestamp_ms));
+                }
+            }
+        }
+    }
+    assert_eq!(reboot_answers, [b"RB\n01Q".to_vec(), b"RB\n00P".to_vec()]);
+    assert!(scans.iter().any(|&(ms, _)| ms < 2_000), "no scans before");
+    // After the reboot: the clock restarted (scan times below 8 s - 2.1 s), scans again,
+    // and the session is streaming.
+    let after: Vec<_> = scans.iter().filter(|&&(ms, _)| ms > 2_100).collect();
+    assert!(after.len() > 50, "{} scans after the reboot", after.len());
+    assert!(after.iter().all(|&&(_, ts)| ts < 6_000), "{after:?}");
+    assert_eq!(b.session().state(), State::Streaming);
+    assert!(b.session().stats().recoveries >= 1);
+}
+
+/// What a line-noise run published, judged against the simulator's ground truth.
+#[derive(Debug, Default)]
+struct Judged {
+    /// Scans the sensor sent.
+    sent: u64,
+    /// Scans the bridge published as intact.
+    intact: u64,
+    /// Of those, scans whose timestamp, geometry or values differ from what the sensor
+    /// meant to send: (why, scan timestamp as published).
+    wrong: Vec<(&'static str, u32)>,
+    noise: scip2can_host::sim::faults::LineNoiseStats,
+}
+
+/// A URG-04LX streams `MD0044072501000` (682 steps, 2134 bytes a frame) through line
+/// noise into a bridge (a replay: the engine decodes and publishes, no session); every
+/// scan the CAN side reassembles as intact is compared with the sensor's ground truth.
+fn line_noise_run(noise: scip2can_host::sim::faults::LineNoise, scans: u64, seed: u64) -> Judged {
+    use bridge::engine::Bridge;
+    use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
+    use can_wire::{Distance, IdWindow};
+    use std::collections::HashMap;
+
+    let mut s = sensor(&format!(
+        "model=urg04lx,scip11=0,scene=room,seed=3,fault_seed={seed}"
+    ));
+    s.record_truth(true);
+    let config = bridge_config();
     let mut bridge: Box<Bridge<512>> = Box::new(Bridge::new(config).expect("valid config"));
     let mut can: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
     let mut truth: HashMap<u32, scip2can_host::sim::session::ScanTruth> = HashMap::new();

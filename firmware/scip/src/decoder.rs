@@ -172,6 +172,9 @@ enum Payload {
     Time,
     /// Generic checked lines (`%ST`).
     Lines,
+    /// The echo is not a known command: an answer without payload (e.g. `RB` `00`)
+    /// ends intact, a payload line is an [`ErrorKind::UnknownEcho`].
+    Unknown,
 }
 
 /// Shape of the values of the measurement being decoded.
@@ -699,7 +702,7 @@ impl Decoder {
         let payload = match (status, self.request.map(|r| r.command)) {
             (Status::Scip11(_), _) => Payload::Ignore,
             (s, _) if !s.carries_data() => Payload::None,
-            (_, None) => return self.fail(ErrorKind::UnknownEcho(self.echo_error)),
+            (_, None) => Payload::Unknown,
             (s, Some(cmd)) => match cmd {
                 Command::Version | Command::Parameters | Command::Info => Payload::Fields,
                 Command::Time(TimeMode::Read) => Payload::Time,
@@ -732,6 +735,7 @@ impl Decoder {
     fn payload_line(&mut self, p: Payload, len: usize) -> Option<Event<'_>> {
         match p {
             Payload::None => self.fail(ErrorKind::UnexpectedPayload),
+            Payload::Unknown => self.fail(ErrorKind::UnknownEcho(self.echo_error)),
             Payload::Ignore => None,
             Payload::Fields => self.field_line(len),
             Payload::ScanTimestamp | Payload::Time => {
@@ -1767,5 +1771,14 @@ mod tests {
         stream.extend(b"QT\n00P\n\n");
         stream.extend(md_frame(0, *b"99", 100, &v));
         assert_eq!(outcomes(&stream), ["end"; 5]);
+    }
+
+    #[test]
+    fn an_unknown_command_answered_without_payload_ends_intact() {
+        // SCIP 2.2 RB (not a command of this crate) is answered 01, then 00.
+        assert_eq!(
+            outcomes(b"RB\n01Q\n\nRB\n00P\n\nXX\n00P\nabcV\n\nVV\n00P\n\n"),
+            ["end", "end", "unknown_echo", "end"]
+        );
     }
 }

@@ -22,7 +22,7 @@ pub enum ErrorKind {
         /// Column of the char in its line (0-based).
         column: u8,
     },
-    /// The echo is not a known command, yet the status announces data.
+    /// The echo is not a known command, yet payload lines follow its status.
     UnknownEcho(EchoError),
     /// The status line is neither 2 chars + sum nor a lone SCIP 1.1 char.
     BadStatusLine,
