@@ -512,7 +512,7 @@ struct Judged {
     noise: scip2can_host::sim::faults::LineNoiseStats,
 }
 
-/// A URG-04LX streams `MD0044072501000` (682 steps, 2134 bytes a frame) through line
+/// A URG-04LX streams `MD0044072501000` (682 steps, 2137 bytes a frame) through line
 /// noise into a bridge (a replay: the engine decodes and publishes, no session); every
 /// scan the CAN side reassembles as intact is compared with the sensor's ground truth.
 fn line_noise_run(noise: scip2can_host::sim::faults::LineNoise, scans: u64, seed: u64) -> Judged {
@@ -568,7 +568,13 @@ fn line_noise_run(noise: scip2can_host::sim::faults::LineNoise, scans: u64, seed
                     p.map(|p| p.distance) == Some(want)
                 });
                 if !ok {
-                    judged.wrong.push(("values", h.timestamp_ms));
+                    // Would a plausibility check (no range above the PP's DMAX, 5600 mm)
+                    // have caught it?
+                    let above = scan.points().any(
+                        |p| matches!(p.map(|p| p.distance), Some(Distance::Mm(d)) if d > 5600),
+                    );
+                    let why = if above { "values>dmax" } else { "values" };
+                    judged.wrong.push((why, h.timestamp_ms));
                 }
             }
         }
@@ -594,12 +600,41 @@ fn noise_scans(default: u64) -> u64 {
         .unwrap_or(default)
 }
 
+/// The analytic bound on the share of published scans with wrong values, for a line
+/// protected by a 6-bit sum, the value-char range check and exact lengths and counts:
+///
+/// - one error in a line is always caught: a garbled byte changes the sum unless it
+///   moves by a multiple of 64, which takes it out of the 64-wide char range; a dropped
+///   or inserted byte changes the line's length (or the value count);
+/// - a burst of `k` garbled bytes (length kept) passes the sum once in 64 and the range
+///   check with (1/4)^k: at most 1/1024;
+/// - two single errors in one line pass at worst when they are bit flips of the same bit
+///   in opposite directions (3 in 64 of flip pairs; each stays a value char), less for
+///   drops paired with inserts (1/64 × 1/4).
+///
+/// Per scan: the bursts a scan gets × their pass rate, plus the line pairs of single
+/// errors (32 data lines of 66 bytes) × 3/64.
+fn residual_bound(n: &scip2can_host::sim::faults::LineNoise, frame: f64) -> f64 {
+    let max = u32::from(n.burst_len.max(2));
+    let lens = f64::from(max - 1);
+    let burst_pass: f64 = (2..=max).map(|k| 0.25f64.powi(k as i32)).sum::<f64>() / lens / 64.0;
+    let single = n.flip + n.drop + n.insert;
+    let pairs = 32.0 * (66.0 * 65.0 / 2.0) * single * single;
+    n.burst * frame * burst_pass + pairs * 3.0 / 64.0
+}
+
 #[test]
 fn line_noise_never_publishes_a_wrong_scan_as_intact() {
     use scip2can_host::sim::faults::LineNoise;
     let scans = noise_scans(3_000);
-    for (name, noise) in [
-        ("uniform 2e-4", LineNoise::uniform(2e-4)),
+    let single = |flip, drop, insert| LineNoise {
+        flip,
+        drop,
+        insert,
+        ..LineNoise::default()
+    };
+    let runs = [
+        ("all kinds 2e-4", LineNoise::uniform(2e-4)),
         (
             "bursts 4e-4",
             LineNoise {
@@ -608,26 +643,49 @@ fn line_noise_never_publishes_a_wrong_scan_as_intact() {
                 ..LineNoise::default()
             },
         ),
-        (
-            "drop/insert 4e-4",
-            LineNoise {
-                drop: 2e-4,
-                insert: 2e-4,
-                ..LineNoise::default()
-            },
-        ),
-    ] {
+        ("flips 4e-4", single(4e-4, 0.0, 0.0)),
+        ("drops+inserts 4e-4", single(0.0, 2e-4, 2e-4)),
+    ];
+    for (name, noise) in runs {
         let j = line_noise_run(noise, scans, 11);
+        let count = |why: &str| j.wrong.iter().filter(|w| w.0 == why).count();
+        let values = count("values") + count("values>dmax");
+        let rate = values as f64 / j.intact.max(1) as f64;
+        let bound = residual_bound(&noise, 2137.0);
         println!(
-            "{name}: {} scans sent, {} published intact, {} wrong ({:?}); noise {:?}",
+            "{name}: {} scans sent, {} published intact, {} with wrong values ({} of them \
+             with a value above DMAX), {} wrong timestamp, {} wrong geometry; \
+             {rate:.2e} per published scan (bound {bound:.2e}); {:?}",
             j.sent,
             j.intact,
-            j.wrong.len(),
-            j.wrong.iter().take(8).collect::<Vec<_>>(),
+            values,
+            count("values>dmax"),
+            count("timestamp"),
+            count("geometry"),
             j.noise
         );
         assert!(j.sent >= scans);
-        assert!(j.intact > 0, "{name}: nothing got through");
+        assert!(j.intact > j.sent / 4, "{name}: too few got through");
         assert!(j.intact < j.sent, "{name}: the noise hit nothing");
+        if name.starts_with("all kinds") && scans <= 3_000 {
+            // Every kind at 2e-4 a byte (some 330 events of each kind in 3 000 scans):
+            // nothing wrong (the bound: 0.2 scans).
+            assert!(j.noise.bursts > 250 && j.noise.drops > 250, "{:?}", j.noise);
+            assert_eq!(j.wrong, [], "{name}");
+        }
+        // What the frame can check never slips through: timestamps and geometry.
+        assert_eq!(
+            count("timestamp") + count("geometry"),
+            0,
+            "{name}: {:?}",
+            j.wrong
+        );
+        // Wrong values only as often as a 6-bit sum must let them pass (the bound is
+        // an expectation: twice it, and 3 scans of slack for short runs).
+        assert!(
+            (values as f64) <= 2.0 * bound * j.intact as f64 + 3.0,
+            "{name}: {values} wrong of {} (bound {bound:.2e} a scan)",
+            j.intact
+        );
     }
 }
