@@ -510,6 +510,8 @@ struct Judged {
     /// meant to send: (why, scan timestamp as published).
     wrong: Vec<(&'static str, u32)>,
     noise: scip2can_host::sim::faults::LineNoiseStats,
+    /// Frames the decoder rejected as out of sequence.
+    out_of_sequence: u64,
 }
 
 /// A URG-04LX streams `MD0044072501000` (682 steps, 2137 bytes a frame) through line
@@ -589,6 +591,8 @@ fn line_noise_run(noise: scip2can_host::sim::faults::LineNoise, scans: u64, seed
         truth.retain(|&ts, _| ts >= old);
     }
     judged.noise = s.line_noise_stats();
+    judged.out_of_sequence =
+        u64::from(bridge.decoder().stats().by_kind[ErrorKind::OutOfSequence.index()]);
     judged
 }
 
@@ -655,13 +659,14 @@ fn line_noise_never_publishes_a_wrong_scan_as_intact() {
         println!(
             "{name}: {} scans sent, {} published intact, {} with wrong values ({} of them \
              with a value above DMAX), {} wrong timestamp, {} wrong geometry; \
-             {rate:.2e} per published scan (bound {bound:.2e}); {:?}",
+             {rate:.2e} per published scan (bound {bound:.2e}); {} out of sequence; {:?}",
             j.sent,
             j.intact,
             values,
             count("values>dmax"),
             count("timestamp"),
             count("geometry"),
+            j.out_of_sequence,
             j.noise
         );
         assert!(j.sent >= scans);
