@@ -377,3 +377,113 @@ fn scan_record_parse_and_replay() {
     );
     std::fs::remove_file(&path).unwrap();
 }
+
+/// Reads from `link` until `done(bytes so far)` or `secs` pass.
+fn read_until(
+    link: &mut SerialLink,
+    got: &mut Vec<u8>,
+    secs: u64,
+    done: impl Fn(&[u8]) -> bool,
+) -> bool {
+    use scip2can_host::sensor::link::Link;
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    let mut buf = [0u8; 4096];
+    while !done(got) {
+        if Instant::now() > deadline {
+            return false;
+        }
+        let n = link.recv(&mut buf, Duration::from_millis(50)).unwrap();
+        got.extend_from_slice(&buf[..n]);
+    }
+    true
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+#[test]
+fn pty_urg_at_19200_skips_scans_it_cannot_send_and_answers_qt_after_the_frame_on_the_wire() {
+    use scip2can_host::sensor::link::Link;
+    // 19 200 bit/s carry 1 920 bytes a second: a URG-04LX frame of MD0044072501000 (the
+    // 2 134 bytes of the recorded GD0044072501 answer, its echo 3 chars longer) takes
+    // 1.1 s, eleven 100 ms scans. Sensor time runs 4 times faster than real time.
+    let server = pty_sim("model=urg04lx,scip11=0,speed=4,scene=wall:1500,noise=0");
+    let mut link = SerialLink::open(&server.at, 19_200).unwrap();
+    link.send(b"MD0044072501000\n").unwrap();
+    let mut got = Vec::new();
+    // The ack and five frames.
+    let frames_in = |b: &[u8]| b.windows(2).filter(|w| w == b"\n\n").count();
+    assert!(
+        read_until(&mut link, &mut got, 20, |b| frames_in(b) >= 6),
+        "{} bytes",
+        got.len()
+    );
+    // Each frame whole (2 137 bytes), the scans between them skipped: the buffer (4 KiB)
+    // takes the first two frames at once, then one more each time one has gone, so the
+    // timestamps of the frames after the first two are at least 10 scans apart.
+    let mut stamps = Vec::new();
+    let mut rest = &got[..];
+    while let Some(i) = find(rest, b"\n\n") {
+        let resp = &rest[..i + 2];
+        rest = &rest[i + 2..];
+        if resp.starts_with(b"MD0044072501000\n99b\n") {
+            assert_eq!(resp.len(), 2137);
+            stamps.push(scip::value::decode(&resp[20..24]).unwrap());
+        }
+    }
+    assert!(stamps.len() >= 4, "{stamps:?}");
+    for w in stamps.windows(2).skip(1) {
+        assert!(w[1] - w[0] >= 1000, "scans not skipped: {stamps:?}");
+    }
+    // QT mid-stream: its answer follows at most the rest of the frame on the wire, and
+    // nothing follows it.
+    let mark = got.len();
+    link.send(b"QT\n").unwrap();
+    assert!(
+        read_until(&mut link, &mut got, 10, |b| find(
+            &b[mark..],
+            b"QT\n00P\n\n"
+        )
+        .is_some()),
+        "no QT answer"
+    );
+    let at = mark + find(&got[mark..], b"QT\n00P\n\n").unwrap();
+    assert!(
+        at - mark <= 2137,
+        "{} bytes before the QT answer",
+        at - mark
+    );
+    let end = at + b"QT\n00P\n\n".len();
+    read_until(&mut link, &mut got, 1, |_| false);
+    assert_eq!(got.len(), end, "{:?}", String::from_utf8_lossy(&got[end..]));
+}
+
+#[test]
+fn tcp_ust_reboots_on_a_confirmed_rb_and_drops_the_connection() {
+    let server = tcp_sim("model=ust10lx,speed=10");
+    let mut c = tcp_client(&server);
+    // SCIP 2.2: 01 asks for confirmation, a second RB within a second gets 00.
+    assert_eq!(ask(&mut c, "RB").status_str(), "01");
+    let md = ask(&mut c, "MD0000108001000");
+    assert_eq!(md.status_str(), "00", "{md:?}");
+    let rb = ask(&mut c, "RB");
+    assert_eq!(rb.status_str(), "00", "{rb:?}");
+    // Then the sensor reboots: the connection ends.
+    let deadline = Instant::now() + TIMEOUT;
+    let closed = loop {
+        match c.next_response(Duration::from_millis(100)) {
+            Err(_) => break true,
+            Ok(_) if Instant::now() > deadline => break false,
+            Ok(_) => {}
+        }
+    };
+    assert!(closed, "the connection stayed up");
+    // Back after the boot: idle, laser off, and a lone RB starts a new pair.
+    std::thread::sleep(Duration::from_millis(100));
+    let mut c = tcp_client(&server);
+    check_statuses(
+        &mut c,
+        &[("%ST", "00"), ("GD0000108001", "10"), ("RB", "01")],
+    );
+}

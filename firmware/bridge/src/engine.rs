@@ -223,6 +223,7 @@ impl<const Q: usize> Bridge<Q> {
     /// Starts the sensor session. The extended sensor clock and any time sync start
     /// over (the sensor may have restarted while the bridge was not streaming).
     pub fn start(&mut self, now_ms: u64) {
+        self.decoder.forget_stream();
         self.core.start_session(now_ms);
     }
 

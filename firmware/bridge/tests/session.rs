@@ -91,7 +91,10 @@ fn frame(scan: &ScanRequest, status: [u8; 2]) -> Vec<u8> {
     w.echo(&Request::new(Command::Scan(*scan)));
     w.status(status);
     if status == *b"99" || status == *b"0M" {
-        w.timestamp(1000);
+        // Each frame a scan (25 ms) later than the one before: the decoder rejects a
+        // stream frame whose timestamp does not move on.
+        static CLOCK: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(1000);
+        w.timestamp(CLOCK.fetch_add(25, std::sync::atomic::Ordering::Relaxed));
         for _ in 0..scan.value_count() {
             w.step(1000, 0);
         }

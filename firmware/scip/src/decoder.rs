@@ -30,6 +30,11 @@ pub const DATA_CHARS: usize = 64;
 pub const MAX_READINGS: usize = DATA_CHARS / 2 + 1;
 /// Most echoes per step in a multi-echo response.
 pub const MAX_ECHOES: u8 = 3;
+/// The largest timestamp step from one intact stream frame to the next that passes the
+/// sequence check ([`ErrorKind::OutOfSequence`]), ms: ten skipped scans of the slowest
+/// model at its lowest speed, with room for frames lost in between. A longer gap costs
+/// one good frame (the next one is checked against nothing).
+pub const STREAM_GAP_MAX_MS: u32 = 10_000;
 
 /// One decoded step value (or one extra echo of a step).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -167,9 +172,11 @@ enum Payload {
     Time,
     /// Generic checked lines (`%ST`).
     Lines,
-    /// The echo did not parse, yet the status announces a payload: its status is
-    /// reported (a `99` tells a stream frame from an info answer's `00`), then the
-    /// response fails with [`ErrorKind::UnknownEcho`] at its first payload line or end.
+    /// The echo did not parse: its status is reported (a `99` tells a stream frame from
+    /// an info answer's `00`), then a payload line fails the response with
+    /// [`ErrorKind::UnknownEcho`], and so does its end when the echo is damaged; an
+    /// answer without payload to a command of two capital letters (e.g. SCIP 2.2's `RB`
+    /// `00`) ends intact.
     Unknown,
 }
 
@@ -202,6 +209,9 @@ pub struct Decoder {
     // The response being decoded.
     request: Option<Request>,
     echo_error: EchoError,
+    /// The echo that did not parse names a command all the same (capital letters): an
+    /// answer without payload to it ends intact.
+    echo_plain: bool,
     status: Status,
     line_no: u16,
     shape: Shape,
@@ -221,6 +231,11 @@ pub struct Decoder {
     /// Every reading slot has echo 0 and aux 0 (see [`Self::decode_steps`]).
     readings_plain: bool,
     n_readings: usize,
+    /// The last intact frame of a continuous stream (its echo's request, the count =
+    /// scans remaining, and its timestamp): the next frame must follow it.
+    last_frame: Option<(ScanRequest, u32)>,
+    /// The stream frame being decoded, once its timestamp passed the sequence check.
+    this_frame: Option<(ScanRequest, u32)>,
     // What the decoder learned of the sensor.
     params: SensorParams,
     pp: SensorParams,
@@ -255,6 +270,7 @@ impl Decoder {
             skip_checks_sums: false,
             request: None,
             echo_error: EchoError::UnknownCommand,
+            echo_plain: false,
             status: Status::OK,
             line_no: 0,
             shape: Shape {
@@ -283,6 +299,8 @@ impl Decoder {
             }; MAX_READINGS],
             readings_plain: true,
             n_readings: 0,
+            last_frame: None,
+            this_frame: None,
             params: EMPTY,
             pp: EMPTY,
             limits: RangeLimits {
@@ -345,6 +363,13 @@ impl Decoder {
     /// remaining lines skipped). A partial next line may be buffered.
     pub fn between_responses(&self) -> bool {
         self.state == State::Idle
+    }
+
+    /// Forgets the stream frames seen so far: the next frame is not checked against them
+    /// (a new session, whose sensor may have restarted its clock).
+    pub fn forget_stream(&mut self) {
+        self.last_frame = None;
+        self.this_frame = None;
     }
 
     /// Drops any partial line and response: the next byte starts a new line between
@@ -647,6 +672,10 @@ impl Decoder {
             Err(e) => {
                 self.request = None;
                 self.echo_error = e;
+                // A command of another SCIP version (two capital letters, e.g. `RB`),
+                // not a damaged echo.
+                self.echo_plain =
+                    matches!(echo, [a, b, ..] if a.is_ascii_uppercase() && b.is_ascii_uppercase());
             }
         }
         self.line_no = 0;
@@ -660,6 +689,7 @@ impl Decoder {
         self.next_is_echo = false;
         self.echo_no = 0;
         self.short_line_seen = false;
+        self.this_frame = None;
         self.pp = SensorParams::default();
     }
 
@@ -737,6 +767,9 @@ impl Decoder {
                 let Some(ts) = crate::value::decode(t) else {
                     return self.fail(ErrorKind::BadChar { column: 0 });
                 };
+                if p == Payload::ScanTimestamp && !self.frame_in_sequence(ts) {
+                    return self.fail(ErrorKind::OutOfSequence);
+                }
                 self.timestamp = Some(ts);
                 self.state = State::Payload(if p == Payload::Time {
                     Payload::None
@@ -1078,21 +1111,67 @@ impl Decoder {
         Ok(self.shape.dist_width)
     }
 
+    /// The sequence check of a stream frame with timestamp `ts` against the last intact
+    /// frame of the same stream: a later timestamp (24-bit wrap allowed, at most
+    /// [`STREAM_GAP_MAX_MS`] on) and a remaining-scans count that went down (or stays
+    /// `00` for an endless stream). A frame that fails clears the reference, so that
+    /// one bad frame cannot hold up the ones after it.
+    fn frame_in_sequence(&mut self, ts: u32) -> bool {
+        let Some(Command::Scan(scan)) = self.request.map(|r| r.command) else {
+            return true;
+        };
+        if scan.mode != ScanMode::Continuous {
+            return true;
+        }
+        let ok = match self.last_frame {
+            Some((prev, prev_ts))
+                if ScanRequest { count: 0, ..prev } == ScanRequest { count: 0, ..scan } =>
+            {
+                let gap = ts.wrapping_sub(prev_ts) & 0x00FF_FFFF;
+                let counted = if prev.count == 0 {
+                    scan.count == 0
+                } else {
+                    scan.count < prev.count
+                };
+                counted && gap != 0 && gap <= STREAM_GAP_MAX_MS
+            }
+            _ => true,
+        };
+        if ok {
+            self.this_frame = Some((scan, ts));
+        } else {
+            self.last_frame = None;
+        }
+        ok
+    }
+
+    /// A measurement that ended wrong: reported, and the response is over (the empty
+    /// line that ended it has been read, so nothing is left to skip).
+    fn fail_at_end(&mut self, kind: ErrorKind) -> Option<Event<'static>> {
+        let ev = self.fail(kind);
+        self.state = State::Idle;
+        ev
+    }
+
     fn end_response(&mut self) -> Option<Event<'_>> {
-        if self.state == State::Payload(Payload::Unknown) {
+        if self.state == State::Payload(Payload::Unknown) && !self.echo_plain {
+            // A damaged echo: the answer's kind is unknown, it cannot end intact.
             return self.fail(ErrorKind::UnknownEcho(self.echo_error));
         }
         if let State::Payload(p @ (Payload::ScanTimestamp | Payload::Data)) = self.state {
             if self.carry_n != 0 || self.in_aux || self.next_is_echo {
-                return self.fail(ErrorKind::TruncatedValue);
+                return self.fail_at_end(ErrorKind::TruncatedValue);
             }
             if p == Payload::ScanTimestamp || self.values != self.shape.expected {
-                return self.fail(ErrorKind::CountMismatch {
+                return self.fail_at_end(ErrorKind::CountMismatch {
                     expected: self.shape.expected,
                     found: self.values,
                 });
             }
         }
+        // An intact frame is the next one's reference; any other intact answer (an
+        // ack, QT, RS ...) ends the stream it would belong to.
+        self.last_frame = self.this_frame.take();
         if matches!(self.state, State::Payload(Payload::Fields))
             && matches!(self.request.map(|r| r.command), Some(Command::Parameters))
         {
@@ -1657,6 +1736,106 @@ mod tests {
             log.iter()
                 .any(|l| l.contains("TooManyValues { expected: 5 }")),
             "{log:?}"
+        );
+    }
+
+    /// A frame of the stream `MD0000000101cc` (two steps, 1000 and 1001 mm), with
+    /// `count` scans remaining, status `status`, timestamp `ts`.
+    fn md_frame(count: u8, status: [u8; 2], ts: u32, values: &[u32]) -> Vec<u8> {
+        let request = Request::new(Command::Scan(ScanRequest {
+            count,
+            ..ScanRequest::distance(ScanMode::Continuous, 0, 1)
+        }));
+        let mut out = Vec::new();
+        let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+        w.echo(&request);
+        w.status(status);
+        if status != *b"00" {
+            w.timestamp(ts);
+            for &d in values {
+                w.step(d, 0);
+            }
+        }
+        w.end();
+        out
+    }
+
+    /// What each response of `stream` came to: `end` or the error's name.
+    fn outcomes(stream: &[u8]) -> Vec<&'static str> {
+        let mut dec = Decoder::new();
+        let mut out = Vec::new();
+        let mut rest = stream;
+        while !rest.is_empty() {
+            let (used, ev) = dec.feed(rest);
+            rest = &rest[used..];
+            match ev {
+                Some(Event::End(_)) => out.push("end"),
+                Some(Event::Error(e)) => out.push(e.kind.name()),
+                _ => {}
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn stream_frames_must_count_down_and_move_on_in_time() {
+        let v = [1000, 1001];
+        let frames: Vec<(Vec<u8>, &str)> = vec![
+            (md_frame(5, *b"00", 0, &v), "end"),
+            (md_frame(4, *b"99", 100, &v), "end"),
+            (md_frame(3, *b"99", 200, &v), "end"),
+            // The count did not go down.
+            (md_frame(3, *b"99", 300, &v), "out_of_sequence"),
+            // Checked against nothing after a failure.
+            (md_frame(2, *b"99", 400, &v), "end"),
+            // Back in time.
+            (md_frame(1, *b"99", 350, &v), "out_of_sequence"),
+            (md_frame(0, *b"99", 500, &v), "end"),
+            // A new endless stream: its ack starts over.
+            (md_frame(0, *b"00", 0, &v), "end"),
+            (md_frame(0, *b"99", 0xFF_FFF0, &v), "end"),
+            // The 24-bit clock wraps.
+            (md_frame(0, *b"99", 0x10, &v), "end"),
+            // Same time twice.
+            (md_frame(0, *b"99", 0x10, &v), "out_of_sequence"),
+            (md_frame(0, *b"99", 0x20, &v), "end"),
+            // More than STREAM_GAP_MAX_MS on.
+            (md_frame(0, *b"99", 0x20 + 10_001, &v), "out_of_sequence"),
+            (md_frame(0, *b"99", 0x30 + 10_001, &v), "end"),
+            // An endless stream does not count.
+            (md_frame(7, *b"99", 0x40 + 10_001, &v), "out_of_sequence"),
+            // A damaged frame (one value short) is no reference, and the frame after it
+            // is decoded (the failure at the response's end skips nothing more).
+            (
+                md_frame(0, *b"99", 0x50 + 10_001, &v[..1]),
+                "count_mismatch",
+            ),
+            (md_frame(0, *b"99", 0x60 + 10_001, &v), "end"),
+        ];
+        let stream: Vec<u8> = frames.iter().flat_map(|f| f.0.clone()).collect();
+        let want: Vec<&str> = frames.iter().map(|f| f.1).collect();
+        assert_eq!(outcomes(&stream), want);
+    }
+
+    #[test]
+    fn single_scans_and_other_streams_are_not_sequenced() {
+        // A G* answer between frames, and frames of another request, are not checked
+        // against the stream; a QT answer ends it.
+        let v = [1000, 1001];
+        let mut stream = md_frame(0, *b"99", 500, &v);
+        stream.extend(b"GD0000000101\n00P\n00000\n0?X0?Y?\n\n");
+        stream.extend(md_frame(0, *b"99", 600, &v));
+        stream.extend(b"QT\n00P\n\n");
+        stream.extend(md_frame(0, *b"99", 100, &v));
+        assert_eq!(outcomes(&stream), ["end"; 5]);
+    }
+
+    #[test]
+    fn an_unknown_command_answered_without_payload_ends_intact() {
+        // SCIP 2.2 RB (not a command of this crate) is answered 01, then 00.
+        assert_eq!(
+            outcomes(b"RB\n01Q\n\nRB\n00P\n\nXX\n00P\nabcV\n\nVV\n00P\n\n"),
+            ["end", "end", "unknown_echo", "end"]
         );
     }
 }

@@ -22,7 +22,7 @@ pub enum ErrorKind {
         /// Column of the char in its line (0-based).
         column: u8,
     },
-    /// The echo is not a known command, yet the status announces data.
+    /// The echo is not a known command, yet payload lines follow its status.
     UnknownEcho(EchoError),
     /// The status line is neither 2 chars + sum nor a lone SCIP 1.1 char.
     BadStatusLine,
@@ -56,11 +56,16 @@ pub enum ErrorKind {
     UnexpectedPayload,
     /// The stream ended inside a response.
     Truncated,
+    /// A stream frame that cannot follow the one before it: its timestamp is not later
+    /// (by at most [`crate::decoder::STREAM_GAP_MAX_MS`]) or its remaining-scans count
+    /// did not count down. Echoes carry no sum, and a timestamp passes its 6-bit sum
+    /// by chance once in 64 corruptions: this catches what slips through.
+    OutOfSequence,
 }
 
 impl ErrorKind {
     /// Number of kinds, for counter arrays.
-    pub const COUNT: usize = 16;
+    pub const COUNT: usize = 17;
 
     /// A dense index `0..COUNT`, for counters.
     pub const fn index(&self) -> usize {
@@ -81,6 +86,7 @@ impl ErrorKind {
             Self::CountMismatch { .. } => 13,
             Self::UnexpectedPayload => 14,
             Self::Truncated => 15,
+            Self::OutOfSequence => 16,
         }
     }
 
@@ -103,6 +109,7 @@ impl ErrorKind {
             Self::CountMismatch { .. } => "count_mismatch",
             Self::UnexpectedPayload => "unexpected_payload",
             Self::Truncated => "truncated",
+            Self::OutOfSequence => "out_of_sequence",
         }
     }
 }

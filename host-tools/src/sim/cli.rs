@@ -24,7 +24,8 @@ pub struct SimArgs {
     /// Serve standard input and output instead.
     #[arg(long)]
     pub stdio: bool,
-    /// On a pty, write as fast as possible instead of at the sensor's bit rate.
+    /// On a pty, write as fast as possible instead of at the sensor's bit rate (through
+    /// its bounded transmit buffer, skipping the scans the line cannot carry).
     #[arg(long)]
     pub no_pace: bool,
 }

@@ -20,6 +20,14 @@
 //!   frame and boots again (URG-04LX comes back in SCIP 1.1, the clock restarts at 0).
 //!
 //! Rates are per response: the chance that one response gets that fault.
+//!
+//! **Line noise** ([`LineNoise`]) is the other model, and the realistic one: errors hit
+//! every byte the sensor sends (echoes, statuses, payload, line ends) at given rates per
+//! byte, as a noisy serial line does — bit flips, dropped bytes, inserted bytes and
+//! bursts of garbled bytes — whether or not any check of the receiver can catch them.
+//! Nothing is filtered and nothing is logged per event (only counted, see
+//! [`LineNoiseStats`]): what the receiver makes of the damage is judged against the
+//! sensor's ground truth ([`crate::sim::session::ScanTruth`]).
 
 use scip::checksum;
 
@@ -42,6 +50,59 @@ pub struct FaultConfig {
     pub reboot_at_frame: Option<u64>,
     /// Seed of the fault draws (independent of the scene's noise).
     pub seed: u64,
+    /// Line noise on every byte sent.
+    pub line: LineNoise,
+}
+
+/// Errors of a noisy line, each a chance per byte sent.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct LineNoise {
+    /// One bit of the byte flipped.
+    pub flip: f64,
+    /// The byte lost.
+    pub drop: f64,
+    /// A random byte inserted before it.
+    pub insert: f64,
+    /// A burst starts at the byte: 2..=`burst_len` bytes each replaced by another,
+    /// random byte.
+    pub burst: f64,
+    /// The longest burst, bytes (at least 2).
+    pub burst_len: u8,
+}
+
+impl LineNoise {
+    /// Every kind at `ber / 4` per byte: `ber` is the chance that a byte starts an error
+    /// event. Bursts up to 8 bytes.
+    pub fn uniform(ber: f64) -> Self {
+        let r = ber / 4.0;
+        Self {
+            flip: r,
+            drop: r,
+            insert: r,
+            burst: r,
+            burst_len: 8,
+        }
+    }
+
+    /// The chance per byte of any event.
+    pub fn rate(&self) -> f64 {
+        self.flip.max(0.0) + self.drop.max(0.0) + self.insert.max(0.0) + self.burst.max(0.0)
+    }
+}
+
+/// What line noise did so far.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LineNoiseStats {
+    /// Bytes that went through the line.
+    pub bytes: u64,
+    /// Bits flipped (one per event).
+    pub flips: u64,
+    /// Bytes dropped.
+    pub drops: u64,
+    /// Bytes inserted.
+    pub inserts: u64,
+    /// Bursts.
+    pub bursts: u64,
 }
 
 impl FaultConfig {
@@ -53,6 +114,7 @@ impl FaultConfig {
             && self.stall <= 0.0
             && self.hardware <= 0.0
             && self.reboot_at_frame.is_none()
+            && self.line.rate() <= 0.0
     }
 }
 
@@ -125,6 +187,11 @@ pub struct Faults {
     cfg: FaultConfig,
     rng: fastrand::Rng,
     log: Vec<FaultRecord>,
+    /// Line noise draws apart from the others, so that they do not shift them.
+    line_rng: fastrand::Rng,
+    /// Bytes still clean before the next line-noise event.
+    line_gap: u64,
+    line_stats: LineNoiseStats,
 }
 
 /// Line ranges (start, end without LF) of a response's bytes.
@@ -162,11 +229,85 @@ fn line_error(line: &[u8]) -> Option<&'static str> {
 impl Faults {
     /// An injector for `cfg`.
     pub fn new(cfg: FaultConfig) -> Self {
-        Self {
+        let mut f = Self {
             cfg,
             rng: fastrand::Rng::with_seed(cfg.seed ^ 0xFA17_5EED),
             log: Vec::new(),
+            line_rng: fastrand::Rng::with_seed(cfg.seed ^ 0x11AE_5EED),
+            line_gap: 0,
+            line_stats: LineNoiseStats::default(),
+        };
+        f.line_gap = f.draw_gap();
+        f
+    }
+
+    /// Replaces the line noise from now on.
+    pub fn set_line_noise(&mut self, noise: LineNoise) {
+        self.cfg.line = noise;
+        self.line_gap = self.draw_gap();
+    }
+
+    /// Line noise so far.
+    pub fn line_stats(&self) -> &LineNoiseStats {
+        &self.line_stats
+    }
+
+    /// Clean bytes before the next line-noise event: geometric with the total rate.
+    fn draw_gap(&mut self) -> u64 {
+        let p = self.cfg.line.rate();
+        if p <= 0.0 {
+            return u64::MAX;
         }
+        if p >= 1.0 {
+            return 0;
+        }
+        let u = 1.0 - self.line_rng.f64(); // (0, 1]
+        (u.ln() / (1.0 - p).ln()).floor().min(u64::MAX as f64 / 2.0) as u64
+    }
+
+    /// Sends `bytes` through the noisy line: returns what arrives.
+    pub fn line(&mut self, bytes: Vec<u8>) -> Vec<u8> {
+        let n = self.cfg.line;
+        self.line_stats.bytes += bytes.len() as u64;
+        if n.rate() <= 0.0 || self.line_gap >= bytes.len() as u64 {
+            self.line_gap = self.line_gap.saturating_sub(bytes.len() as u64);
+            return bytes;
+        }
+        let mut out = Vec::with_capacity(bytes.len() + 8);
+        let mut i = 0usize;
+        while i < bytes.len() {
+            let clean = usize::try_from(self.line_gap).unwrap_or(usize::MAX);
+            let end = i.saturating_add(clean).min(bytes.len());
+            out.extend_from_slice(bytes.get(i..end).unwrap_or(&[]));
+            self.line_gap -= (end - i) as u64;
+            i = end;
+            let Some(&b) = bytes.get(i) else {
+                break;
+            };
+            // An event at byte i: which kind, by weight.
+            let x = self.line_rng.f64() * n.rate();
+            if x < n.flip {
+                out.push(b ^ (1 << self.line_rng.u8(0..8)));
+                self.line_stats.flips += 1;
+                i += 1;
+            } else if x < n.flip + n.drop {
+                self.line_stats.drops += 1;
+                i += 1;
+            } else if x < n.flip + n.drop + n.insert {
+                out.push(self.line_rng.u8(..));
+                self.line_stats.inserts += 1;
+                // The byte itself comes next, with a gap of its own.
+            } else {
+                let len = usize::from(self.line_rng.u8(2..=n.burst_len.max(2)));
+                for &c in bytes.get(i..(i + len).min(bytes.len())).unwrap_or(&[]) {
+                    out.push(c ^ self.line_rng.u8(1..));
+                }
+                self.line_stats.bursts += 1;
+                i = (i + len).min(bytes.len());
+            }
+            self.line_gap = self.draw_gap();
+        }
+        out
     }
 
     /// The configuration.
@@ -422,5 +563,37 @@ mod tests {
         assert_eq!(f.stall(0, 0, 0), 0);
         assert!(f.log().is_empty());
         assert!(FaultConfig::default().is_none());
+    }
+
+    #[test]
+    fn line_noise_hits_every_kind_of_byte_at_its_rate() {
+        let mut f = Faults::new(FaultConfig {
+            line: LineNoise::uniform(0.01),
+            seed: 9,
+            ..Default::default()
+        });
+        let clean: Vec<u8> = FRAME.repeat(2000);
+        let mut damaged_lf = 0;
+        let mut got = Vec::new();
+        for chunk in clean.chunks(FRAME.len()) {
+            let out = f.line(chunk.to_vec());
+            damaged_lf += usize::from(out.iter().filter(|&&b| b == b'\n').count() != 5);
+            got.extend(out);
+        }
+        let st = *f.line_stats();
+        assert_eq!(st.bytes, clean.len() as u64);
+        // 0.25 % each of 142 000 bytes: about 355 events of each kind.
+        for n in [st.flips, st.drops, st.inserts, st.bursts] {
+            assert!((280..430).contains(&n), "{st:?}");
+        }
+        assert_eq!(
+            got.len() as i64 - clean.len() as i64,
+            st.inserts as i64 - st.drops as i64
+        );
+        // Line ends are hit like any byte (nothing is filtered).
+        assert!(damaged_lf > 50, "{damaged_lf}");
+        // No noise: the bytes pass untouched.
+        let mut quiet = Faults::new(FaultConfig::default());
+        assert_eq!(quiet.line(FRAME.to_vec()), FRAME);
     }
 }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{anyhow, bail, Context};
 
-use super::faults::FaultConfig;
+use super::faults::{FaultConfig, LineNoise};
 use super::measure::{SceneSource, Source};
 use super::model::{Model, ModelKind, Noise};
 use super::replay::{Recording, ReplaySource};
@@ -91,6 +91,11 @@ pub struct SimOptions {
     /// Seed of the fault draws.
     #[arg(long, default_value_t = 1)]
     pub fault_seed: u64,
+    /// Line noise: chance per byte sent of an error event (bit flip, dropped byte,
+    /// inserted byte or a burst of up to 8 garbled bytes, a quarter each), on every byte,
+    /// caught by a sum or not.
+    #[arg(long, default_value_t = 0.0)]
+    pub ber: f64,
 }
 
 fn parse_model(s: &str) -> Result<ModelKind, String> {
@@ -119,6 +124,7 @@ impl Default for SimOptions {
             hwfault: 0.0,
             reboot_at: None,
             fault_seed: 1,
+            ber: 0.0,
         }
     }
 }
@@ -155,11 +161,15 @@ impl SimOptions {
                 "hwfault" => o.hwfault = num(v)?,
                 "reboot_at" => o.reboot_at = Some(int(v)?),
                 "fault_seed" => o.fault_seed = int(v)?,
+                "ber" => o.ber = num(v)?,
                 _ => bail!("unknown sim option {k:?}"),
             }
         }
         if o.speed.is_nan() || o.speed <= 0.0 {
             bail!("speed must be > 0");
+        }
+        if !(0.0..=1.0).contains(&o.ber) {
+            bail!("ber must be a chance per byte, 0..=1");
         }
         Ok(o)
     }
@@ -175,6 +185,7 @@ impl SimOptions {
             hardware: self.hwfault,
             reboot_at_frame: self.reboot_at,
             seed: self.fault_seed,
+            line: LineNoise::uniform(self.ber),
         }
     }
 

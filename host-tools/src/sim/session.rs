@@ -19,6 +19,11 @@
 //!   (04 outside adjust mode), TM2 leaves (03 if already out).
 //! - Statuses of bad commands: see [`Sensor::malformed_status`] and the checks in the
 //!   command handlers below.
+//! - SCIP 2.2 `RB`: `01` first; a second `RB` within a second is answered `00` and the
+//!   sensor reboots (SCIP 2.0 models answer `0E`).
+//! - Paced ([`Sensor::set_paced`], serial links): output leaves at the bit rate through
+//!   a [`TX_CAP`]-byte transmit buffer; frames that do not fit are skipped, and QT drops
+//!   the frames not yet begun. Unpaced, everything is due when made (USB, Ethernet).
 
 use std::collections::VecDeque;
 
@@ -34,6 +39,33 @@ use super::model::{LinkKind, Model};
 const LINE_MAX: usize = 64;
 /// Time a reboot takes, µs.
 const BOOT_US: u64 = 500_000;
+/// The transmit buffer of a paced sensor, bytes: a stream frame that does not fit
+/// behind what is still waiting is skipped (a frame larger than the whole buffer is
+/// taken only when the buffer is empty).
+pub const TX_CAP: usize = 4096;
+/// Bytes a paced sensor hands to its UART at once (its FIFO).
+const TX_FIFO: u64 = 32;
+/// SCIP 2.2 `RB`: the second `RB` must follow the first within this time, µs.
+const RB_WINDOW_US: u64 = 1_000_000;
+
+/// What the sensor meant to send for one scan, before any fault: the ground truth a
+/// receiver's output is judged against.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ScanTruth {
+    /// Scan number of the sensor's scan clock.
+    pub scan: u64,
+    /// The request as echoed (for a stream frame: the count = scans remaining).
+    pub request: ScanRequest,
+    /// The status sent (`99` for stream frames, `00` for G* answers).
+    pub status: [u8; 2],
+    /// The scan's timestamp, 24-bit ms.
+    pub timestamp: u32,
+    /// Per value (step or cluster), its first echo: (distance or error code, second
+    /// value; 0 without one).
+    pub values: Vec<Value>,
+    /// Extra echoes of multi-echo scans: (value index, echo number 1.., value).
+    pub extra: Vec<(u16, u8, Value)>,
+}
 
 /// An M*/N* stream in progress.
 #[derive(Debug, Clone, Copy)]
@@ -57,6 +89,10 @@ enum After {
 struct Pending {
     at: u64,
     bytes: Vec<u8>,
+    /// Bytes of it already on the wire.
+    sent: usize,
+    /// A stream frame (dropped on QT while none of it has left).
+    frame: bool,
     after: Option<After>,
 }
 
@@ -81,12 +117,24 @@ pub struct Sensor {
     epoch_scan: u64,
     stream: Option<Stream>,
     booting_until: u64,
+    /// When the first `RB` of a pair was answered (SCIP 2.2).
+    reboot_armed_at: Option<u64>,
+    /// Reboots on request since the last [`Sensor::take_rebooted`].
+    rebooted: bool,
     line: Vec<u8>,
     queue: VecDeque<Pending>,
+    /// Output leaves at the bit rate through a bounded buffer ([`Sensor::set_paced`]).
+    paced: bool,
+    /// When the wire is done with the bytes handed out so far, ns.
+    wire_free_ns: u64,
+    /// Stream frames skipped for want of room in the transmit buffer.
+    skipped_frames: u64,
     responses: u64,
     frames: u64,
     values: Vec<Value>,
     faults_seen: usize,
+    /// Ground truth of the scans written, when asked for ([`Sensor::record_truth`]).
+    truth: Option<Vec<ScanTruth>>,
 }
 
 impl core::fmt::Debug for Sensor {
@@ -130,12 +178,18 @@ impl Sensor {
             epoch_scan: 0,
             stream: None,
             booting_until: 0,
+            reboot_armed_at: None,
+            rebooted: false,
             line: Vec::new(),
             queue: VecDeque::new(),
+            paced: false,
+            wire_free_ns: 0,
+            skipped_frames: 0,
             responses: 0,
             frames: 0,
             values: Vec::new(),
             faults_seen: 0,
+            truth: None,
         };
         s.power_on(0, false);
         s.timer_offset_ms = i64::from(clock_start_ms);
@@ -158,6 +212,64 @@ impl Sensor {
         let new = log.get(self.faults_seen..).unwrap_or(&[]);
         self.faults_seen = log.len();
         new
+    }
+
+    /// Makes output leave as it does on a serial line (models with a bit rate): no
+    /// faster than the bit rate (10 bits a byte, handed out 32 bytes at a time), through
+    /// a transmit buffer of [`TX_CAP`] bytes. A stream frame that does not fit is skipped
+    /// (its scan is not sent; the remaining count of a counted stream does not drop), and
+    /// QT, RS, RT and `%SL` drop the frames not yet begun, so that their answer follows
+    /// at most the frame on the wire. Off (the default), output is due as soon as it is
+    /// made, as on USB and Ethernet.
+    pub fn set_paced(&mut self, on: bool) {
+        self.paced = on;
+    }
+
+    /// Bytes made but not yet on the wire.
+    pub fn tx_backlog(&self) -> usize {
+        self.queue
+            .iter()
+            .map(|p| p.bytes.len().saturating_sub(p.sent))
+            .sum()
+    }
+
+    /// Stream frames skipped for want of room in the transmit buffer.
+    pub fn skipped_frames(&self) -> u64 {
+        self.skipped_frames
+    }
+
+    /// ns a byte takes on the wire, when output is paced.
+    fn byte_ns(&self) -> Option<u64> {
+        let rate = self.bit_rate.filter(|_| self.paced)?;
+        Some(10_000_000_000 / u64::from(rate.max(1)))
+    }
+
+    /// Drops the stream frames none of whose bytes has left (paced output only).
+    fn drop_unsent_frames(&mut self) {
+        if self.byte_ns().is_some() {
+            self.queue.retain(|p| !p.frame || p.sent > 0);
+        }
+    }
+
+    /// Starts (or stops) keeping the ground truth of every scan written, for
+    /// [`Sensor::take_truth`].
+    pub fn record_truth(&mut self, on: bool) {
+        self.truth = on.then(Vec::new);
+    }
+
+    /// The ground truth of the scans written since the last call, oldest first.
+    pub fn take_truth(&mut self) -> Vec<ScanTruth> {
+        self.truth.as_mut().map(core::mem::take).unwrap_or_default()
+    }
+
+    /// Replaces the line noise from now on (e.g. after a clean start-up exchange).
+    pub fn set_line_noise(&mut self, noise: super::faults::LineNoise) {
+        self.faults.set_line_noise(noise);
+    }
+
+    /// What line noise did so far.
+    pub fn line_noise_stats(&self) -> super::faults::LineNoiseStats {
+        *self.faults.line_stats()
     }
 
     /// The current bit rate (serial and USB models), changed by SS after its answer.
@@ -200,6 +312,7 @@ impl Sensor {
         self.high_sensitivity = false;
         self.stream = None;
         self.line.clear();
+        self.reboot_armed_at = None;
         self.speed_step = 0;
         self.set_rpm(now, self.model.scan_rpm);
         self.bit_rate = self.model.default_bit_rate();
@@ -272,7 +385,10 @@ impl Sensor {
         let frame = self
             .stream
             .map(|s| self.scan_start(s.next_scan) + self.scan_period_us());
-        let out = self.queue.front().map(|p| p.at);
+        let out = self.queue.front().map(|p| match self.byte_ns() {
+            Some(_) => p.at.max(self.wire_free_ns.div_ceil(1000)),
+            None => p.at,
+        });
         match (frame, out) {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),
@@ -284,13 +400,36 @@ impl Sensor {
         self.poll(now);
         let mut out = Vec::new();
         while self.queue.front().is_some_and(|p| p.at <= now) {
-            let Some(p) = self.queue.pop_front() else {
+            let byte_ns = self.byte_ns();
+            let Some(p) = self.queue.front_mut() else {
                 break;
             };
-            out.extend_from_slice(&p.bytes);
+            let left = p.bytes.len().saturating_sub(p.sent);
+            let n = match byte_ns {
+                None => left,
+                Some(byte_ns) => {
+                    // The wire takes the next bytes once it is free: those that start by
+                    // now, and at least a FIFO's worth.
+                    let start = self.wire_free_ns.max(p.at * 1000);
+                    let now_ns = now * 1000;
+                    if start > now_ns {
+                        break;
+                    }
+                    let fit = ((now_ns - start) / byte_ns + 1).max(TX_FIFO);
+                    let n = usize::try_from(fit).unwrap_or(usize::MAX).min(left);
+                    self.wire_free_ns = start + n as u64 * byte_ns;
+                    n
+                }
+            };
+            out.extend_from_slice(p.bytes.get(p.sent..p.sent + n).unwrap_or(&[]));
+            p.sent += n;
+            if p.sent < p.bytes.len() {
+                break;
+            }
             if let Some(After::BitRate(r)) = p.after {
                 self.bit_rate = Some(r);
             }
+            self.queue.pop_front();
         }
         out
     }
@@ -298,7 +437,14 @@ impl Sensor {
     fn push(&mut self, at: u64, bytes: Vec<u8>, after: Option<After>) {
         // Responses leave in order: none before the one ahead of it.
         let at = self.queue.back().map_or(at, |p| p.at.max(at));
-        self.queue.push_back(Pending { at, bytes, after });
+        let bytes = self.faults.line(bytes);
+        self.queue.push_back(Pending {
+            at,
+            bytes,
+            sent: 0,
+            frame: false,
+            after,
+        });
         self.responses += 1;
     }
 
@@ -328,6 +474,13 @@ impl Sensor {
             return;
         }
         let raw = RawRequest::split(line);
+        if self.model.scip22
+            && raw.code == b"RB"
+            && raw.params.is_empty()
+            && raw.check_tag().is_ok()
+        {
+            return self.reboot_cmd(now, line);
+        }
         if let Err(e) = raw.check_tag() {
             let status = if e == scip::EncodeError::TagTooLong {
                 *b"0G"
@@ -431,6 +584,7 @@ impl Sensor {
                 self.simple(now, line, status);
             }
             Command::LaserOff => {
+                self.drop_unsent_frames();
                 self.stream = None;
                 self.laser = false;
                 self.simple(now, line, *b"00");
@@ -438,6 +592,7 @@ impl Sensor {
             Command::Reset | Command::PartialReset => {
                 let keep = req.command == Command::PartialReset;
                 let (rate, step, rpm) = (self.bit_rate, self.speed_step, self.rpm);
+                self.drop_unsent_frames();
                 self.simple(now, line, *b"00");
                 self.stream = None;
                 self.laser = false;
@@ -488,6 +643,7 @@ impl Sensor {
                 self.push(now, buf, None);
             }
             Command::Sleep if self.model.scip22 => {
+                self.drop_unsent_frames();
                 self.stream = None;
                 self.laser = false;
                 self.sleeping = true;
@@ -548,6 +704,29 @@ impl Sensor {
             ("TIME".into(), time),
             ("STAT".into(), "Sensor works well.".into()),
         ]
+    }
+
+    /// RB (SCIP 2.2): the first `RB` is answered `01` (send it again to confirm); a
+    /// second one within a second is answered `00` and the sensor reboots once the
+    /// answer has left. An `RB` more than a second after the first starts over.
+    fn reboot_cmd(&mut self, now: u64, line: &[u8]) {
+        let confirmed = self
+            .reboot_armed_at
+            .is_some_and(|at| now.saturating_sub(at) <= RB_WINDOW_US);
+        if !confirmed {
+            self.reboot_armed_at = Some(now);
+            return self.simple(now, line, *b"01");
+        }
+        self.simple(now, line, *b"00");
+        let at = self.queue.back().map_or(now, |p| p.at);
+        self.power_on(at, true);
+        self.rebooted = true;
+    }
+
+    /// True once after the sensor rebooted on request (`RB` twice): an Ethernet
+    /// sensor's connection ends there.
+    pub fn take_rebooted(&mut self) -> bool {
+        core::mem::take(&mut self.rebooted)
     }
 
     /// SS: Ethernet → `0F` (SCIP 2.2) / `04`; a rate not in the list → `04`; the rate in
@@ -682,6 +861,17 @@ impl Sensor {
             self.write_scan(&mut buf, &request, &echo, stream_status, k);
             self.faults.damage(&mut buf, due, response, k);
         }
+        let backlog = self.tx_backlog();
+        if self.byte_ns().is_some() && backlog > 0 && backlog + buf.len() > TX_CAP {
+            // No room: this scan is not sent (and was not sent, as far as its truth goes).
+            self.skipped_frames += 1;
+            if let Some(t) = self.truth.as_mut() {
+                t.retain(|t| t.scan != k);
+            }
+            s.next_scan = k + 1 + u64::from(s.scan.skip);
+            self.stream = Some(s);
+            return;
+        }
         let frame = self.frames;
         self.frames += 1;
         let stall = self.faults.stall(due, response, k);
@@ -692,6 +882,9 @@ impl Sensor {
             return;
         }
         self.push(due + stall, buf, None);
+        if let Some(p) = self.queue.back_mut() {
+            p.frame = true;
+        }
         s.remaining = remaining;
         s.next_scan = k + 1 + u64::from(s.scan.skip);
         if remaining == Some(0) {
@@ -719,6 +912,14 @@ impl Sensor {
         let ares = u64::from(self.model.ares.max(1));
         let mut values = core::mem::take(&mut self.values);
         let mut best: Vec<Value> = Vec::new();
+        let mut truth = self.truth.is_some().then(|| ScanTruth {
+            scan: k,
+            request: *scan,
+            status,
+            timestamp: clock,
+            values: Vec::new(),
+            extra: Vec::new(),
+        });
         let mut w = ResponseWriter::new(|b: &[u8]| buf.extend_from_slice(b));
         w.echo(req);
         w.status(status);
@@ -745,10 +946,18 @@ impl Sensor {
             let mut echoes = best.iter();
             if let Some(&(d, aux)) = echoes.next() {
                 w.step(d, aux);
+                if let Some(t) = truth.as_mut() {
+                    t.values.push((d, aux));
+                }
             }
             if scan.multi_echo {
-                for &(d, aux) in echoes.take(2) {
+                for (e, &(d, aux)) in echoes.take(2).enumerate() {
                     w.extra_echo(d, aux);
+                    if let Some(t) = truth.as_mut() {
+                        let index = u16::try_from(t.values.len().saturating_sub(1));
+                        t.extra
+                            .push((index.unwrap_or(u16::MAX), e as u8 + 1, (d, aux)));
+                    }
                 }
             }
             step += cluster;
@@ -756,6 +965,9 @@ impl Sensor {
         w.end();
         let _ = w.into_inner();
         self.values = values;
+        if let (Some(log), Some(t)) = (self.truth.as_mut(), truth) {
+            log.push(t);
+        }
     }
 }
 
@@ -914,5 +1126,78 @@ ARES:1024;\\\nAMIN:44;7\nAMAX:725;o\nAFRT:384;6\nSCAN:600;e\n\n"[..]
             ask(&mut s, 400_000, b"GD0540054001\n")[..16],
             *b"GD0540054001\n10Q"
         );
+    }
+
+    #[test]
+    fn scip22_rb_asks_for_confirmation_then_reboots() {
+        let mut s = sensor(ModelKind::Ust10lx, false);
+        // SCIP 2.2: the first RB is answered 01, a second within 1 s 00 (then reboot).
+        assert_eq!(ask(&mut s, 0, b"RB\n"), b"RB\n01Q\n\n");
+        // More than a second later: the first of a new pair again.
+        assert_eq!(ask(&mut s, 1_200_000, b"RB\n"), b"RB\n01Q\n\n");
+        ask(&mut s, 1_300_000, b"MD0000108001000\n");
+        assert!(s.is_streaming());
+        let t = 1_900_000;
+        s.receive(t, b"RB;x\n");
+        let out = s.take_output(t);
+        assert!(
+            out.ends_with(b"RB;x\n00P\n\n"),
+            "{}",
+            String::from_utf8_lossy(&out)
+        );
+        assert!(s.take_rebooted());
+        assert!(!s.take_rebooted());
+        // Booting: the stream is gone and commands go unanswered for a while.
+        assert!(!s.is_streaming());
+        assert_eq!(ask(&mut s, t + 100_000, b"%ST\n"), b"");
+        assert_eq!(ask(&mut s, t + 600_000, b"%ST\n"), b"%ST\n00P\n000@\n\n");
+        // The pair does not carry over the reboot.
+        assert_eq!(ask(&mut s, t + 700_000, b"RB\n"), b"RB\n01Q\n\n");
+        // SCIP 2.0 sensors do not know RB.
+        let mut utm = sensor(ModelKind::Utm30lx, false);
+        assert_eq!(ask(&mut utm, 0, b"RB\n"), b"RB\n0Ee\n\n");
+        assert_eq!(ask(&mut utm, 0, b"RB\n"), b"RB\n0Ee\n\n");
+    }
+
+    #[test]
+    fn paced_output_keeps_to_the_bit_rate_and_a_bounded_buffer() {
+        let mut s = sensor(ModelKind::Urg04lx, false);
+        s.set_paced(true);
+        assert_eq!(s.bit_rate(), Some(19_200));
+        s.receive(0, b"MD0044072501000\n");
+        let mut out = Vec::new();
+        let mut max_backlog = 0;
+        // 30 s of sensor time in 1 ms ticks, QT at 20 s.
+        let mut qt_at = None;
+        for ms in 1..=30_000u64 {
+            let now = ms * 1000;
+            if ms == 20_000 {
+                s.receive(now, b"QT\n");
+                qt_at = Some(out.len());
+            }
+            out.extend(s.take_output(now));
+            max_backlog = max_backlog.max(s.tx_backlog());
+            // 19 200 bit/s = 1 920 bytes a second (10 bits a byte), plus one FIFO.
+            assert!(
+                out.len() as u64 <= ms * 1920 / 1000 + 32,
+                "{ms} ms: {}",
+                out.len()
+            );
+        }
+        assert!(max_backlog <= TX_CAP, "{max_backlog}");
+        // A frame is 2 137 bytes: about 18 of the 200 scans of 20 s fit, the rest are
+        // skipped.
+        let frames = out
+            .windows(20)
+            .filter(|w| w == b"MD0044072501000\n99b\n")
+            .count() as u64;
+        assert!((16..=19).contains(&frames), "{frames}");
+        assert!(s.skipped_frames() >= 180, "{}", s.skipped_frames());
+        // The QT answer follows at most the rest of the frame on the wire, and ends it.
+        let qt_at = qt_at.unwrap();
+        let tail = &out[qt_at..];
+        assert!(tail.ends_with(b"QT\n00P\n\n"));
+        assert!(tail.len() <= 2137 + 8, "{}", tail.len());
+        assert!(!s.is_streaming());
     }
 }

@@ -11,6 +11,7 @@ use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use super::model::LinkKind;
 use super::session::Sensor;
 
 /// Longest sleep of a serving loop, so that a stop request is seen soon.
@@ -81,8 +82,22 @@ pub fn reader_thread<R: Read + Send + 'static>(
     rx
 }
 
-/// Serves one connection until its input ends or `stop` is set. With `pace`, output
-/// is written no faster than the sensor's bit rate (a serial line).
+/// Why [`serve_connection`] returned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ended {
+    /// `stop` was set.
+    Stopped,
+    /// The input ended (the host closed the connection).
+    InputClosed,
+    /// An Ethernet model rebooted on request (`RB` twice): it drops the connection.
+    Rebooted,
+}
+
+/// Serves one connection until its input ends or `stop` is set. With `pace`, the
+/// sensor sends no faster than its bit rate through its bounded transmit buffer (a
+/// serial line, see [`Sensor::set_paced`]); the loop hands its bytes on as they leave
+/// and reads the host's input in between, so that a `QT` is seen while a stream is
+/// being written.
 pub fn serve_connection(
     sensor: &mut Sensor,
     clock: &Clock,
@@ -91,17 +106,28 @@ pub fn serve_connection(
     pace: bool,
     stop: &AtomicBool,
     log: &mut dyn FnMut(&str),
-) -> io::Result<()> {
+) -> io::Result<Ended> {
+    sensor.set_paced(pace);
     loop {
         if stop.load(Ordering::Relaxed) {
-            return Ok(());
+            return Ok(Ended::Stopped);
         }
         let bytes = sensor.take_output(clock.now_us());
         for f in sensor.new_faults() {
             log(&format!("fault: {f:?}"));
         }
         if !bytes.is_empty() {
-            write_paced(sensor, clock, out, &bytes, pace)?;
+            out.write_all(&bytes)?;
+            out.flush()?;
+        }
+        if sensor.model().link == LinkKind::Ethernet
+            && sensor.tx_backlog() == 0
+            && sensor.take_rebooted()
+        {
+            // An Ethernet sensor that reboots (RB twice) drops its connection once the
+            // answer has left.
+            log("rebooting: connection closed");
+            return Ok(Ended::Rebooted);
         }
         let wait = sensor
             .next_wakeup()
@@ -111,37 +137,10 @@ pub fn serve_connection(
             Err(RecvTimeoutError::Timeout) => {}
             Err(RecvTimeoutError::Disconnected) => {
                 sensor.disconnect();
-                return Ok(());
+                return Ok(Ended::InputClosed);
             }
         }
     }
-}
-
-fn write_paced(
-    sensor: &Sensor,
-    clock: &Clock,
-    out: &mut dyn Write,
-    bytes: &[u8],
-    pace: bool,
-) -> io::Result<()> {
-    match (pace, sensor.bit_rate()) {
-        (true, Some(rate)) => {
-            for chunk in bytes.chunks(64) {
-                let t = Instant::now();
-                out.write_all(chunk)?;
-                out.flush()?;
-                let left = clock
-                    .wire_time(chunk.len(), rate)
-                    .saturating_sub(t.elapsed());
-                std::thread::sleep(left);
-            }
-        }
-        _ => {
-            out.write_all(bytes)?;
-            out.flush()?;
-        }
-    }
-    Ok(())
 }
 
 /// Serves TCP clients one after another on `listener` until `stop` is set. The
@@ -201,7 +200,8 @@ pub fn serve_tcp(
         let _ = out.shutdown(std::net::Shutdown::Both);
         busy.store(false, Ordering::SeqCst);
         match result {
-            Ok(()) => log(&format!("client {peer} left")),
+            Ok(Ended::Rebooted) => log(&format!("client {peer} dropped: the sensor rebooted")),
+            Ok(_) => log(&format!("client {peer} left")),
             Err(e) => log(&format!("client {peer} dropped: {e}")),
         }
     }
@@ -229,7 +229,10 @@ pub fn serve_pty(
     ready(&path);
     // The slave end stays open here, so that clients may come and go.
     let _keep = slave;
-    serve_connection(sensor, clock, &input, &mut master, pace, stop, log)?;
+    // A serial line stays up while the sensor reboots.
+    while serve_connection(sensor, clock, &input, &mut master, pace, stop, log)? == Ended::Rebooted
+    {
+    }
     Ok(())
 }
 
@@ -242,7 +245,12 @@ pub fn serve_stdio(
     let stop = Arc::new(AtomicBool::new(false));
     let input = reader_thread(io::stdin(), Arc::clone(&stop));
     let mut out = io::stdout().lock();
-    let r = serve_connection(sensor, clock, &input, &mut out, false, &stop, log);
+    let r = loop {
+        match serve_connection(sensor, clock, &input, &mut out, false, &stop, log) {
+            Ok(Ended::Rebooted) => {}
+            other => break other,
+        }
+    };
     // Whatever is still due (e.g. a G* answer) goes out before we leave.
     let deadline = sensor.next_wakeup();
     if let Some(at) = deadline {
@@ -251,5 +259,5 @@ pub fn serve_stdio(
         out.write_all(&bytes)?;
         out.flush()?;
     }
-    r
+    r.map(|_| ())
 }
