@@ -155,6 +155,9 @@ impl Open {
     }
 }
 
+/// The most range units a lossless distance code carries.
+const MAX_RANGE_UNITS: u32 = crate::lossless::MAX_VALUE - code::RANGE_BASE;
+
 /// A scan in the lossless coding: its header and its segment stream.
 #[derive(Debug, Clone)]
 struct Lossless {
@@ -836,16 +839,30 @@ impl ScanEncoder {
             frames: 0,
             lost: 0,
         };
-        let unit = enc.unit_exp;
-        let intensity = enc.intensity;
+        // The per-point work with every constant worked out once: the rule's band, the
+        // unit's rounding, the intensity code as a shift and a mask (none: mask 0).
+        let (min, [a, b]) = (rule.min, rule.except);
+        let (has_band, band) = (rule.band.is_some(), rule.band.unwrap_or(0));
+        let e = u32::from(enc.unit_exp & 0xF);
+        let half = (1u32 << e) >> 1;
+        let ishift = 16 - enc.intensity.bits().min(16);
+        let imask = if enc.intensity.is_present() {
+            u32::MAX
+        } else {
+            0
+        };
         let code = |p: &T| {
             let (d, i) = point(p);
-            let dc = if rule.is_range(d) {
-                code::range_code(d, unit)
-            } else {
+            let range = d >= min && d != a && d != b && !(has_band && d.wrapping_sub(band) <= 2);
+            let q = d.saturating_add(half) >> e;
+            let dc = if !range {
                 code::error_code(d)
+            } else if q <= MAX_RANGE_UNITS {
+                q + code::RANGE_BASE
+            } else {
+                code::OUT_OF_RANGE
             };
-            (dc, intensity.encode(i))
+            (dc, ((u32::from(i) >> ishift) & imask) as u16)
         };
         let (taken, invalid) = l.stream.push_run(points, code, &mut out);
         let stop = if out.lost > 0 {
