@@ -29,12 +29,11 @@ const fn parse_u8(s: &str) -> u8 {
 
 /// A decimal number (digits only; anything else ends it), saturating.
 const fn parse_u32(s: &str) -> u32 {
-    let b = s.as_bytes();
-    let mut i = 0;
+    let mut rest = s.as_bytes();
     let mut v: u32 = 0;
-    while i < b.len() && b[i].is_ascii_digit() {
-        v = v.saturating_mul(10).saturating_add((b[i] - b'0') as u32);
-        i += 1;
+    while let [c @ b'0'..=b'9', tail @ ..] = rest {
+        v = v.saturating_mul(10).saturating_add((*c - b'0') as u32);
+        rest = tail;
     }
     v
 }

@@ -16,6 +16,9 @@ const INIT: u16 = 0xFFFF;
 /// same followed by a zero byte (for the first byte of a 16-bit step).
 static TABLES: [[u16; 256]; 2] = tables();
 
+// Evaluated at compile time (for a `static`): an index out of range would fail the
+// build, never a run.
+#[allow(clippy::indexing_slicing)]
 const fn tables() -> [[u16; 256]; 2] {
     let mut t = [[0u16; 256]; 2];
     let mut b = 0;

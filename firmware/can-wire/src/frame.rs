@@ -17,12 +17,12 @@ pub const fn padded_len(len: usize) -> Option<usize> {
     if len <= CLASSIC_LEN {
         return Some(len);
     }
-    let mut i = 0;
-    while i < FD_LENGTHS.len() {
-        if FD_LENGTHS[i] as usize >= len {
-            return Some(FD_LENGTHS[i] as usize);
+    let mut rest: &[u8] = &FD_LENGTHS;
+    while let [first, tail @ ..] = rest {
+        if *first as usize >= len {
+            return Some(*first as usize);
         }
-        i += 1;
+        rest = tail;
     }
     None
 }
