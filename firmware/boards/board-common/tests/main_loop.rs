@@ -184,9 +184,10 @@ fn boot_resets_the_sensor_rate_then_the_session_probes_at_the_power_up_rate() {
         ),
         "{log:?}"
     );
-    // Fed on every 5 ms tick once the 100 ms of the rate reset are over: at most 10 in
-    // the remaining 50 ms (fewer if the host is slow).
-    assert!((1..=10).contains(&board.feeds), "{} feeds", board.feeds);
+    // Fed on every 5 ms tick once the 100 ms of the rate reset are over: at most 11 in
+    // the remaining 50 ms (ticks at both of its ends, depending on the phase of the
+    // host's timer; fewer if the host is slow).
+    assert!((1..=11).contains(&board.feeds), "{} feeds", board.feeds);
 }
 
 #[test]
