@@ -19,7 +19,7 @@ use scip2can_tests::{oracle, recordings_or_skip};
 
 const Q: usize = 512;
 
-fn config(format: FrameFormat, encoding: Encoding) -> BridgeConfig {
+pub(crate) fn config(format: FrameFormat, encoding: Encoding) -> BridgeConfig {
     BridgeConfig {
         session: SessionConfig::default(),
         pipeline: PipelineConfig::default(),
@@ -43,7 +43,7 @@ fn config(format: FrameFormat, encoding: Encoding) -> BridgeConfig {
 
 /// Runs a stream through a bridge (session not started: a replay), 100 bytes at a time,
 /// 1 ms apart; returns every frame in transmit order.
-fn replay(bytes: &[u8], config: BridgeConfig) -> Vec<Frame> {
+pub(crate) fn replay(bytes: &[u8], config: BridgeConfig) -> Vec<Frame> {
     let mut bridge: Bridge<Q> = Bridge::new(config).expect("valid config");
     let mut frames = Vec::new();
     for (t, chunk) in bytes.chunks(100).enumerate() {
@@ -56,9 +56,9 @@ fn replay(bytes: &[u8], config: BridgeConfig) -> Vec<Frame> {
 }
 
 /// A reassembled scan: completeness and points (None = point not received).
-type Got = (Completeness, Vec<Option<can_wire::reassembly::Point>>);
+pub(crate) type Got = (Completeness, Vec<Option<can_wire::reassembly::Point>>);
 
-fn reassemble(frames: &[Frame]) -> Vec<Got> {
+pub(crate) fn reassemble(frames: &[Frame]) -> Vec<Got> {
     let mut dec: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
     let mut out = Vec::new();
     for f in frames {

@@ -4,43 +4,21 @@
 //! here (character decoding and line layout of the protocol), not from the codec under
 //! test.
 
-use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
-use can_wire::reassembly::{Completeness, Decoder as CanDecoder, Event as CanEvent};
-use can_wire::{
-    Distance, DistanceEncoding, Encoding, Frame, FrameFormat, IdWindow, IntensityEncoding,
-};
+use bridge::engine::BridgeConfig;
+use can_wire::reassembly::Completeness;
+use can_wire::{Distance, DistanceEncoding, Encoding, FrameFormat, IntensityEncoding};
 use scip2can_tests::recordings_or_skip;
 
-const Q: usize = 512;
-
+/// The bridge replay tests' configuration in the lossless coding.
 fn config(format: FrameFormat, intensity: IntensityEncoding) -> BridgeConfig {
-    BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
-        encoding: Encoding {
+    crate::bridge_replay::config(
+        format,
+        Encoding {
             distance: DistanceEncoding::Lossless,
             intensity,
             unit_exp: 0,
         },
-        budget: Budget {
-            rates: if format.is_fd() {
-                BitRates::FD_1M_5M
-            } else {
-                BitRates::CLASSIC_1M
-            },
-            format,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).expect("node 0"),
-        uart_bit_rate: 115_200,
-        status_period_ms: 0,
-        fd_capable: true,
-    }
+    )
 }
 
 /// One scan as the sensor sent it: raw distance values and intensities.
@@ -93,30 +71,7 @@ fn truth(bytes: &[u8]) -> Vec<Truth> {
     out
 }
 
-fn replay(bytes: &[u8], config: BridgeConfig) -> Vec<Frame> {
-    let mut bridge: Bridge<Q> = Bridge::new(config).expect("valid config");
-    let mut frames = Vec::new();
-    for (t, chunk) in bytes.chunks(100).enumerate() {
-        bridge.on_uart(chunk, t as u64);
-        while let Some(f) = bridge.pop_frame() {
-            frames.push(f);
-        }
-    }
-    frames
-}
-
-type Points = Vec<Option<can_wire::reassembly::Point>>;
-
-fn reassemble(frames: &[Frame]) -> Vec<(Completeness, Points)> {
-    let mut dec: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
-    let mut out = Vec::new();
-    for f in frames {
-        if let Ok(Some(CanEvent::Scan { scan, .. })) = dec.push_frame(f) {
-            out.push((scan.completeness(), scan.points().collect()));
-        }
-    }
-    out
-}
+use crate::bridge_replay::{reassemble, replay};
 
 /// (recording, DMIN from its PP answer)
 const CAPTURES: [(&str, u32); 2] = [
@@ -155,10 +110,12 @@ fn every_value_of_the_real_captures_arrives_exactly() {
                     Distance::Mm(v)
                 };
                 assert_eq!(p.distance, d, "{name} {format:?} point {k}");
-                assert_eq!(
-                    p.intensity,
-                    w.intensities.get(k).map(|&i| i.min(65535) as u16)
-                );
+                // SPEC 4: the 16-bit intensity is min(4 × raw, 65535).
+                let want = w
+                    .intensities
+                    .get(k)
+                    .map(|&i| i.saturating_mul(4).min(65535) as u16);
+                assert_eq!(p.intensity, want);
             }
             if name.contains("urg") {
                 // The URG capture has error codes 0, 7 and 10 (101 points): kept by identity.

@@ -173,6 +173,15 @@ pub trait FrameSink {
     fn data_slot(&mut self) -> Option<&mut Frame>;
 }
 
+/// A growing list of frames is a sink with room for every frame (host side).
+#[cfg(any(test, feature = "std"))]
+impl FrameSink for std::vec::Vec<Frame> {
+    fn data_slot(&mut self) -> Option<&mut Frame> {
+        self.push(Frame::default());
+        self.last_mut()
+    }
+}
+
 /// Why [`ScanEncoder::push_run`] stopped before the end of its points.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

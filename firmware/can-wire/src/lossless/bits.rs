@@ -328,16 +328,9 @@ impl<'a> Reader<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::encoder::FrameSink;
     use crate::id::{IdWindow, Kind};
 
-    struct Frames(std::vec::Vec<Frame>);
-    impl FrameSink for Frames {
-        fn data_slot(&mut self) -> Option<&mut Frame> {
-            self.0.push(Frame::default());
-            self.0.last_mut()
-        }
-    }
+    type Frames = std::vec::Vec<Frame>;
 
     fn id() -> Id {
         IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data)
@@ -347,7 +340,7 @@ mod tests {
     /// 0x25, then the fields 0b101 (3 bits) and 0x3FF (10 bits), on classic CAN.
     #[test]
     fn a_segment_on_classic_can() {
-        let mut sink = Frames(vec![]);
+        let mut sink = Frames::new();
         let mut out = Out {
             sink: &mut sink,
             id: id(),
@@ -368,13 +361,13 @@ mod tests {
             c.bytes(&[0x25, 0xFA, 0x3F]);
             c.value().to_le_bytes()
         };
-        assert_eq!(sink.0.len(), 1);
-        assert_eq!(sink.0[0].data(), &[0x80, 0x25, 0xFA, 0x3F, crc[0], crc[1]]);
+        assert_eq!(sink.len(), 1);
+        assert_eq!(sink[0].data(), &[0x80, 0x25, 0xFA, 0x3F, crc[0], crc[1]]);
     }
 
     #[test]
     fn frames_are_cut_and_counted() {
-        let mut sink = Frames(vec![]);
+        let mut sink = Frames::new();
         let mut out = Out {
             sink: &mut sink,
             id: id(),
@@ -390,7 +383,7 @@ mod tests {
         w.end_segment(&mut out);
         w.begin_segment(1, 1, &mut out);
         w.end_segment(&mut out);
-        let f = &sink.0;
+        let f = &sink;
         // 9 + 160 bits + 7 padding = 22 bytes + 2 CRC = 24 stream bytes: 11 + 11 + 2.
         assert_eq!(f.len(), 4);
         assert_eq!(f[0].data()[0], 0x80);
@@ -413,7 +406,7 @@ mod tests {
 
     #[test]
     fn rice_codes_read_back() {
-        let mut sink = Frames(vec![]);
+        let mut sink = Frames::new();
         let mut out = Out {
             sink: &mut sink,
             id: id(),
@@ -436,7 +429,7 @@ mod tests {
             w.put_rice(u, k, u + 7, 20, &mut out);
         }
         w.end_segment(&mut out);
-        let data = sink.0[0].data()[1..].to_vec();
+        let data = sink[0].data()[1..].to_vec();
         let mut r = Reader::new(&data);
         r.read(9);
         for &(u, k) in &cases {

@@ -232,17 +232,11 @@ mod tests {
     use crate::frame::Frame;
     use crate::id::{IdWindow, Kind};
 
-    struct Frames(std::vec::Vec<Frame>);
-    impl FrameSink for Frames {
-        fn data_slot(&mut self) -> Option<&mut Frame> {
-            self.0.push(Frame::default());
-            self.0.last_mut()
-        }
-    }
+    type Frames = std::vec::Vec<Frame>;
 
     /// Writes the blocks into one long frame's stream and reads them back.
     fn round_trip(blocks: &[std::vec::Vec<u32>], anchor: u32) -> std::vec::Vec<Mode> {
-        let mut sink = Frames(vec![]);
+        let mut sink = Frames::new();
         let id = IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data);
         let mut out = Out {
             sink: &mut sink,
@@ -261,7 +255,7 @@ mod tests {
         }
         w.end_segment(&mut out);
         let mut stream = vec![];
-        for f in &sink.0 {
+        for f in &sink {
             stream.extend_from_slice(&f.data()[1..]);
         }
         let mut r = Reader::new(&stream);

@@ -119,21 +119,14 @@ mod tests {
     use super::super::bits::Out;
     use super::super::stream::ScanStream;
     use super::*;
-    use crate::encoder::FrameSink;
     use crate::frame::Frame;
     use crate::id::{IdWindow, Kind};
 
-    struct Frames(std::vec::Vec<Frame>);
-    impl FrameSink for Frames {
-        fn data_slot(&mut self) -> Option<&mut Frame> {
-            self.0.push(Frame::default());
-            self.0.last_mut()
-        }
-    }
+    type Frames = std::vec::Vec<Frame>;
 
     /// Code a scan, then decode each segment from its frames.
     fn round_trip(d: &[u32], i: Option<&[u32]>, full: usize) {
-        let mut sink = Frames(vec![]);
+        let mut sink = Frames::new();
         let id = IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data);
         let fd = full > 8;
         let mut out = Out {
@@ -151,7 +144,7 @@ mod tests {
         assert_eq!(s.sent() as usize, d.len());
         // Split the frames into segments by their start flag.
         let mut segs: std::vec::Vec<std::vec::Vec<u8>> = vec![];
-        for (n, f) in sink.0.iter().enumerate() {
+        for (n, f) in sink.iter().enumerate() {
             let b = f.data();
             assert_eq!(b[0] & 0x7F, (n % 128) as u8, "frame counter");
             if b[0] & 0x80 != 0 {
@@ -197,7 +190,7 @@ mod tests {
 
     #[test]
     fn reserved_codes_and_bad_crc_are_corrupt() {
-        let mut sink = Frames(vec![]);
+        let mut sink = Frames::new();
         let id = IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data);
         let mut out = Out {
             sink: &mut sink,
@@ -210,14 +203,14 @@ mod tests {
         for v in [200, 110, 200] {
             s.push(v, 0, &mut out).unwrap();
         }
-        let seg = sink.0[0].data()[1..].to_vec();
+        let seg = sink[0].data()[1..].to_vec();
         let (mut dd, mut ii) = ([0; SEGMENT_POINTS], [0; SEGMENT_POINTS]);
         assert_eq!(
             decode(&seg, 3, false, &mut dd, &mut ii),
             Err(ReadError::Corrupt)
         );
 
-        let mut sink = Frames(vec![]);
+        let mut sink = Frames::new();
         let mut out = Out {
             sink: &mut sink,
             id,
@@ -229,7 +222,7 @@ mod tests {
         for v in [200, 300, 200] {
             s.push(v, 0, &mut out).unwrap();
         }
-        let mut seg = sink.0[0].data()[1..].to_vec();
+        let mut seg = sink[0].data()[1..].to_vec();
         assert!(decode(&seg, 3, false, &mut dd, &mut ii).is_ok());
         for bit in 0..(seg.len() * 8) {
             seg[bit / 8] ^= 1 << (bit % 8);
