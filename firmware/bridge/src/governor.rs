@@ -353,4 +353,52 @@ mod tests {
         assert_eq!(g.stats().dropped_queue, 1);
         assert!(g.admit(0, &cost, 0, cost.frames as usize));
     }
+
+    #[test]
+    fn a_lossless_scan_dearer_than_planned_is_paid_back_by_dropping_whole_scans() {
+        let dl = Encoding {
+            distance: DistanceEncoding::Lossless,
+            intensity: IntensityEncoding::None,
+            unit_exp: 0,
+        };
+        let mut g = classic(500);
+        // Prior: 10 bits per point, margin 1/8: planned at 11.25 bits (180 / 16).
+        assert_eq!(g.planning_bits_x16(&dl), 160 + 20);
+        let planned = g.cost(682, &dl);
+        assert!(g.admit(0, &planned, 1_000_000, 64));
+        // It took twice the bus time it was admitted with.
+        let actual = ScanCost {
+            time_ns: planned.time_ns * 2,
+            ..planned
+        };
+        g.settle(&planned, &actual);
+        assert_eq!(g.stats().over_estimate, 1);
+        // The bucket started with two scans' worth: the admission spent one, the extra
+        // takes the other; nothing is owed, but the next scan finds no credit.
+        assert_eq!(g.debt_ns(), 0);
+        assert!(!g.admit(0, &planned, 1_000_000, 64));
+        // Twice more than planned again: now a debt, and scans are dropped until the
+        // share has paid it back (at 50 % of the bus: twice the debt in time).
+        g.settle(
+            &planned,
+            &ScanCost {
+                time_ns: planned.time_ns * 3,
+                ..planned
+            },
+        );
+        let debt = g.debt_ns();
+        assert!(debt > 0);
+        let repaid_ms = (debt * 2).div_ceil(1_000_000);
+        assert!(!g.admit(repaid_ms - 1, &planned, 1_000_000, 64));
+        assert!(g.admit(
+            repaid_ms + (planned.time_ns * 2).div_ceil(1_000_000),
+            &planned,
+            1_000_000,
+            64
+        ));
+        // What was learnt: 682 points in 600 bytes are 7.04 bits (112 / 16); the plan
+        // follows (margin 1/8: 126).
+        g.observe(682, 600);
+        assert_eq!(g.planning_bits_x16(&dl), 112 + 14);
+    }
 }
