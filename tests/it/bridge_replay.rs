@@ -168,6 +168,8 @@ fn every_recorded_scan_arrives_exactly_as_sent() {
         assert_eq!(want.len(), 1, "{name}: one scan per recording");
         assert_eq!(want[0].len(), count, "{name}");
         for &(i, mm, intensity) in read {
+            // The hand-read raw intensity as SPEC 4's 16-bit value: 4 × raw.
+            let intensity = intensity.map(|v| v.saturating_mul(4));
             assert_eq!(
                 want[0][i],
                 (Distance::Mm(mm), intensity),

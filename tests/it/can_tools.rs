@@ -299,7 +299,8 @@ fn a_deleted_frame_is_one_lost_frame_and_an_incomplete_scan() {
     for (i, p) in got[0].points.iter().enumerate() {
         let want = (!(60..75).contains(&i)).then(|| Point {
             distance: d[i].map_or(Distance::Invalid, Distance::Mm),
-            intensity: Some(u16::try_from(inten[i]).unwrap_or(u16::MAX)),
+            // SPEC 4: the 16-bit intensity is min(4 × raw, 65535).
+            intensity: Some(u16::try_from(inten[i].saturating_mul(4)).unwrap_or(u16::MAX)),
         });
         assert_eq!(*p, want, "point {i}");
     }

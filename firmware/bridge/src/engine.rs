@@ -808,8 +808,9 @@ impl<const Q: usize> Core<Q> {
                 .zip(i64::try_from(sensor).ok())
                 .map(|(now, sensor)| now.wrapping_sub(sensor));
         }
-        if notice == Notice::Recovering(RecoverReason::Reboot) {
-            // The sensor's clock restarted at 0: the extension and the sync are void.
+        if matches!(notice, Notice::Recovering(_)) {
+            // The sensor rebooted, or the recovery's `RS` resets its clock to 0: the
+            // extension and the sync are void.
             self.clock.reset();
             self.sync_offset = None;
         }
