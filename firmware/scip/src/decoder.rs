@@ -1411,6 +1411,36 @@ mod tests {
     }
 
     #[test]
+    fn counters_wrap_at_their_width() {
+        let mut d = Decoder::new();
+        d.stats = DecoderStats {
+            bytes: u64::MAX,
+            responses: u32::MAX,
+            errors: u32::MAX,
+            by_kind: [u32::MAX; ErrorKind::COUNT],
+            resyncs: u32::MAX,
+        };
+        let feed_all = |d: &mut Decoder, mut rest: &[u8]| {
+            while !rest.is_empty() {
+                let (n, _) = d.feed(rest);
+                rest = &rest[n..];
+            }
+        };
+        // An intact QT answer (8 bytes), then an answer to a damaged echo (an error and
+        // a resync, 8 bytes).
+        feed_all(&mut d, b"QT\n00P\n\n");
+        assert_eq!((d.stats.responses, d.stats.bytes), (0, 7));
+        assert_eq!((d.stats.errors, d.stats.resyncs), (u32::MAX, u32::MAX));
+        feed_all(&mut d, b"Pp\n00P\n\n");
+        assert_eq!((d.stats.responses, d.stats.bytes), (0, 15));
+        assert_eq!((d.stats.errors, d.stats.resyncs), (0, 0));
+        let kind = ErrorKind::UnknownEcho(EchoError::UnknownCommand).index();
+        for (i, &c) in d.stats.by_kind.iter().enumerate() {
+            assert_eq!(c, if i == kind { 0 } else { u32::MAX }, "kind {i}");
+        }
+    }
+
+    #[test]
     fn distance_lines_after_intensity_lines_carry_no_old_intensity() {
         // Readings of a distance-only scan are written without their echo and aux when
         // the slots are known clear: after a scan with intensities they must be cleared.
