@@ -128,7 +128,8 @@ pub enum Event<'a> {
     Error(Error),
 }
 
-/// Counters of what the decoder saw.
+/// Counters of what the decoder saw. Every counter wraps at its width (like the CAN
+/// status frames' counters): take differences of two readings with `wrapping_sub`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct DecoderStats {
@@ -387,18 +388,21 @@ impl Decoder {
     /// bytes consumed.
     #[inline]
     pub fn feed(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
-        let mut consumed = 0;
+        let mut consumed: usize = 0;
         let mut rest = input;
         loop {
+            // The stream offset and the byte counter wrap (after 2^64 bytes).
             let Some(lf) = self.take_line_bytes(rest) else {
-                self.offset += rest.len() as u64;
-                self.stats.bytes += rest.len() as u64;
+                self.offset = self.offset.wrapping_add(rest.len() as u64);
+                self.stats.bytes = self.stats.bytes.wrapping_add(rest.len() as u64);
                 return (input.len(), None);
             };
-            consumed += lf + 1;
-            self.offset += lf as u64 + 1;
-            self.stats.bytes += lf as u64 + 1;
-            rest = rest.get(lf + 1..).unwrap_or(&[]);
+            // `lf` indexes `rest`, a tail of `input`: `consumed + lf + 1 <= input.len()`.
+            let line = lf.wrapping_add(1);
+            consumed = consumed.wrapping_add(line);
+            self.offset = self.offset.wrapping_add(line as u64);
+            self.stats.bytes = self.stats.bytes.wrapping_add(line as u64);
+            rest = rest.get(line..).unwrap_or(&[]);
             if self.line_has_event() {
                 break;
             }
@@ -459,10 +463,12 @@ impl Decoder {
         let lf = find_lf(bytes);
         let line = bytes.get(..lf.unwrap_or(bytes.len())).unwrap_or(&[]);
         if !self.overflow {
-            match self.buf.get_mut(self.len..self.len + line.len()) {
+            // `self.len <= LINE_CAP` and a slice's length is at most `isize::MAX`: no wrap.
+            let end = self.len.wrapping_add(line.len());
+            match self.buf.get_mut(self.len..end) {
                 Some(dst) => {
                     dst.copy_from_slice(line);
-                    self.len += line.len();
+                    self.len = end;
                 }
                 None => self.overflow = true,
             }
@@ -490,8 +496,10 @@ impl Decoder {
             let room = self.buf.get_mut(len..).unwrap_or(&mut []);
             let (taken, add) = copy_value_words(input, room);
             sum = sum.wrapping_add(add);
-            len += taken;
-            at += taken;
+            // `len` stays within the line buffer and `at` within `bytes` (`taken` fits
+            // both), so neither index wraps; nor does any `at + i` below.
+            len = len.wrapping_add(taken);
+            at = at.wrapping_add(taken);
             // Then up to four bytes one at a time.
             let Some(next) = bytes.get(at..).filter(|r| !r.is_empty()) else {
                 break None;
@@ -499,29 +507,29 @@ impl Decoder {
             let mut lf = None;
             for (i, &b) in next.iter().take(4).enumerate() {
                 if b == b'\n' {
-                    lf = Some(at + i);
+                    lf = Some(at.wrapping_add(i));
                     break;
                 }
                 match self.buf.get_mut(len) {
                     Some(slot) => *slot = b,
                     None => {
                         self.overflow = true;
-                        let from = at + i;
+                        let from = at.wrapping_add(i);
                         lf = Some(
                             find_lf(bytes.get(from..).unwrap_or(&[]))
-                                .map_or(usize::MAX, |j| from + j),
+                                .map_or(usize::MAX, |j| from.wrapping_add(j)),
                         );
                         break;
                     }
                 }
-                len += 1;
+                len = len.wrapping_add(1);
                 sum = sum.wrapping_add(u32::from(b));
                 bad |= u32::from(b.wrapping_sub(CHAR_MIN));
             }
             match lf {
                 Some(usize::MAX) => break None,
                 Some(i) => break Some(i),
-                None => at += next.len().min(4),
+                None => at = at.wrapping_add(next.len().min(4)),
             }
         };
         (self.len, self.sum, self.bad) = (len, sum, bad);
@@ -540,7 +548,8 @@ impl Decoder {
         // The accumulators cover exactly the line just completed (it did not overflow, or
         // it would not be decoded).
         if self.bad & 0xC0 == 0 {
-            let sum = (self.sum.wrapping_sub(u32::from(*s)) & 0x3F) as u8 + 0x30;
+            // 0x30..=0x6F: no wrap.
+            let sum = ((self.sum.wrapping_sub(u32::from(*s)) & 0x3F) as u8).wrapping_add(0x30);
             return Some((sum, *s, true));
         }
         let (sum, valid) = sum_and_check(data);
@@ -583,9 +592,9 @@ impl Decoder {
     }
 
     fn error(&mut self, kind: ErrorKind, line: u16) -> Event<'static> {
-        self.stats.errors += 1;
+        self.stats.errors = self.stats.errors.wrapping_add(1);
         if let Some(c) = self.stats.by_kind.get_mut(kind.index()) {
-            *c += 1;
+            *c = c.wrapping_add(1);
         }
         Event::Error(Error {
             kind,
@@ -612,7 +621,7 @@ impl Decoder {
             State::Payload(Payload::Data | Payload::ScanTimestamp)
         );
         self.state = State::Skip;
-        self.stats.resyncs += 1;
+        self.stats.resyncs = self.stats.resyncs.wrapping_add(1);
         Some(self.error(kind, line))
     }
 
@@ -791,7 +800,8 @@ impl Decoder {
                         found: *s,
                     });
                 }
-                let body = self.buf.get(..len - 1).unwrap_or(&[]);
+                // `len >= 1`: the line matched `[body @ .., s]` above.
+                let body = self.buf.get(..len.wrapping_sub(1)).unwrap_or(&[]);
                 Some(Event::Payload(body))
             }
         }
@@ -811,7 +821,7 @@ impl Decoder {
         // (the form some documents give), and without a trailing `<-comment`.
         let plain = checksum(body);
         let ok = plain == s
-            || (plain.wrapping_sub(0x30).wrapping_add(b';') & 0x3F) + 0x30 == s
+            || (plain.wrapping_sub(0x30).wrapping_add(b';') & 0x3F).wrapping_add(0x30) == s
             || body
                 .windows(2)
                 .position(|w| w == b"<-")
@@ -824,11 +834,13 @@ impl Decoder {
             });
         }
         let name_end = colon;
+        // The colon is in `body`, itself in the line buffer: no wrap.
+        let value_start = colon.wrapping_add(1);
         let body_len = body.len();
         let is_pp = matches!(self.request.map(|r| r.command), Some(Command::Parameters));
         let (name, value) = (
             self.buf.get(..name_end).unwrap_or(&[]),
-            self.buf.get(name_end + 1..body_len).unwrap_or(&[]),
+            self.buf.get(value_start..body_len).unwrap_or(&[]),
         );
         let param = if is_pp {
             Param::parse(name, value)
@@ -840,7 +852,7 @@ impl Decoder {
         }
         let (name, value) = (
             self.buf.get(..name_end).unwrap_or(&[]),
-            self.buf.get(name_end + 1..body_len).unwrap_or(&[]),
+            self.buf.get(value_start..body_len).unwrap_or(&[]),
         );
         Some(Event::Field(Field { name, value, param }))
     }
@@ -849,7 +861,8 @@ impl Decoder {
         if len < 2 {
             return self.fail(ErrorKind::BadDataLineLength);
         }
-        let n = len - 1;
+        // Data chars, sum char excluded (`len >= 2`).
+        let n = len.wrapping_sub(1);
         // One pass for the sum and the value-char check of the fast path.
         let Some((expected, found, all_valid)) = self.line_sum_and_check(len) else {
             return self.fail(ErrorKind::BadDataLineLength);
@@ -902,7 +915,8 @@ impl Decoder {
     /// steps go straight into readings, the partial step at the end is carried. Same
     /// readings, state and errors as [`Self::decode_chars`] on the same chars.
     fn decode_steps<const D: usize, const A: usize>(&mut self, n: usize) -> Result<(), ErrorKind> {
-        let width = D + A;
+        // 2..=7 chars: the `D + A` of the data sets dispatched in `decode_values`.
+        let width = D.wrapping_add(A);
         let chars = self.buf.get(..n).unwrap_or(&[]);
         let carried = usize::from(self.carry_n);
         // The step begun on the previous line, completed.
@@ -917,25 +931,25 @@ impl Decoder {
                 (self.pending_distance, continue_valid(self.carry, a), need)
             } else {
                 let need = D.saturating_sub(carried);
-                let (Some(d), Some(a)) = (chars.get(..need), chars.get(need..need + A)) else {
+                // At most `D + A`: no wrap.
+                let used = need.wrapping_add(A);
+                let (Some(d), Some(a)) = (chars.get(..need), chars.get(need..used)) else {
                     return self.decode_chars_copied(n);
                 };
-                (
-                    continue_valid(self.carry, d),
-                    continue_valid(0, a),
-                    need + A,
-                )
+                (continue_valid(self.carry, d), continue_valid(0, a), used)
             };
             head = Some((distance, aux));
             rest = chars.get(used..).unwrap_or(&[]);
         }
-        let whole = rest.len() / width;
-        let (mid, tail) = rest.split_at(whole * width);
-        let total = whole + usize::from(head.is_some());
+        // `width` is a nonzero constant here: the division folds, the `0` is never taken.
+        let whole = rest.len().checked_div(width).unwrap_or(0);
+        // Lengths and counts within one line (at most LINE_CAP): none of these wraps.
+        let (mid, tail) = rest.split_at(whole.wrapping_mul(width));
+        let total = whole.wrapping_add(usize::from(head.is_some()));
         let too_many = ErrorKind::TooManyValues {
             expected: self.shape.expected,
         };
-        if usize::from(self.values) + total > usize::from(self.shape.expected) {
+        if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
             return Err(too_many);
         }
         if A == 0 && !self.readings_plain {
@@ -947,10 +961,8 @@ impl Decoder {
             self.readings_plain = false;
         }
         let first = self.n_readings;
-        let slots = self
-            .readings
-            .get_mut(first..first + total)
-            .ok_or(too_many)?;
+        let end = first.wrapping_add(total);
+        let slots = self.readings.get_mut(first..end).ok_or(too_many)?;
         let mut index = self.values;
         let mut slots = slots.iter_mut();
         if let Some((distance, aux)) = head {
@@ -994,7 +1006,7 @@ impl Decoder {
             self.echo_no = 0;
         }
         self.values = index;
-        self.n_readings = first + total;
+        self.n_readings = end;
         // The partial step at the end: a distance and part of its second value, or part
         // of a distance.
         match tail.split_at_checked(D) {
@@ -1028,7 +1040,8 @@ impl Decoder {
         let mut carry_n = self.carry_n;
         let mut want = self.want;
         for (i, &c) in chars.iter().enumerate() {
-            let col = col0 + i;
+            // A column within one line: no wrap.
+            let col = col0.wrapping_add(i);
             let v = c.wrapping_sub(CHAR_MIN);
             if v >= 0x40 {
                 if c == b'&' {
@@ -1038,7 +1051,8 @@ impl Decoder {
                 return Err(ErrorKind::BadChar { column: col as u8 });
             }
             carry = (carry << 6) | u32::from(v);
-            carry_n += 1;
+            // Below `want` (at most 4) before this char: no wrap.
+            carry_n = carry_n.wrapping_add(1);
             if carry_n == want {
                 want = self.value_done(carry)?;
                 carry = 0;
@@ -1058,7 +1072,8 @@ impl Decoder {
         if carry_n != 0 || self.in_aux || self.values == 0 || self.next_is_echo {
             return Err(ErrorKind::MisplacedEcho);
         }
-        self.echo_no += 1;
+        // Below MAX_ECHOES before: the check below fails the response at MAX_ECHOES.
+        self.echo_no = self.echo_no.wrapping_add(1);
         if self.echo_no >= MAX_ECHOES {
             return Err(ErrorKind::TooManyEchoes);
         }
@@ -1091,8 +1106,10 @@ impl Decoder {
                 });
             }
             self.echo_no = 0;
-            self.values += 1;
-            (self.values - 1, 0)
+            // Below `expected` (checked above), so `+ 1` fits.
+            let index = self.values;
+            self.values = index.wrapping_add(1);
+            (index, 0)
         };
         let slot = self
             .readings
@@ -1107,7 +1124,8 @@ impl Decoder {
             distance,
             aux,
         };
-        self.n_readings += 1;
+        // The slot at `n_readings` exists (above): below MAX_READINGS, no wrap.
+        self.n_readings = self.n_readings.wrapping_add(1);
         Ok(self.shape.dist_width)
     }
 
@@ -1189,7 +1207,7 @@ impl Decoder {
             }
         }
         self.state = State::Idle;
-        self.stats.responses += 1;
+        self.stats.responses = self.stats.responses.wrapping_add(1);
         Some(Event::End(Summary {
             request: self.request,
             status: self.status,
@@ -1222,11 +1240,12 @@ fn copy_value_words(input: &[u8], dst: &mut [u8]) -> (usize, u32) {
             break;
         }
         out.copy_from_slice(&four);
-        words += 1;
+        // Words of `input`: neither this count nor `4 * words` below wraps.
+        words = words.wrapping_add(1);
         // The top byte of v·0x01010101 is the sum of v's four bytes.
         sum = sum.wrapping_add(v.wrapping_mul(0x0101_0101) >> 24);
     }
-    (4 * words, sum)
+    (words.wrapping_mul(4), sum)
 }
 
 /// The sum char of `bytes` (as [`checksum`]) and whether every byte is a value char
@@ -1249,7 +1268,8 @@ fn sum_and_check(bytes: &[u8]) -> (u8, bool) {
 #[inline]
 fn sum_and_check_bytes(bytes: &[u8]) -> (u8, bool) {
     let (sum, chars) = fold_chars(bytes);
-    ((sum & 0x3F) + 0x30, chars < 0x40)
+    // 0x30..=0x6F: no wrap.
+    ((sum & 0x3F).wrapping_add(0x30), chars < 0x40)
 }
 
 /// The byte sum and the OR of every `c - 0x30` (below `0x40` iff all are value chars).
@@ -1286,7 +1306,8 @@ fn sum_and_check_words(bytes: &[u8]) -> (u8, bool) {
         .wrapping_add(lanes >> 16)
         .wrapping_add(u32::from(rest_sum));
     (
-        (sum & 0x3F) as u8 + 0x30,
+        // 0x30..=0x6F: no wrap.
+        ((sum & 0x3F) as u8).wrapping_add(0x30),
         bad & HIGHS == 0 && rest_chars < 0x40,
     )
 }
@@ -1327,19 +1348,21 @@ fn find_lf(bytes: &[u8]) -> Option<usize> {
         (hit != 0).then_some((hit.trailing_zeros() / 8) as usize)
     };
     let mut words = bytes.chunks_exact(8);
-    let mut at = 0;
+    let mut at: usize = 0;
     for word in &mut words {
+        // Indices within `bytes`: no wrap.
         if let Some(i) = lf_in(word.try_into().unwrap_or([0; 8])) {
-            return Some(at + i);
+            return Some(at.wrapping_add(i));
         }
-        at += 8;
+        at = at.wrapping_add(8);
     }
     if words.remainder().is_empty() {
         return None;
     }
     // The last eight bytes, overlapping bytes already found free of LF.
     match bytes.last_chunk::<8>() {
-        Some(last) => lf_in(*last).map(|i| bytes.len() - 8 + i),
+        // `bytes` has at least the eight bytes of `last`: no wrap.
+        Some(last) => lf_in(*last).map(|i| bytes.len().wrapping_sub(8).wrapping_add(i)),
         None => bytes.iter().position(|&b| b == b'\n'),
     }
 }
@@ -1385,6 +1408,36 @@ mod tests {
         assert_eq!(kinds(b"Pp\n00P\n\n"), "STE");
         // A status without payload: an answer like any other.
         assert_eq!(kinds(b"Pp\n0Ee\n\n"), "STN");
+    }
+
+    #[test]
+    fn counters_wrap_at_their_width() {
+        let mut d = Decoder::new();
+        d.stats = DecoderStats {
+            bytes: u64::MAX,
+            responses: u32::MAX,
+            errors: u32::MAX,
+            by_kind: [u32::MAX; ErrorKind::COUNT],
+            resyncs: u32::MAX,
+        };
+        let feed_all = |d: &mut Decoder, mut rest: &[u8]| {
+            while !rest.is_empty() {
+                let (n, _) = d.feed(rest);
+                rest = &rest[n..];
+            }
+        };
+        // An intact QT answer (8 bytes), then an answer to a damaged echo (an error and
+        // a resync, 8 bytes).
+        feed_all(&mut d, b"QT\n00P\n\n");
+        assert_eq!((d.stats.responses, d.stats.bytes), (0, 7));
+        assert_eq!((d.stats.errors, d.stats.resyncs), (u32::MAX, u32::MAX));
+        feed_all(&mut d, b"Pp\n00P\n\n");
+        assert_eq!((d.stats.responses, d.stats.bytes), (0, 15));
+        assert_eq!((d.stats.errors, d.stats.resyncs), (0, 0));
+        let kind = ErrorKind::UnknownEcho(EchoError::UnknownCommand).index();
+        for (i, &c) in d.stats.by_kind.iter().enumerate() {
+            assert_eq!(c, if i == kind { 0 } else { u32::MAX }, "kind {i}");
+        }
     }
 
     #[test]
