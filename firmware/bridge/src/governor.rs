@@ -373,4 +373,14 @@ mod tests {
         assert_eq!(g.stats().dropped_queue, 1);
         assert!(g.admit(0, &cost, 0, cost.frames as usize));
     }
+
+    #[test]
+    fn a_huge_uart_time_saturates_instead_of_overflowing() {
+        let mut g = classic(250);
+        let cost = g.cost(682, &D12);
+        // Bytes that take (nearly) forever to arrive: the bus drains every frame
+        // meanwhile, so the scan needs no free slot at all.
+        assert!(g.admit(0, &cost, u64::MAX, 0));
+        assert_eq!(g.stats().dropped_queue, 0);
+    }
 }
