@@ -533,7 +533,8 @@ impl<const Q: usize> Core<Q> {
         let has_aux = line.data.aux_width() > 0;
         let width = line.data.distance_width();
         let step = |index: u16| {
-            let step = start + u32::from(index) * cluster;
+            // u16 + u16 × u8: below 2^25, no overflow.
+            let step = start.wrapping_add(u32::from(index).wrapping_mul(cluster));
             u16::try_from(step).unwrap_or(u16::MAX)
         };
         // Without multi-echo every reading is a first echo, the next step of the scan.
@@ -613,7 +614,8 @@ impl<const Q: usize> Core<Q> {
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = line.readings.get(taken..).unwrap_or(&[]);
-        invalid += rest.iter().filter(|r| is_invalid(r)).count();
+        // Both at most the line's reading count.
+        invalid = invalid.wrapping_add(rest.iter().filter(|r| is_invalid(r)).count());
         self.pipeline.count_invalid(invalid);
     }
 
@@ -626,7 +628,7 @@ impl<const Q: usize> Core<Q> {
             1
         };
         if self.queue.free() >= reserve && self.queue.push_front(frame).is_ok() {
-            self.stats.frames += 1;
+            self.stats.frames = self.stats.frames.wrapping_add(1);
         } else {
             self.health.tx_overflows = self.health.tx_overflows.saturating_add(1);
         }
@@ -771,7 +773,10 @@ impl<const Q: usize> Core<Q> {
         cfg.temporal = TemporalDecimation::All;
         let points = u16::try_from(crate::pipeline::output_len(&cfg, &info)).unwrap_or(u16::MAX);
         // Scans per second × 1000: rpm / 60 per second, one in (skip + 1) sent.
-        let rate_milli = rpm * 1000 / 60 / (u32::from(scan.skip) + 1);
+        // The rpm comes from the sensor: saturating. `skip + 1` is 1..=256.
+        let rate_milli = (rpm.saturating_mul(1000) / 60)
+            .checked_div(u32::from(scan.skip).wrapping_add(1))
+            .unwrap_or(0);
         let plan = self
             .governor
             .plan(points, &self.wire_encoding(&scan), rate_milli);
@@ -825,7 +830,7 @@ impl<const Q: usize> Core<Q> {
     }
 
     fn begin_scan(&mut self, s: ScanRequest, raw_timestamp: u32, now: u64) {
-        self.stats.scans_in += 1;
+        self.stats.scans_in = self.stats.scans_in.wrapping_add(1);
         self.phase = Phase::Ignored;
         // SPEC 3.1: the sensor's 24-bit clock extended (modulo 2^32), or with a time
         // sync the caller's clock.
@@ -849,7 +854,7 @@ impl<const Q: usize> Core<Q> {
         let points = match self.pipeline.begin_scan(info) {
             ScanStart::Publish { points } => points,
             ScanStart::Skip => {
-                self.stats.scans_skipped += 1;
+                self.stats.scans_skipped = self.stats.scans_skipped.wrapping_add(1);
                 return;
             }
             ScanStart::BadGeometry => return,
@@ -861,13 +866,20 @@ impl<const Q: usize> Core<Q> {
         let encoding = self.wire_encoding(&s);
         let cost = self.governor.cost(point_count, &encoding);
         // 10 bits per UART byte; a step is `width` chars, lines add 2 bytes per 64 chars.
-        let width = u64::from(s.data.distance_width() + s.data.aux_width());
-        let chars = u64::from(s.value_count()) * width;
-        let bytes = chars + chars.div_ceil(64) * 2 + 40;
-        let uart_us = bytes * 10 * 1_000_000 / u64::from(self.config.uart_bit_rate.max(1));
+        // Widths are at most 3 + 4 chars and `value_count` a u16: `bytes` is below 2^23,
+        // `bytes × 10^7` below 2^47, no overflow.
+        let width = u64::from(s.data.distance_width().wrapping_add(s.data.aux_width()));
+        let chars = u64::from(s.value_count()).wrapping_mul(width);
+        let bytes = chars
+            .wrapping_add(chars.div_ceil(64).wrapping_mul(2))
+            .wrapping_add(40);
+        let uart_us = bytes
+            .wrapping_mul(10 * 1_000_000)
+            .checked_div(u64::from(self.config.uart_bit_rate.max(1)))
+            .unwrap_or(0);
         let free = Q.saturating_sub(self.queue.len());
         if !self.governor.admit(now, &cost, uart_us, free) {
-            self.stats.scans_dropped += 1;
+            self.stats.scans_dropped = self.stats.scans_dropped.wrapping_add(1);
             self.pipeline_discard();
             return;
         }
@@ -916,7 +928,8 @@ impl<const Q: usize> Core<Q> {
             .config()
             .decimation
             .map_or(1, |d| u32::from(d.factor));
-        u32::from(s.cluster.max(1)) * factor
+        // u8 × u16: no overflow.
+        u32::from(s.cluster.max(1)).wrapping_mul(factor)
     }
 
     fn grouping(&self, s: &ScanRequest) -> Grouping {
@@ -948,11 +961,17 @@ impl<const Q: usize> Core<Q> {
         if let Some(roi) = self.pipeline.config().roi {
             let lo = u32::from(roi.first);
             if lo > first {
-                first += (lo - first).div_ceil(cluster) * cluster;
+                // `lo > first`, both u16, cluster a u8: no overflow.
+                first = first.wrapping_add(
+                    lo.wrapping_sub(first)
+                        .div_ceil(cluster)
+                        .wrapping_mul(cluster),
+                );
             }
         }
         let afrt = self.geometry().map_or(0, |(_, afrt)| afrt);
-        let rel = i64::from(first) - i64::from(afrt);
+        // Two u32 values: the difference fits an i64.
+        let rel = i64::from(first).wrapping_sub(i64::from(afrt));
         i16::try_from(rel).unwrap_or(i16::MIN)
     }
 
@@ -975,7 +994,7 @@ impl<const Q: usize> Core<Q> {
                 for f in frames {
                     push(&mut self.queue, f, &mut self.stats);
                 }
-                self.stats.scans_sent += 1;
+                self.stats.scans_sent = self.stats.scans_sent.wrapping_add(1);
             }
             Err(_) => self.abort_scan_now(AbortReason::BadData),
         }
@@ -992,8 +1011,14 @@ impl<const Q: usize> Core<Q> {
         };
         let budget = *self.governor.budget();
         let encoding = self.config.encoding;
-        let bits_x16 =
-            u32::try_from(u64::from(bytes) * 128 / u64::from(points.max(1))).unwrap_or(u32::MAX);
+        // A u32 × 128 fits 64 bits.
+        let bits_x16 = u32::try_from(
+            u64::from(bytes)
+                .wrapping_mul(128)
+                .checked_div(u64::from(points.max(1)))
+                .unwrap_or(0),
+        )
+        .unwrap_or(u32::MAX);
         let actual = can_wire::bandwidth::lossless_cost(
             points,
             &encoding,
@@ -1021,7 +1046,7 @@ impl<const Q: usize> Core<Q> {
     fn abort_scan_now(&mut self, reason: AbortReason) {
         if let Ok(f) = self.encoder.abort(reason, 0) {
             push(&mut self.queue, f, &mut self.stats);
-            self.stats.scans_aborted += 1;
+            self.stats.scans_aborted = self.stats.scans_aborted.wrapping_add(1);
         }
         self.phase = Phase::None;
     }
@@ -1070,7 +1095,7 @@ impl<const Q: usize> Output<'_, Q> {
                 self.stats.frames = self.stats.frames.wrapping_add(run.frames);
                 if run.stop == Some(RunStop::NoSlot) {
                     *self.overflow = true;
-                    self.stats.queue_overflows += 1;
+                    self.stats.queue_overflows = self.stats.queue_overflows.wrapping_add(1);
                 }
             }
             Err(_) => *self.filtered = true,
@@ -1093,7 +1118,7 @@ impl<const Q: usize> Output<'_, Q> {
                 match run.stop {
                     Some(RunStop::NoSlot) => {
                         *self.overflow = true;
-                        self.stats.queue_overflows += 1;
+                        self.stats.queue_overflows = self.stats.queue_overflows.wrapping_add(1);
                     }
                     Some(RunStop::TooManyPoints) => *self.filtered = true,
                     None => {}
@@ -1145,6 +1170,6 @@ fn data_slot<const Q: usize>(queue: &mut FrameQueue<Q>) -> Option<&mut Frame> {
 
 fn push<const Q: usize>(queue: &mut FrameQueue<Q>, f: Frame, stats: &mut BridgeStats) {
     if queue.push_back(f).is_ok() {
-        stats.frames += 1;
+        stats.frames = stats.frames.wrapping_add(1);
     }
 }

@@ -125,12 +125,12 @@ impl Governor {
     /// Bits per point ×16 the governor plans a lossless scan with: the estimate (or
     /// the prior) and a margin of 1/8.
     pub fn planning_bits_x16(&self, encoding: &Encoding) -> u32 {
-        let prior = PRIOR_DISTANCE_X16
-            + if encoding.intensity.is_present() {
-                PRIOR_INTENSITY_X16
-            } else {
-                0
-            };
+        // Two small constants.
+        let prior = PRIOR_DISTANCE_X16.wrapping_add(if encoding.intensity.is_present() {
+            PRIOR_INTENSITY_X16
+        } else {
+            0
+        });
         let e = self.estimate_x16.unwrap_or(prior);
         e.saturating_add(e / 8)
     }
@@ -168,7 +168,10 @@ impl Governor {
         let limit = u64::from(self.budget.share_permille) * 1000;
         let mut best = None;
         for every_nth in 1..=u8::MAX {
-            let rate = scans_per_s_milli / u32::from(every_nth);
+            // `every_nth` is 1..=255.
+            let rate = scans_per_s_milli
+                .checked_div(u32::from(every_nth))
+                .unwrap_or(0);
             for factor in 1..=MAX_FACTOR {
                 let n = points.div_ceil(u16::from(factor));
                 let cost = self.cost(n, encoding);
@@ -202,20 +205,28 @@ impl Governor {
     pub fn admit(&mut self, now_ms: u64, cost: &ScanCost, uart_us: u64, queue_free: usize) -> bool {
         self.refill(now_ms, cost);
         if self.debt_ns > 0 || self.credit_ns < cost.time_ns {
-            self.stats.dropped_budget += 1;
+            self.stats.dropped_budget = self.stats.dropped_budget.wrapping_add(1);
             return false;
         }
         // Frames the bus carries (at our share) while the scan is still arriving.
-        let frame_ns = cost.time_ns / u64::from(cost.frames.max(1));
-        let share_ns = uart_us * 1000 * u64::from(self.budget.share_permille) / 1000;
-        let drained = (share_ns / frame_ns.max(1)) as usize;
+        let frame_ns = cost
+            .time_ns
+            .checked_div(u64::from(cost.frames.max(1)))
+            .unwrap_or(0);
+        // `uart_us` comes from the caller: saturating.
+        let share_ns = uart_us
+            .saturating_mul(1000)
+            .saturating_mul(u64::from(self.budget.share_permille))
+            / 1000;
+        let drained = share_ns.checked_div(frame_ns.max(1)).unwrap_or(0) as usize;
         let frames = cost.frames as usize;
         if frames > queue_free.saturating_add(drained) {
-            self.stats.dropped_queue += 1;
+            self.stats.dropped_queue = self.stats.dropped_queue.wrapping_add(1);
             return false;
         }
-        self.credit_ns -= cost.time_ns;
-        self.stats.admitted += 1;
+        // `credit_ns >= cost.time_ns` here.
+        self.credit_ns = self.credit_ns.wrapping_sub(cost.time_ns);
+        self.stats.admitted = self.stats.admitted.wrapping_add(1);
         true
     }
 
@@ -225,11 +236,18 @@ impl Governor {
         if points == 0 {
             return;
         }
-        let x =
-            u32::try_from(u64::from(stream_bytes) * 128 / u64::from(points)).unwrap_or(u32::MAX);
+        // A u32 × 128 fits 64 bits; `points > 0`.
+        let x = u32::try_from(
+            u64::from(stream_bytes)
+                .wrapping_mul(128)
+                .checked_div(u64::from(points))
+                .unwrap_or(0),
+        )
+        .unwrap_or(u32::MAX);
         self.estimate_x16 = Some(match self.estimate_x16 {
             None => x,
-            Some(e) => ((u64::from(e) * 3 + u64::from(x)) / 4) as u32,
+            // u32 values in 64 bits: no overflow, and the mean of four fits a u32.
+            Some(e) => (u64::from(e).wrapping_mul(3).wrapping_add(u64::from(x)) / 4) as u32,
         });
     }
 
@@ -242,8 +260,9 @@ impl Governor {
         }
         self.stats.over_estimate = self.stats.over_estimate.wrapping_add(1);
         let paid = extra.min(self.credit_ns);
-        self.credit_ns -= paid;
-        self.debt_ns = self.debt_ns.saturating_add(extra - paid);
+        // `paid` is at most both `credit_ns` and `extra`.
+        self.credit_ns = self.credit_ns.wrapping_sub(paid);
+        self.debt_ns = self.debt_ns.saturating_add(extra.wrapping_sub(paid));
     }
 
     /// Bus time owed, ns.
@@ -273,8 +292,9 @@ impl Governor {
                     .saturating_mul(u64::from(self.budget.share_permille))
                     / 1000;
                 let repay = add.min(self.debt_ns);
-                self.debt_ns -= repay;
-                add -= repay;
+                // `repay` is at most both.
+                self.debt_ns = self.debt_ns.wrapping_sub(repay);
+                add = add.wrapping_sub(repay);
                 self.credit_ns = self.credit_ns.saturating_add(add).min(cap);
             }
         }
@@ -400,5 +420,15 @@ mod tests {
         // follows (margin 1/8: 126).
         g.observe(682, 600);
         assert_eq!(g.planning_bits_x16(&dl), 112 + 14);
+    }
+
+    #[test]
+    fn a_huge_uart_time_saturates_instead_of_overflowing() {
+        let mut g = classic(250);
+        let cost = g.cost(682, &D12);
+        // Bytes that take (nearly) forever to arrive: the bus drains every frame
+        // meanwhile, so the scan needs no free slot at all.
+        assert!(g.admit(0, &cost, u64::MAX, 0));
+        assert_eq!(g.stats().dropped_queue, 0);
     }
 }

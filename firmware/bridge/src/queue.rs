@@ -46,15 +46,17 @@ impl<const Q: usize> FrameQueue<Q> {
 
     /// Slots free.
     pub fn free(&self) -> usize {
-        Q - self.len
+        // `len <= Q` always.
+        Q.wrapping_sub(self.len)
     }
 
     /// Slot index of position `i` from the front (`i <= Q`).
     #[inline(always)]
     fn slot(&self, i: usize) -> usize {
-        let k = self.head + i;
+        // `head < Q` and `i <= Q`: no overflow, and `k - Q` only when `k >= Q`.
+        let k = self.head.wrapping_add(i);
         if k >= Q {
-            k - Q
+            k.wrapping_sub(Q)
         } else {
             k
         }
@@ -68,7 +70,8 @@ impl<const Q: usize> FrameQueue<Q> {
             return None;
         }
         let k = self.slot(self.len);
-        self.len += 1;
+        // `len < Q` here.
+        self.len = self.len.wrapping_add(1);
         self.slots.get_mut(k)
     }
 
@@ -88,12 +91,13 @@ impl<const Q: usize> FrameQueue<Q> {
         if self.len >= Q || Q == 0 {
             return Err(frame);
         }
-        let k = self.slot(Q - 1);
+        // `Q > 0` and `len < Q` here.
+        let k = self.slot(Q.wrapping_sub(1));
         match self.slots.get_mut(k) {
             Some(slot) => {
                 *slot = frame;
                 self.head = k;
-                self.len += 1;
+                self.len = self.len.wrapping_add(1);
                 Ok(())
             }
             None => Err(frame),
@@ -108,7 +112,8 @@ impl<const Q: usize> FrameQueue<Q> {
         }
         let frame = self.slots.get(self.head).copied();
         self.head = self.slot(1);
-        self.len -= 1;
+        // `len > 0` here.
+        self.len = self.len.wrapping_sub(1);
         frame
     }
 
@@ -121,7 +126,8 @@ impl<const Q: usize> FrameQueue<Q> {
         }
         let out = self.slots.get(self.head).map(f);
         self.head = self.slot(1);
-        self.len -= 1;
+        // `len > 0` here.
+        self.len = self.len.wrapping_sub(1);
         out
     }
 

@@ -32,7 +32,9 @@ const fn parse_u32(s: &str) -> u32 {
     let mut rest = s.as_bytes();
     let mut v: u32 = 0;
     while let [c @ b'0'..=b'9', tail @ ..] = rest {
-        v = v.saturating_mul(10).saturating_add((*c - b'0') as u32);
+        v = v
+            .saturating_mul(10)
+            .saturating_add(c.wrapping_sub(b'0') as u32);
         rest = tail;
     }
     v
@@ -111,8 +113,10 @@ impl Health {
         for (fd, by_dlc) in [false, true].into_iter().zip(counts) {
             for (dlc, n) in by_dlc.into_iter().enumerate() {
                 let bits = frame_bits(dlc_len(dlc), fd, extended);
-                nominal = nominal.saturating_add(u64::from(n) * u64::from(bits.nominal));
-                data = data.saturating_add(u64::from(n) * u64::from(bits.data));
+                // Two 32-bit factors: the product fits 64 bits.
+                nominal =
+                    nominal.saturating_add(u64::from(n).wrapping_mul(u64::from(bits.nominal)));
+                data = data.saturating_add(u64::from(n).wrapping_mul(u64::from(bits.data)));
             }
         }
         let ns = |bits: u64, rate: u32| {
@@ -121,7 +125,11 @@ impl Health {
         };
         let busy = ns(nominal, rates.nominal).saturating_add(ns(data, rates.data));
         let period_ns = period_ms.saturating_mul(1_000_000).max(1);
-        self.bus_permille = (busy.saturating_mul(1000) / period_ns).min(1000) as u16;
+        self.bus_permille = (busy
+            .saturating_mul(1000)
+            .checked_div(period_ns)
+            .unwrap_or(0))
+        .min(1000) as u16;
     }
 
     fn bus_state(&self) -> BusState {
@@ -135,8 +143,9 @@ fn fd_dlc(len: usize) -> usize {
     let at = can_wire::frame::FD_LENGTHS
         .iter()
         .position(|&l| usize::from(l) >= len)
-        .unwrap_or(can_wire::frame::FD_LENGTHS.len() - 1);
-    9 + at
+        .unwrap_or(can_wire::frame::FD_LENGTHS.len().saturating_sub(1));
+    // `at` is below the table's length (7).
+    at.wrapping_add(9)
 }
 
 /// The data length of a data length code.

@@ -254,6 +254,27 @@ fn silence_is_recovered_with_growing_back_off() {
 }
 
 #[test]
+fn a_back_off_at_the_end_of_the_clock_saturates() {
+    // A caller's clock 750 ms before its end: the 100 ms back-off after the silence
+    // (700 ms) would end past it, so it ends at the clock's last ms instead.
+    let t0 = u64::MAX - 750;
+    let mut rig = Rig::new(config(), false);
+    rig.session.start(t0);
+    rig.run(t0);
+    assert_eq!(rig.session.state(), State::Streaming);
+    rig.sent.clear();
+    rig.run(t0 + 701);
+    assert_eq!(rig.codes(), ["QT", "RS"]);
+    assert_eq!(rig.session.state(), State::Backoff);
+    rig.run(u64::MAX - 1);
+    assert_eq!(rig.session.state(), State::Backoff);
+    rig.sent.clear();
+    rig.run(u64::MAX);
+    assert_eq!(rig.codes(), ["QT", "VV", "PP", "II", "MD0000108001000"]);
+    assert_eq!(rig.session.state(), State::Streaming);
+}
+
+#[test]
 fn a_reboot_into_scip11_mid_stream_is_recovered() {
     let mut rig = Rig::new(config(), false);
     rig.session.start(0);

@@ -380,7 +380,9 @@ impl Session {
                 if self.current_is_pending && self.state == State::SyncRead {
                     // The midpoint of request and answer is the best estimate of when
                     // the sensor read its clock.
-                    let mid = self.sent_at + now.saturating_sub(self.sent_at) / 2;
+                    let mid = self
+                        .sent_at
+                        .saturating_add(now.saturating_sub(self.sent_at) / 2);
                     return Some(Notice::TimeSync {
                         sensor_ms: *t,
                         now_ms: mid,
@@ -419,7 +421,7 @@ impl Session {
                 }
                 self.after_frame = self.current_is_frame || frame_status;
                 if self.current_is_frame && !self.current_is_pending {
-                    self.stats.damaged_frames += 1;
+                    self.stats.damaged_frames = self.stats.damaged_frames.wrapping_add(1);
                 } else if self.current_is_pending && self.pending.is_some() {
                     // A damaged answer: ask again.
                     return self.retry_or_recover(RecoverReason::Timeout, now);
@@ -438,7 +440,7 @@ impl Session {
         if let Status::Scip11(_) = status {
             if self.reached_scip2 && self.state != State::Switch {
                 // A SCIP 2 sensor answering in 1.1: it rebooted (URG-04LX boots in 1.1).
-                self.stats.reboots += 1;
+                self.stats.reboots = self.stats.reboots.wrapping_add(1);
                 self.reached_scip2 = false;
                 return self.recover(RecoverReason::Reboot, now);
             }
@@ -449,7 +451,7 @@ impl Session {
             return self.on_frame(status, now);
         }
         if !is_pending {
-            self.stats.unexpected += 1;
+            self.stats.unexpected = self.stats.unexpected.wrapping_add(1);
             return None;
         }
         if let (State::Parameters, Some(doubt)) = (self.state, self.pp_doubt) {
@@ -587,7 +589,7 @@ impl Session {
                 self.last_doubted = None;
             }
             Err(e) => {
-                self.stats.pp_doubted += 1;
+                self.stats.pp_doubted = self.stats.pp_doubted.wrapping_add(1);
                 self.geometry = Geometry::Doubted(e);
                 self.last_doubted = Some(pp);
                 self.pp_doubt = Some(e);
@@ -598,15 +600,15 @@ impl Session {
     fn on_frame(&mut self, status: Status, now: u64) -> Option<Notice> {
         match status.kind(b"MD") {
             StatusKind::StreamFrame | StatusKind::Unstable | StatusKind::Ok => {
-                self.stats.frames += 1;
+                self.stats.frames = self.stats.frames.wrapping_add(1);
                 None
             }
             StatusKind::HardwareFault | StatusKind::Stopped => {
-                self.stats.error_statuses += 1;
+                self.stats.error_statuses = self.stats.error_statuses.wrapping_add(1);
                 self.recover(RecoverReason::SensorFault(status), now)
             }
             _ => {
-                self.stats.error_statuses += 1;
+                self.stats.error_statuses = self.stats.error_statuses.wrapping_add(1);
                 None
             }
         }
@@ -664,15 +666,16 @@ impl Session {
         self.state = state;
         self.pending = Some(request);
         self.sent_at = now;
-        self.stats.commands += 1;
+        self.stats.commands = self.stats.commands.wrapping_add(1);
         self.push_action(Action::Send(request));
     }
 
     fn retry_or_recover(&mut self, reason: RecoverReason, now: u64) -> Option<Notice> {
         let request = self.pending?;
         if self.retries < self.config.max_retries && self.state != State::Resetting {
-            self.retries += 1;
-            self.stats.retries += 1;
+            // Below `max_retries` here.
+            self.retries = self.retries.wrapping_add(1);
+            self.stats.retries = self.stats.retries.wrapping_add(1);
             self.send(self.state, request, now);
             return None;
         }
@@ -683,7 +686,7 @@ impl Session {
                     // earlier session raised it to (the MCU reset, the sensor did not).
                     self.set_link_rate(raised);
                     self.retries = 0;
-                    self.stats.retries += 1;
+                    self.stats.retries = self.stats.retries.wrapping_add(1);
                     self.send(State::Probe, request, now);
                     return None;
                 }
@@ -704,7 +707,7 @@ impl Session {
     /// (up to the maximum).
     fn back_off(&mut self, now: u64) {
         self.state = State::Backoff;
-        self.backoff_until = now + u64::from(self.backoff_ms);
+        self.backoff_until = now.saturating_add(u64::from(self.backoff_ms));
         self.backoff_ms = self
             .backoff_ms
             .saturating_mul(2)
@@ -712,7 +715,7 @@ impl Session {
     }
 
     fn recover(&mut self, reason: RecoverReason, now: u64) -> Option<Notice> {
-        self.stats.recoveries += 1;
+        self.stats.recoveries = self.stats.recoveries.wrapping_add(1);
         self.retries = 0;
         self.send(State::Resetting, Request::new(Command::LaserOff), now);
         Some(Notice::Recovering(reason))
