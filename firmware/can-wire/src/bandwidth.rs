@@ -51,12 +51,11 @@ impl FrameBits {
         let ns = |bits: u32, rate: u32| {
             (u64::from(bits) * 1_000_000_000).div_ceil(u64::from(rate.max(1)))
         };
-        ns(self.nominal, rates.nominal)
-            + if self.data > 0 {
-                ns(self.data, rates.data)
-            } else {
-                0
-            }
+        ns(self.nominal, rates.nominal).saturating_add(if self.data > 0 {
+            ns(self.data, rates.data)
+        } else {
+            0
+        })
     }
 }
 
@@ -64,9 +63,12 @@ impl FrameBits {
 /// `g + 8n + 13 + floor((g + 8n - 1) / 4)`, `g` = 34 (11-bit ID) or 54 (29-bit ID).
 pub const fn classic_frame_bits(len: usize, extended: bool) -> FrameBits {
     let g = if extended { 54 } else { 34 };
-    let body = g + 8 * len as u32;
+    // Bit counts saturate (no frame comes near); `body` is at least 34.
+    let body = (len as u32).saturating_mul(8).saturating_add(g);
     FrameBits {
-        nominal: body + 13 + (body - 1) / 4,
+        nominal: body
+            .saturating_add(13)
+            .saturating_add(body.wrapping_sub(1) / 4),
         data: 0,
     }
 }
@@ -77,11 +79,18 @@ pub const fn fd_frame_bits(len: usize, extended: bool) -> FrameBits {
     let a: u32 = if extended { 36 } else { 17 };
     let n = len as u32;
     let crc = if len <= 16 { 17 } else { 21 };
-    let arb_stuff = (a - 1) / 4;
-    let total_stuff = (a + 4 + 8 * n) / 4;
+    // `a` is 17 or 36 and `crc` 17 or 21: only the data length can be large, and bit
+    // counts saturate (no frame comes near).
+    let arb_stuff = a.wrapping_sub(1) / 4;
+    let data_bits = n.saturating_mul(8);
+    let total_stuff = a.wrapping_add(4).saturating_add(data_bits) / 4;
     FrameBits {
-        nominal: a + 13 + arb_stuff,
-        data: 5 + 8 * n + (total_stuff - arb_stuff) + 4 + crc + (4 + crc).div_ceil(4),
+        nominal: a.wrapping_add(13).wrapping_add(arb_stuff),
+        data: data_bits
+            .saturating_add(5)
+            .saturating_add(total_stuff.saturating_sub(arb_stuff))
+            .saturating_add(4u32.wrapping_add(crc))
+            .saturating_add(4u32.wrapping_add(crc).div_ceil(4)),
     }
 }
 
@@ -118,7 +127,9 @@ impl ScanCost {
     /// Bus load in parts per million at `scans_per_s_milli` / 1000 scans per second.
     pub fn load_ppm(&self, scans_per_s_milli: u32) -> u64 {
         // time_ns * rate / 1e9 * 1e6 = time_ns * rate_milli / 1e6
-        (self.time_ns * u64::from(scans_per_s_milli)).div_ceil(1_000_000)
+        self.time_ns
+            .saturating_mul(u64::from(scans_per_s_milli))
+            .div_ceil(1_000_000)
     }
 }
 
@@ -138,14 +149,15 @@ pub fn scan_cost(
     let max_len = format.max_len();
     let per_frame = encoding.capacity(max_len).max(1);
     let points = usize::from(points);
-    let full = points / per_frame;
-    let rest = points % per_frame;
+    // `per_frame` is at least 1.
+    let full = points.checked_div(per_frame).unwrap_or(points);
+    let rest = points.checked_rem(per_frame).unwrap_or(0);
     let mut nominal = 0u32;
     let mut data = 0u32;
     let mut add = |len: usize, count: u32| {
         let b = frame_bits(len, fd, extended);
-        nominal += b.nominal * count;
-        data += b.data * count;
+        nominal = nominal.saturating_add(b.nominal.saturating_mul(count));
+        data = data.saturating_add(b.data.saturating_mul(count));
     };
     add(HEADER_LEN, 2);
     add(TRAILER_LEN, 1);
@@ -154,13 +166,14 @@ pub fn scan_cost(
     if rest > 0 {
         add(data_frame_len(encoding, rest).unwrap_or(max_len), 1);
     }
-    let data_frames = (full + usize::from(rest > 0)) as u32;
+    // At most 65535 points: no wrap.
+    let data_frames = full.wrapping_add(usize::from(rest > 0)) as u32;
     let bits = FrameBits { nominal, data };
     ScanCost {
         bits_per_point: encoding.bits_per_point(),
         points_per_frame: per_frame as u32,
         data_frames,
-        frames: data_frames + 3,
+        frames: data_frames.saturating_add(3),
         nominal_bits: nominal,
         data_bits: data,
         time_ns: bits.time_ns(rates),
@@ -173,11 +186,13 @@ pub fn scan_cost(
 pub const fn lossless_worst_segment_bits(n: u32, channels: u32) -> u32 {
     use crate::lossless::{BLOCK_POINTS, MODE_BITS, VALUE_BITS, WIDTH_BITS};
     let blocks = n.saturating_sub(1).div_ceil(BLOCK_POINTS as u32);
-    let per_channel = WIDTH_BITS
-        + VALUE_BITS
-        + blocks * (MODE_BITS + WIDTH_BITS)
-        + n.saturating_sub(1) * VALUE_BITS;
-    crate::lossless::SEGMENT_HEADER_BITS + channels * per_channel + 7 + 16
+    // Bit counts saturate (no segment comes near).
+    let per_channel = (WIDTH_BITS + VALUE_BITS)
+        .saturating_add(blocks.saturating_mul(MODE_BITS + WIDTH_BITS))
+        .saturating_add(n.saturating_sub(1).saturating_mul(VALUE_BITS));
+    crate::lossless::SEGMENT_HEADER_BITS
+        .saturating_add(channels.saturating_mul(per_channel))
+        .saturating_add(7 + 16)
 }
 
 /// Cost of a lossless scan of `points` points whose segments take `bits_x16 / 16` bits
@@ -194,7 +209,7 @@ pub fn lossless_cost(
     use crate::lossless::{segment_points, segments};
     let fd = format.is_fd();
     let payload = format.max_len().saturating_sub(1).max(1) as u64;
-    let channels = 1 + u32::from(encoding.intensity.is_present());
+    let channels = 1u32.wrapping_add(u32::from(encoding.intensity.is_present()));
     let mut nominal = 0u32;
     let mut data = 0u32;
     let mut add = |len: usize, count: u32| {
@@ -210,23 +225,34 @@ pub fn lossless_cost(
     for j in 0..segments(n_points) {
         let n = segment_points(n_points, j) as u32;
         let bits = match bits_x16 {
-            Some(b) => u64::from(n) * u64::from(b) / 16,
+            Some(b) => u64::from(n).saturating_mul(u64::from(b)) / 16,
             None => u64::from(lossless_worst_segment_bits(n, channels)),
         };
-        total_bits += bits;
+        total_bits = total_bits.saturating_add(bits);
         let bytes = bits.div_ceil(8).max(1);
+        // At least one frame (`bytes` >= 1), and all but the last full: the last holds
+        // 1..=payload bytes.
         let frames = bytes.div_ceil(payload);
-        let last = bytes - (frames - 1) * payload;
-        add(format.max_len(), (frames - 1) as u32);
-        add(padded_len(1 + last as usize).unwrap_or(format.max_len()), 1);
-        data_frames += frames as u32;
+        let before_last = frames.wrapping_sub(1);
+        let last = bytes.wrapping_sub(before_last.wrapping_mul(payload));
+        add(format.max_len(), before_last as u32);
+        add(
+            padded_len((last as usize).wrapping_add(1)).unwrap_or(format.max_len()),
+            1,
+        );
+        data_frames = data_frames.saturating_add(frames as u32);
     }
     let bits = FrameBits { nominal, data };
     ScanCost {
-        bits_per_point: (total_bits / n_points.max(1) as u64) as u32,
-        points_per_frame: (u64::from(points) / u64::from(data_frames.max(1))) as u32,
+        // A divisor of 0 counts as 1.
+        bits_per_point: total_bits
+            .checked_div(n_points as u64)
+            .unwrap_or(total_bits) as u32,
+        points_per_frame: u64::from(points)
+            .checked_div(u64::from(data_frames))
+            .unwrap_or(u64::from(points)) as u32,
         data_frames,
-        frames: data_frames + 3,
+        frames: data_frames.saturating_add(3),
         nominal_bits: nominal,
         data_bits: data,
         time_ns: bits.time_ns(rates),

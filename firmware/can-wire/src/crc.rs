@@ -24,23 +24,23 @@ const fn tables() -> [[u16; 256]; 2] {
     let mut b = 0;
     while b < 256 {
         let mut r = (b as u16) << 8;
-        let mut k = 0;
+        let mut k = 0u32;
         while k < 8 {
             r = if r & 0x8000 != 0 {
                 (r << 1) ^ POLY
             } else {
                 r << 1
             };
-            k += 1;
+            k = k.wrapping_add(1); // at most 8
         }
         t[0][b] = r;
-        b += 1;
+        b = b.wrapping_add(1); // at most 256
     }
     let mut b = 0;
     while b < 256 {
         let r = t[0][b];
         t[1][b] = (r << 8) ^ t[0][(r >> 8) as usize];
-        b += 1;
+        b = b.wrapping_add(1); // at most 256
     }
     t
 }

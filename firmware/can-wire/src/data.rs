@@ -49,7 +49,7 @@ impl DataHeader {
 /// Length of a data frame holding `n` points in `encoding`.
 pub fn data_frame_len(encoding: &Encoding, n: usize) -> Option<usize> {
     let bits = n.checked_mul(encoding.bits_per_point() as usize)?;
-    padded_len(DATA_HEADER_LEN + bits.div_ceil(8))
+    padded_len(bits.div_ceil(8).checked_add(DATA_HEADER_LEN)?)
 }
 
 /// A validated data frame of a known scan.
@@ -87,7 +87,8 @@ impl<'a> DataFrame<'a> {
         }
         let points = data.get(field::POINTS..).unwrap_or(&[]);
         let mut r = BitReader::new(points);
-        r.skip(n * enc.bits_per_point() as usize);
+        // `data_frame_len` above computed this product without overflow.
+        r.skip(n.wrapping_mul(enc.bits_per_point() as usize));
         if !r.rest_is_zero() {
             return Err(Error::ReservedBits);
         }
@@ -124,7 +125,8 @@ impl<'a> DataFrame<'a> {
         (0..self.count).map(move |k| {
             let dc = r.read(d);
             let ic = r.read(i);
-            (first + k, dc, ic)
+            // A parsed frame ends within the scan: first index + count <= 4096.
+            (first.wrapping_add(k), dc, ic)
         })
     }
 }

@@ -357,7 +357,8 @@ impl ScanEncoder {
             packer: Packer::new(DATA_HEADER_LEN),
             capacity,
             coder: enc.distance_coder(),
-            intensity_shift: 16 - intensity_bits,
+            // An intensity code has at most 16 bits.
+            intensity_shift: 16u32.wrapping_sub(intensity_bits),
             distance_bits,
             intensity_bits,
             full_len: data_frame_len(&enc, usize::from(capacity)).ok_or(Error::FrameTooLong)?,
@@ -437,9 +438,11 @@ impl ScanEncoder {
         let dc = s.coder.code(distance);
         let ic = u32::from(intensity) >> s.intensity_shift;
         s.take_code(u32::from(dc) | ic << 16);
-        s.valid += u16::from(s.coder.is_valid(dc));
-        s.pushed += 1;
-        s.buffered += 1;
+        // pushed < point_count (at most 4096) was checked, and valid <= pushed,
+        // buffered <= pushed: no wrap.
+        s.valid = s.valid.wrapping_add(u16::from(s.coder.is_valid(dc)));
+        s.pushed = s.pushed.wrapping_add(1);
+        s.buffered = s.buffered.wrapping_add(1);
         Ok(s.buffered >= s.capacity || s.pushed == s.header.point_count)
     }
 
@@ -533,6 +536,11 @@ impl ScanEncoder {
         let s = self.open.fixed_mut().ok_or(Error::NoScan)?;
         let mut run = Run::default();
         let (count, capacity) = (s.header.point_count, s.capacity);
+        // The arithmetic below counts points of one scan (at most 4096, a u16) and the
+        // frames they make: `valid + invalid <= block <= BLOCK`, `j <= block`, the
+        // counters of the scan below its point count and those of the run below the
+        // run's points. Nothing wraps, and the wrapping ops compile to the plain ones.
+        let bits = db.wrapping_add(ib);
         let mut rest = points;
         loop {
             let left = rest.len();
@@ -543,7 +551,9 @@ impl ScanEncoder {
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
-            let block = left.min(BLOCK).min(usize::from(count - s.pushed));
+            let block = left
+                .min(BLOCK)
+                .min(usize::from(count.wrapping_sub(s.pushed)));
             let (now, later) = rest.split_at(block);
             rest = later;
             let (mut valid, mut invalid) = code_block_any(ib, now, rule, point, s, codes_buf);
@@ -553,15 +563,15 @@ impl ScanEncoder {
                 let room = capacity
                     .saturating_sub(s.buffered)
                     .min(count.saturating_sub(s.pushed));
-                let k = usize::from(room).min(block - j);
-                let codes = codes_buf.get(j..j + k).unwrap_or(&[]);
+                let k = usize::from(room).min(block.wrapping_sub(j));
+                let codes = codes_buf.get(j..j.wrapping_add(k)).unwrap_or(&[]);
                 let mut crc = s.crc;
                 for &code in codes {
                     crc.point_code(code, ib > 0);
                 }
                 s.crc = crc;
-                let whole = ((db + ib) / 8) as usize;
-                if (db + ib) % 8 == 0 {
+                let whole = (bits / 8) as usize;
+                if bits % 8 == 0 {
                     // Whole bytes per point: straight into their place, no bit position.
                     let Some(bytes) = s.packer.take_bytes(k.saturating_mul(whole)) else {
                         return Err(Error::FrameTooLong);
@@ -579,9 +589,9 @@ impl ScanEncoder {
                 }
                 // k <= room, a u16.
                 let k16 = k as u16;
-                s.pushed += k16;
-                s.buffered += k16;
-                j += k;
+                s.pushed = s.pushed.wrapping_add(k16);
+                s.buffered = s.buffered.wrapping_add(k16);
+                j = j.wrapping_add(k);
                 if usize::from(room) != k {
                     continue;
                 }
@@ -594,19 +604,20 @@ impl ScanEncoder {
                 if lost {
                     let rest = codes_buf.get(j..block).unwrap_or(&[]);
                     let (v, i) = untake(s, rest);
-                    valid -= v;
-                    invalid -= i;
-                    s.valid += valid;
-                    run.points += j as u32;
-                    run.invalid += invalid;
+                    // The untaken points are among the block's counted ones.
+                    valid = valid.wrapping_sub(v);
+                    invalid = invalid.wrapping_sub(i);
+                    s.valid = s.valid.wrapping_add(valid);
+                    run.points = run.points.wrapping_add(j as u32);
+                    run.invalid = run.invalid.wrapping_add(invalid);
                     run.stop = Some(RunStop::NoSlot);
                     return Ok(run);
                 }
-                run.frames += 1;
+                run.frames = run.frames.wrapping_add(1);
             }
-            s.valid += valid;
-            run.points += block as u32;
-            run.invalid += invalid;
+            s.valid = s.valid.wrapping_add(valid);
+            run.points = run.points.wrapping_add(block as u32);
+            run.invalid = run.invalid.wrapping_add(invalid);
         }
         Ok(run)
     }
@@ -636,9 +647,14 @@ impl ScanEncoder {
         let codes_buf = &mut self.codes;
         let s = self.open.fixed_mut().ok_or(Error::NoScan)?;
         let mut run = Run::default();
-        let bits = db + ib;
-        // Points in a full classic frame: 48 bits after the data header.
-        let cap = (48 / bits) as usize;
+        // As in `run_fd_with`, the arithmetic below counts points of one scan (at most
+        // 4096) and frames: `before + k <= cap`, `j <= end = pending + block`, the
+        // scan's counters below its point count, the run's below its points, and
+        // what is given back was counted before. Nothing wraps.
+        let bits = db.wrapping_add(ib);
+        // Points in a full classic frame: 48 bits after the data header (a point has
+        // at least 12 bits; 0 fails the capacity check below).
+        let cap = 48u32.checked_div(bits).unwrap_or(0) as usize;
         let count = s.header.point_count;
         if usize::from(s.capacity) != cap || s.pending >= cap {
             return Err(Error::FrameTooLong);
@@ -651,35 +667,39 @@ impl ScanEncoder {
                 run.stop = Some(RunStop::TooManyPoints);
                 break;
             }
-            let block = rest.len().min(BLOCK).min(usize::from(count - s.pushed));
+            let block = rest
+                .len()
+                .min(BLOCK)
+                .min(usize::from(count.wrapping_sub(s.pushed)));
             let (now, later) = rest.split_at(block);
             rest = later;
             // The pending codes, then this block's.
             let p = s.pending;
-            let end = p + block;
+            let end = p.wrapping_add(block);
             let fresh = codes_buf.get_mut(p..end).unwrap_or(&mut []);
             let (valid, invalid) = code_block_any(ib, now, rule, point, s, fresh);
             let codes = codes_buf.get(..end).unwrap_or(&[]);
             // The block is taken; a lost frame gives back what follows it.
-            let before = usize::from(s.buffered) - p;
-            s.pushed += block as u16;
-            s.buffered += block as u16;
-            s.valid += valid;
-            run.points += block as u32;
-            run.invalid += invalid;
+            let before = usize::from(s.buffered).wrapping_sub(p);
+            s.pushed = s.pushed.wrapping_add(block as u16);
+            s.buffered = s.buffered.wrapping_add(block as u16);
+            s.valid = s.valid.wrapping_add(valid);
+            run.points = run.points.wrapping_add(block as u32);
+            run.invalid = run.invalid.wrapping_add(invalid);
             let mut j = 0;
             let mut lost = false;
             if before > 0 {
                 // A frame begun by `push_point`, in the packer (then nothing is pending):
                 // its next points one by one, sent if that makes it due.
-                let k = (cap - before).min(block);
-                let at = 16 + before as u32 * bits;
-                let word = s.packer.word64() & !0xFFFF & (u64::MAX >> (64 - at.min(64)));
+                let k = cap.wrapping_sub(before).min(block);
+                let at = (before as u32).wrapping_mul(bits).wrapping_add(16);
+                let word =
+                    s.packer.word64() & !0xFFFF & (u64::MAX >> 64u32.wrapping_sub(at.min(64)));
                 let taking = codes.get(..k).unwrap_or(&[]);
                 let (mut word, at) = place_points(db, ib, taking, word, at, &mut crc);
                 j = k;
-                let n = before + k;
-                if n == cap || usize::from(s.sent) + n == usize::from(count) {
+                let n = before.wrapping_add(k);
+                if n == cap || usize::from(s.sent).wrapping_add(n) == usize::from(count) {
                     let len = if n == cap {
                         s.full_len
                     } else {
@@ -687,12 +707,12 @@ impl ScanEncoder {
                     };
                     word |= u64::from(s.sent & 0x0FFF) | seq_bits;
                     s.packer.reset(DATA_HEADER_LEN);
-                    s.sent += n as u16;
-                    s.buffered -= n as u16;
+                    s.sent = s.sent.wrapping_add(n as u16);
+                    s.buffered = s.buffered.wrapping_sub(n as u16);
                     match sink.data_slot() {
                         Some(frame) => {
                             frame.set_classic(id, word.to_le_bytes(), len);
-                            run.frames += 1;
+                            run.frames = run.frames.wrapping_add(1);
                         }
                         None => lost = true,
                     }
@@ -709,11 +729,11 @@ impl ScanEncoder {
                     let word = whole_frame(db, ib, chunk, cap, header, &mut crc)
                         .ok_or(Error::FrameTooLong)?;
                     sent = sent.wrapping_add(cap as u16);
-                    j += cap;
+                    j = j.wrapping_add(cap);
                     match sink.data_slot() {
                         Some(frame) => {
                             frame.set_classic(id, word.to_le_bytes(), s.full_len);
-                            run.frames += 1;
+                            run.frames = run.frames.wrapping_add(1);
                         }
                         None => {
                             lost = true;
@@ -721,26 +741,26 @@ impl ScanEncoder {
                         }
                     }
                 }
-                s.buffered -= sent.wrapping_sub(s.sent);
+                s.buffered = s.buffered.wrapping_sub(sent.wrapping_sub(s.sent));
                 s.sent = sent;
             }
             // The rest: the scan's last frame, or codes pending for the next run.
-            let r = end - j;
+            let r = end.wrapping_sub(j);
             s.pending = 0;
             // (A frame begun in the packer and not yet due took the whole block: r = 0.)
             if !lost && r > 0 {
-                if usize::from(s.sent) + r == usize::from(count) {
+                if usize::from(s.sent).wrapping_add(r) == usize::from(count) {
                     let header = u64::from(s.sent & 0x0FFF) | seq_bits;
                     let last = codes.get(j..end).unwrap_or(&[]);
                     let (word, _) = place_points(db, ib, last, header, 16, &mut crc);
                     let len = data_frame_len(&s.header.encoding, r).ok_or(Error::FrameTooLong)?;
-                    s.sent += r as u16;
+                    s.sent = s.sent.wrapping_add(r as u16);
                     s.buffered = 0;
                     j = end;
                     match sink.data_slot() {
                         Some(frame) => {
                             frame.set_classic(id, word.to_le_bytes(), len);
-                            run.frames += 1;
+                            run.frames = run.frames.wrapping_add(1);
                         }
                         None => lost = true,
                     }
@@ -754,11 +774,11 @@ impl ScanEncoder {
                 // The points after the lost frame are not taken.
                 let untaken = codes_buf.get(j..end).unwrap_or(&[]);
                 let (v, i) = untake(s, untaken);
-                s.valid -= v;
-                s.pushed -= untaken.len() as u16;
+                s.valid = s.valid.wrapping_sub(v);
+                s.pushed = s.pushed.wrapping_sub(untaken.len() as u16);
                 s.buffered = 0;
-                run.points -= untaken.len() as u32;
-                run.invalid -= i;
+                run.points = run.points.wrapping_sub(untaken.len() as u32);
+                run.invalid = run.invalid.wrapping_sub(i);
                 s.crc = crc;
                 run.stop = Some(RunStop::NoSlot);
                 return Ok(run);
@@ -854,7 +874,7 @@ impl ScanEncoder {
         let (has_band, band) = (rule.band.is_some(), rule.band.unwrap_or(0));
         let e = u32::from(enc.unit_exp & 0xF);
         let half = (1u32 << e) >> 1;
-        let ishift = 16 - enc.intensity.bits().min(16);
+        let ishift = 16u32.wrapping_sub(enc.intensity.bits().min(16));
         let imask = if enc.intensity.is_present() {
             u32::MAX
         } else {
@@ -867,7 +887,7 @@ impl ScanEncoder {
             let dc = if !range {
                 code::error_code(d)
             } else if q <= MAX_RANGE_UNITS {
-                q + code::RANGE_BASE
+                q.wrapping_add(code::RANGE_BASE) // q <= MAX_RANGE_UNITS: no wrap
             } else {
                 code::OUT_OF_RANGE
             };
@@ -1051,24 +1071,26 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
             // A band of three error codes from `a`, which may reach the out-of-range code.
             _ => d >= min && d.wrapping_sub(a) > 2,
         };
-        invalid += u32::from(!is_range);
-        over += if EXC == 3 {
+        // Counts of at most a block's points: no wrap.
+        invalid = invalid.wrapping_add(u32::from(!is_range));
+        over = over.wrapping_add(if EXC == 3 {
             u32::from(d >= max && is_range)
         } else {
             u32::from(d >= max)
-        };
-        n += 1;
+        });
+        n = n.wrapping_add(1);
         // Ranges (at least `min`, so never 0 mm) at or past the out-of-range code are
         // coded so.
         let dc = if is_range { d.min(max) } else { 0 };
         *code = if IB > 0 {
-            dc | (u32::from(intensity) >> (16 - IB)) << 16
+            // IB is an intensity code width, 8..=16 here.
+            dc | (u32::from(intensity) >> 16u32.wrapping_sub(IB)) << 16
         } else {
             dc
         };
     }
     // n <= BLOCK; the points at or past the out-of-range code are all ranges.
-    ((n - invalid - over) as u16, invalid)
+    (n.wrapping_sub(invalid).wrapping_sub(over) as u16, invalid)
 }
 
 /// The loop of [`code_block`] for any rule and unit.
@@ -1086,10 +1108,12 @@ fn code_points<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
         let (raw, intensity) = point(p);
         let distance = rule.distance(raw);
         let (dc, is_valid) = coder.code_valid(distance);
-        invalid += u32::from(distance == Distance::Invalid);
-        valid += u16::from(is_valid);
+        // Counts of at most a block's points: no wrap.
+        invalid = invalid.wrapping_add(u32::from(distance == Distance::Invalid));
+        valid = valid.wrapping_add(u16::from(is_valid));
         *code = if IB > 0 {
-            u32::from(dc) | (u32::from(intensity) >> (16 - IB)) << 16
+            // IB is an intensity code width, 8..=16 here.
+            u32::from(dc) | (u32::from(intensity) >> 16u32.wrapping_sub(IB)) << 16
         } else {
             u32::from(dc)
         };
@@ -1104,8 +1128,9 @@ fn untake(s: &InProgress, codes: &[u32]) -> (u16, u32) {
     let (mut valid, mut invalid) = (0u16, 0u32);
     for &code in codes {
         let dc = code as u16;
-        valid += u16::from(s.coder.is_valid(dc));
-        invalid += u32::from(dc == 0);
+        // Counts of at most a block's points: no wrap.
+        valid = valid.wrapping_add(u16::from(s.coder.is_valid(dc)));
+        invalid = invalid.wrapping_add(u32::from(dc == 0));
     }
     (valid, invalid)
 }
@@ -1124,7 +1149,8 @@ fn place_points(
     for &code in codes {
         crc.point_code(code, ib > 0);
         word |= (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (at & 63);
-        at += db + ib;
+        // At most 4 points of at most 32 bits after 16: no wrap.
+        at = at.wrapping_add(db).wrapping_add(ib);
     }
     (word, at)
 }
@@ -1145,7 +1171,9 @@ fn whole_frame(
     let mut add = |code: u32| crc.point_code(code, ib > 0);
     // Point `i` of the frame, in place.
     let place = |code: u32, i: u32| {
-        (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << (16 + i * (db + ib))
+        // At most 4 points of at most 32 bits: no wrap.
+        let at = i.wrapping_mul(db.wrapping_add(ib)).wrapping_add(16);
+        (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << at
     };
     let word = match n {
         1 => {
@@ -1192,7 +1220,8 @@ fn flush(s: &mut InProgress, id: embedded_can::Id, fd: bool, out: &mut Frame) ->
         seq_low: (s.header.seq & 0xF) as u8,
     };
     put(s.packer.bytes_mut(), 0..DATA_HEADER_LEN, &dh.emit());
-    s.sent += s.buffered;
+    // Both count points of the scan (at most 4096 together): no wrap.
+    s.sent = s.sent.wrapping_add(s.buffered);
     s.buffered = 0;
     let done = out.set(
         id,

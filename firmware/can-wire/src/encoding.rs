@@ -60,7 +60,8 @@ impl DistanceEncoding {
 
     /// The "out of range" code (all ones).
     pub const fn max_code(self) -> u16 {
-        ((1u32 << self.bits()) - 1) as u16
+        // At most 16 bits: 2^bits >= 1.
+        (1u32 << self.bits()).wrapping_sub(1) as u16
     }
 }
 
@@ -134,7 +135,8 @@ impl IntensityEncoding {
     pub const fn encode(self, intensity: u16) -> u16 {
         match self {
             IntensityEncoding::None => 0,
-            _ => intensity >> (16 - self.bits()),
+            // 8..=16 bits on this arm.
+            _ => intensity >> 16u32.wrapping_sub(self.bits()),
         }
     }
 
@@ -142,7 +144,8 @@ impl IntensityEncoding {
     pub const fn decode(self, code: u16) -> u16 {
         match self {
             IntensityEncoding::None => 0,
-            _ => code << (16 - self.bits()),
+            // 8..=16 bits on this arm.
+            _ => code << 16u32.wrapping_sub(self.bits()),
         }
     }
 }
@@ -195,7 +198,8 @@ impl Encoding {
 
     /// Bits per point (distance + intensity).
     pub const fn bits_per_point(&self) -> u32 {
-        self.distance.bits() + self.intensity.bits()
+        // At most 16 + 16.
+        self.distance.bits().wrapping_add(self.intensity.bits())
     }
 
     /// Points a data frame of length `len` (≥ 2) holds when full.
@@ -203,7 +207,15 @@ impl Encoding {
         if len < 2 {
             return 0;
         }
-        (len - 2) * 8 / self.bits_per_point() as usize
+        // A distance code has at least 12 bits: the division never fails.
+        match len
+            .wrapping_sub(2)
+            .saturating_mul(8)
+            .checked_div(self.bits_per_point() as usize)
+        {
+            Some(points) => points,
+            None => 0,
+        }
     }
 
     /// The unit in millimetres.
@@ -364,7 +376,7 @@ impl Packer {
         let whole = self.nbits / 8;
         self.pos = self.pos.wrapping_add(whole as usize);
         // At most 31 bits were waiting: the shift is at most 24.
-        self.acc = self.acc.wrapping_shr(whole * 8);
+        self.acc = self.acc.wrapping_shr(whole.wrapping_mul(8));
         self.nbits %= 8;
     }
 
@@ -385,15 +397,19 @@ impl Packer {
         }
         self.pos = (bits / 8) as usize;
         self.nbits = bits % 8;
-        self.acc = (word >> (self.pos * 8).min(63)) as u32 & ((1u32 << self.nbits) - 1);
+        // `pos` is at most `bits / 8` and `nbits` below 8.
+        self.acc = (word >> self.pos.wrapping_mul(8).min(63)) as u32
+            & (1u32 << self.nbits).wrapping_sub(1);
     }
 
     /// Put one point: its `db`-bit distance code and `ib`-bit intensity code (0 bits
     /// without the channel), in one field when they fit one put.
     #[inline(always)]
     pub(crate) fn put_point(&mut self, dc: u32, ic: u32, db: u32, ib: u32) {
-        if db + ib <= 24 {
-            self.put(dc | ic << db, db + ib);
+        // Code widths are at most 16 bits each.
+        let bits = db.wrapping_add(ib);
+        if bits <= 24 {
+            self.put(dc | ic << db, bits);
         } else {
             self.put(dc, db);
             self.put(ic, ib);
@@ -463,10 +479,12 @@ impl<'a> BitReader<'a> {
         let bits = bits.min(16);
         let first = self.bit / 8;
         let shift = self.bit % 8;
-        let byte = |k: usize| u32::from(self.buf.get(first + k).copied().unwrap_or(0));
+        // `first` is at most `usize::MAX / 8`: adding 0..=2 cannot wrap.
+        let byte = |k: usize| u32::from(self.buf.get(first.wrapping_add(k)).copied().unwrap_or(0));
         let word = byte(0) | (byte(1) << 8) | (byte(2) << 16);
-        self.bit += bits as usize;
-        ((word >> shift) & ((1u32 << bits) - 1)) as u16
+        self.bit = self.bit.saturating_add(bits as usize);
+        // At most 16 bits: 2^bits >= 1.
+        ((word >> shift) & (1u32 << bits).wrapping_sub(1)) as u16
     }
 
     /// Skip `bits` bits.
@@ -484,7 +502,8 @@ impl<'a> BitReader<'a> {
         first_ok
             && self
                 .buf
-                .get(byte + 1..)
+                // `byte` is at most `usize::MAX / 8`.
+                .get(byte.wrapping_add(1)..)
                 .is_none_or(|rest| rest.iter().all(|b| *b == 0))
     }
 }

@@ -124,7 +124,9 @@ impl ScanHeader {
         if !self.geometry_known() {
             return None;
         }
-        let step = i32::from(self.first_step) + i32::from(index) * i32::from(self.step_increment);
+        // An i16 plus a u16 times a u8: far inside i32.
+        let step = i32::from(self.first_step)
+            .wrapping_add(i32::from(index).wrapping_mul(i32::from(self.step_increment)));
         Some(step as f32 * core::f32::consts::TAU / f32::from(self.ares))
     }
 

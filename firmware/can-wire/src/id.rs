@@ -62,7 +62,8 @@ pub struct IdWindow {
 impl IdWindow {
     /// An 11-bit window starting at `base` (`base + 0x7F <= 0x7FF`).
     pub const fn standard(base: u16) -> Result<IdWindow, Error> {
-        if base as u32 + WINDOW_SPAN - 1 > 0x7FF {
+        // A u16 plus 0x7F cannot wrap a u32.
+        if (base as u32).wrapping_add(WINDOW_SPAN - 1) > 0x7FF {
             return Err(Error::BadIdWindow);
         }
         Ok(IdWindow {
@@ -152,12 +153,14 @@ impl NodeIds {
 
     /// The bridge's base ID (its control frame ID).
     pub const fn base(&self) -> u32 {
-        self.window.base + self.node as u32
+        // The window ends at 0x1FFF_FFFF at most: adding a node number cannot wrap.
+        self.window.base.wrapping_add(self.node as u32)
     }
 
     /// The identifier of frames of `kind` from or to this bridge.
     pub fn id(&self, kind: Kind) -> Id {
-        let raw = self.base() + 0x10 * kind as u32;
+        // At most 0x1FFF_FFFF + 0xFF + 0x10 * 7: no wrap.
+        let raw = self.base().wrapping_add(0x10u32.wrapping_mul(kind as u32));
         // The window constructors guarantee `raw` fits; fall back to the base if not.
         if self.window.extended {
             Id::Extended(ExtendedId::new(raw).unwrap_or(ExtendedId::ZERO))

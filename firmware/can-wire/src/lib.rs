@@ -1,13 +1,16 @@
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
+// No panic on any input: no unwrap/expect/panic, no unchecked indexing, and every
+// operation that could overflow says what it does then (checked, wrapping, saturating).
 #![cfg_attr(
     not(test),
     deny(
         clippy::unwrap_used,
         clippy::expect_used,
         clippy::panic,
-        clippy::indexing_slicing
+        clippy::indexing_slicing,
+        clippy::arithmetic_side_effects
     )
 )]
 #![doc = include_str!("../README.md")]

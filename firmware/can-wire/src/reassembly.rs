@@ -240,7 +240,8 @@ impl<const P: usize> Scan<P> {
             .present
             .get(..stored)
             .map_or(0, |s| s.iter().filter(|p| !**p).count());
-        (missing_stored + (usize::from(count) - stored)) as u16
+        // stored <= count, and the sum is at most count.
+        missing_stored.wrapping_add(usize::from(count).wrapping_sub(stored)) as u16
     }
 
     /// Estimated data frames needed for the missing points among the first `count`.
@@ -250,17 +251,18 @@ impl<const P: usize> Scan<P> {
         let cap = usize::from(self.frame_capacity)
             .max(self.header.encoding.capacity(8))
             .max(1);
+        // Both stay at most `count` (a u16): no wrap.
         let mut frames = 0u32;
         let mut run = 0usize;
         for i in 0..usize::from(count) {
             if self.present.get(i).copied().unwrap_or(false) {
-                frames += run.div_ceil(cap) as u32;
+                frames = frames.wrapping_add(run.div_ceil(cap) as u32);
                 run = 0;
             } else {
-                run += 1;
+                run = run.wrapping_add(1);
             }
         }
-        frames + run.div_ceil(cap) as u32
+        frames.wrapping_add(run.div_ceil(cap) as u32)
     }
 
     fn crc_matches(&self, t: &Trailer) -> bool {
@@ -532,7 +534,7 @@ fn lossless_frame<const P: usize>(
             // Intensity codes are 16 bits at most.
             *pi = n as u16;
             *pp = true;
-            stored += 1;
+            stored = stored.saturating_add(1);
         }
     })?;
     scan.received = scan.received.wrapping_add(stored);
@@ -631,10 +633,11 @@ fn scan_frame<const P: usize>(
                 if scan.present.get(i).copied().unwrap_or(false) {
                     let same = scan.distance.get(i) == Some(&u32::from(d))
                         && scan.intensity.get(i) == Some(&n);
+                    // At most a frame's points: no wrap.
                     if same {
-                        equal += 1;
+                        equal = equal.wrapping_add(1);
                     } else {
-                        differ += 1;
+                        differ = differ.wrapping_add(1);
                     }
                 }
             }
@@ -658,7 +661,7 @@ fn scan_frame<const P: usize>(
                     *pd = u32::from(d);
                     *pi = n;
                     *pp = true;
-                    scan.received += 1;
+                    scan.received = scan.received.saturating_add(1);
                 }
             }
             scan.frame_capacity = scan.frame_capacity.max(frame.len());

@@ -109,7 +109,7 @@ impl Writer {
             let word = self.acc;
             // Here `nbits` >= 1 (a field has at most 31 bits): the bits that did not fit.
             self.acc = value.wrapping_shr(32u32.wrapping_sub(self.nbits));
-            self.nbits = total - 32;
+            self.nbits = total.wrapping_sub(32); // total >= 32 here
             self.word(word, out);
         } else {
             self.nbits = total;
@@ -123,10 +123,12 @@ impl Writer {
         let bytes = word.to_le_bytes();
         let room = self.full.saturating_sub(self.len);
         if room > 4 {
-            if let Some(dst) = self.buf.get_mut(self.len..self.len + 4) {
+            // `len + 4` is below `full` here: no wrap.
+            let end = self.len.wrapping_add(4);
+            if let Some(dst) = self.buf.get_mut(self.len..end) {
                 dst.copy_from_slice(&bytes);
             }
-            self.len += 4;
+            self.len = end;
             return;
         }
         if room >= 2 && self.full >= 6 {
@@ -138,7 +140,7 @@ impl Writer {
                 if let Some(d) = self.buf.get_mut(self.len) {
                     *d = b;
                 }
-                self.len += 1;
+                self.len = self.len.wrapping_add(1); // within the frame buffer
             }
             self.crc_pending();
             self.emit(out);
@@ -146,7 +148,7 @@ impl Writer {
                 if let Some(d) = self.buf.get_mut(self.len) {
                     *d = b;
                 }
-                self.len += 1;
+                self.len = self.len.wrapping_add(1); // within the frame buffer
             }
             return;
         }
@@ -169,9 +171,11 @@ impl Writer {
     ) {
         let q = u >> k;
         if q < ESCAPE_ONES {
-            let ones = (1u32 << q) - 1;
-            let low = u & ((1u32 << k) - 1);
-            self.put(ones | low << (q + 1), q + 1 + k, out);
+            // q < 16 and k <= 15: every shift and the width (q + 1 + k) stay below 32.
+            let ones = (1u32 << q).wrapping_sub(1);
+            let low = u & (1u32 << k).wrapping_sub(1);
+            let q1 = q.wrapping_add(1);
+            self.put(ones | low << q1, q1.wrapping_add(k), out);
         } else {
             self.put((1u32 << ESCAPE_ONES) - 1, ESCAPE_ONES, out);
             self.put(value, value_bits, out);
@@ -295,8 +299,9 @@ impl<'a> Reader<'a> {
         if self.available() < bits as usize {
             return None;
         }
-        let v = self.peek() & ((1u64 << bits) - 1);
-        self.bit += bits as usize;
+        // At most 32 bits; `bit` stays within the buffer (checked just above).
+        let v = self.peek() & (1u64 << bits).wrapping_sub(1);
+        self.bit = self.bit.wrapping_add(bits as usize);
         Some(v as u32)
     }
 
@@ -305,23 +310,27 @@ impl<'a> Reader<'a> {
     pub fn read_rice(&mut self, k: u32, value_bits: u32) -> Option<Result<u32, u32>> {
         let ones = (!self.peek()).trailing_zeros().min(ESCAPE_ONES);
         if ones >= ESCAPE_ONES {
-            if self.available() < (ESCAPE_ONES + value_bits) as usize {
+            if self.available() < ESCAPE_ONES.saturating_add(value_bits) as usize {
                 return None;
             }
-            self.bit += ESCAPE_ONES as usize;
+            // Within the buffer: checked just above.
+            self.bit = self.bit.wrapping_add(ESCAPE_ONES as usize);
             return self.read(value_bits).map(Err);
         }
-        if self.available() < (ones + 1 + k) as usize {
+        // ones < 16; `k` is a 4-bit parameter.
+        if self.available() < ones.saturating_add(1).saturating_add(k) as usize {
             return None;
         }
-        self.bit += ones as usize + 1;
+        // Within the buffer: checked just above.
+        self.bit = self.bit.wrapping_add(ones as usize).wrapping_add(1);
         let low = self.read(k)?;
         Some(Ok(ones << k | low))
     }
 
     /// Skip to the next byte boundary.
     pub fn align(&mut self) {
-        self.bit = self.bit.div_ceil(8) * 8;
+        // `bit` is at most the buffer's bit count, so rounding up cannot wrap.
+        self.bit = self.bit.div_ceil(8).wrapping_mul(8);
     }
 }
 

@@ -46,28 +46,32 @@ pub struct Scratch {
 /// Width of a value: bits up to its highest one bit (0 for 0).
 #[inline(always)]
 pub const fn width(v: u32) -> u32 {
-    32 - v.leading_zeros()
+    // leading_zeros() is at most 32.
+    32u32.wrapping_sub(v.leading_zeros())
 }
 
 /// The Rice parameter for `n` residuals summing to `sum`: one less than the width of
 /// their mean.
 #[inline(always)]
 fn rice_k(sum: u32, n: u32) -> u32 {
-    let mean = sum / n.max(1);
-    width(mean).saturating_sub(1).min((1 << K_BITS) - 1)
+    let mean = sum.checked_div(n).unwrap_or(sum); // no residual: their sum
+    width(mean)
+        .saturating_sub(1)
+        .min((1u32 << K_BITS).wrapping_sub(1))
 }
 
 /// Bits of the residuals `u` Rice-coded with parameter `k`, escapes counted.
 #[cold]
 fn rice_bits_exact(u: &[u32], k: u32) -> u32 {
+    // At most BLOCK_POINTS (16) codes of at most 36 bits: no wrap.
     let mut bits = 0u32;
     for &x in u {
         let q = x >> k;
-        bits += if q < ESCAPE_ONES {
-            q + 1 + k
+        bits = bits.wrapping_add(if q < ESCAPE_ONES {
+            q.wrapping_add(1).wrapping_add(k)
         } else {
             ESCAPE_ONES + VALUE_BITS
-        };
+        });
     }
     bits
 }
@@ -79,14 +83,18 @@ fn rice_bits_exact(u: &[u32], k: u32) -> u32 {
 fn rice_bits(u: &[u32], any: u32, k: u32) -> (u32, u32) {
     let n = u.len() as u32;
     if (any >> k) >= ESCAPE_ONES {
-        return (rice_bits_exact(u, k), rice_bits_exact(u, k + 1));
+        return (rice_bits_exact(u, k), rice_bits_exact(u, k.wrapping_add(1)));
     }
     let (mut q0, mut q1) = (0u32, 0u32);
     for &x in u {
         q0 = q0.wrapping_add(x >> k);
-        q1 = q1.wrapping_add(x >> (k + 1));
+        q1 = q1.wrapping_add(x >> k.wrapping_add(1));
     }
-    (q0 + n * (1 + k), q1 + n * (2 + k))
+    // At most 16 values below 2^20 and k at most 15: far from a wrap.
+    (
+        q0.wrapping_add(n.wrapping_mul(k.wrapping_add(1))),
+        q1.wrapping_add(n.wrapping_mul(k.wrapping_add(2))),
+    )
 }
 
 /// Write the block `values` (at most [`BLOCK_POINTS`], each at most [`MAX_VALUE`]) of a
@@ -138,13 +146,14 @@ pub fn put_block<S: FrameSink + ?Sized>(
     let k0 = rice_k(sum, n32);
     let (c0, c1) = rice_bits(u, or, k0);
     let (k, rice) = if c1 < c0 && k0 < (1 << K_BITS) - 1 {
-        (k0 + 1, c1)
+        (k0.wrapping_add(1), c1)
     } else {
         (k0, c0)
     };
     let wv = width(any);
-    let verbatim = WIDTH_BITS + n32 * wv;
-    if verbatim <= K_BITS + rice {
+    // At most 16 values of at most 32 bits; `rice` is at most 16 * 36.
+    let verbatim = WIDTH_BITS.wrapping_add(n32.wrapping_mul(wv));
+    if verbatim <= K_BITS.wrapping_add(rice) {
         w.put(
             Mode::Verbatim as u32 | wv << MODE_BITS,
             MODE_BITS + WIDTH_BITS,
@@ -158,11 +167,13 @@ pub fn put_block<S: FrameSink + ?Sized>(
     w.put(mode as u32 | k << MODE_BITS, MODE_BITS + K_BITS, out);
     if (or >> k) < ESCAPE_ONES {
         // No escape: each code is one field of at most 31 bits.
-        let mask = (1u32 << k) - 1;
+        // q < 16 and k <= 15: the shifts and the width stay below 32.
+        let mask = (1u32 << k).wrapping_sub(1);
         for &x in u {
             let q = x >> k;
-            let code = ((1u32 << q) - 1) | (x & mask) << (q + 1);
-            w.put(code, q + 1 + k, out);
+            let q1 = q.wrapping_add(1);
+            let code = (1u32 << q).wrapping_sub(1) | (x & mask) << q1;
+            w.put(code, q1.wrapping_add(k), out);
         }
     } else {
         for (&v, &x) in values.iter().zip(u) {
@@ -210,8 +221,13 @@ pub fn read_block(r: &mut Reader<'_>, h: &mut History, out: &mut [u32]) -> Resul
                     Err(escaped) => escaped,
                     Ok(u) => {
                         let (a, b) = (i64::from(h.h1), i64::from(h.h2));
-                        let p = if mode == Mode::Order1 { a } else { 2 * a - b };
-                        let x = p + i64::from(unzigzag(u));
+                        // u32 history and an i32 residual: far inside i64.
+                        let p = if mode == Mode::Order1 {
+                            a
+                        } else {
+                            a.wrapping_mul(2).wrapping_sub(b)
+                        };
+                        let x = p.wrapping_add(i64::from(unzigzag(u)));
                         if !(0..=i64::from(MAX_VALUE)).contains(&x) {
                             return Err(ReadError::Corrupt);
                         }

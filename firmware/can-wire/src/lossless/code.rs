@@ -51,7 +51,8 @@ pub const fn error_code(v: u32) -> u32 {
     } else if v < ERROR_CODES {
         v
     } else if v >= HIGH_ERROR_VALUE && v <= HIGH_ERROR_VALUE + 2 {
-        HIGH_ERRORS + (v - HIGH_ERROR_VALUE)
+        // v is HIGH_ERROR_VALUE..=HIGH_ERROR_VALUE + 2 here.
+        HIGH_ERRORS.wrapping_add(v.wrapping_sub(HIGH_ERROR_VALUE))
     } else {
         OUT_OF_RANGE
     }
@@ -65,7 +66,7 @@ pub const fn range_code(mm: u32, unit_exp: u8) -> u32 {
     if q > MAX_VALUE - RANGE_BASE {
         OUT_OF_RANGE
     } else {
-        RANGE_BASE + q
+        RANGE_BASE.wrapping_add(q) // q <= MAX_VALUE - RANGE_BASE here
     }
 }
 
@@ -82,7 +83,7 @@ pub const fn decode_distance(code: u32, unit_exp: u8) -> Result<Distance, Error>
         return Err(Error::ReservedBits);
     }
     if code >= RANGE_BASE {
-        let q = (code - RANGE_BASE) as u64;
+        let q = code.wrapping_sub(RANGE_BASE) as u64; // code >= RANGE_BASE here
         let mm = q << (unit_exp & 0xF);
         return Ok(if mm > u32::MAX as u64 {
             Distance::OutOfRange
@@ -95,7 +96,8 @@ pub const fn decode_distance(code: u32, unit_exp: u8) -> Result<Distance, Error>
         INVALID => Ok(Distance::Invalid),
         OUT_OF_RANGE => Ok(Distance::OutOfRange),
         HIGH_ERRORS..RANGE_BASE => Ok(Distance::SensorError(
-            HIGH_ERROR_VALUE + (code - HIGH_ERRORS),
+            // code is HIGH_ERRORS..RANGE_BASE here.
+            HIGH_ERROR_VALUE.wrapping_add(code.wrapping_sub(HIGH_ERRORS)),
         )),
         _ => Err(Error::ReservedBits),
     }

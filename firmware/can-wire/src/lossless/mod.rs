@@ -70,7 +70,7 @@ pub const fn segment_points(points: usize, index: usize) -> usize {
     if start >= points {
         0
     } else {
-        let left = points - start;
+        let left = points.wrapping_sub(start); // start < points here
         if left < SEGMENT_POINTS {
             left
         } else {
@@ -114,7 +114,7 @@ pub const fn zigzag(e: i32) -> u32 {
 /// The inverse of [`zigzag`].
 #[inline(always)]
 pub const fn unzigzag(u: u32) -> i32 {
-    ((u >> 1) as i32) ^ -((u & 1) as i32)
+    ((u >> 1) as i32) ^ ((u & 1) as i32).wrapping_neg()
 }
 
 #[cfg(test)]

@@ -152,7 +152,7 @@ impl Receiver {
         // The segment ends in this frame, which is no longer than it needs to be.
         let used_here = seg.used.checked_sub(self.before_last).filter(|u| *u > 0);
         let tidy = used_here.is_some_and(|u| {
-            padded_len(1 + u) == Some(data.len())
+            u.checked_add(1).and_then(padded_len) == Some(data.len())
                 && payload
                     .get(u..)
                     .is_some_and(|rest| rest.iter().all(|b| *b == 0))
@@ -167,7 +167,8 @@ impl Receiver {
         }
         let first = usize::from(seg.index) * SEGMENT_POINTS;
         for (k, (&dc, &ic)) in d.iter().zip(i.iter()).take(seg.points).enumerate() {
-            store((first + k) as u16, dc, ic);
+            // At most 4096 points a scan: no wrap.
+            store(first.wrapping_add(k) as u16, dc, ic);
         }
         Ok(Received::Segment {
             first: first as u16,

@@ -75,7 +75,7 @@ pub fn decode(
     }
     let mut start = 1;
     while start < n {
-        let end = (start + BLOCK_POINTS).min(n);
+        let end = start.wrapping_add(BLOCK_POINTS).min(n); // start < n
         let block = distance.get_mut(start..end).ok_or(ReadError::Corrupt)?;
         read_block(&mut r, &mut hd, block)?;
         if intensity {
@@ -90,12 +90,15 @@ pub fn decode(
     if codes.iter().any(|&c| (ERROR_CODES..INVALID).contains(&c)) {
         return Err(ReadError::Corrupt);
     }
-    let pad = r.position().next_multiple_of(8) - r.position();
+    // Rounding up never goes below the position.
+    let pad = r.position().next_multiple_of(8).wrapping_sub(r.position());
     if r.read(pad as u32).ok_or(ReadError::NeedMore)? != 0 {
         return Err(ReadError::Corrupt);
     }
     let body = r.position() / 8;
-    let sent = bytes.get(body..body + 2).ok_or(ReadError::NeedMore)?;
+    // `body` is at most `usize::MAX / 8`: adding 2 cannot wrap.
+    let used = body.wrapping_add(2);
+    let sent = bytes.get(body..used).ok_or(ReadError::NeedMore)?;
     let sent = u16::from_le_bytes([
         sent.first().copied().unwrap_or(0),
         sent.get(1).copied().unwrap_or(0),
@@ -109,7 +112,7 @@ pub fn decode(
         seq_low,
         index,
         points: n,
-        used: body + 2,
+        used,
         crc: sent,
     })
 }

@@ -113,8 +113,11 @@ impl ScanStream {
             return Err(Error::TooManyPoints);
         }
         let (distance, intensity) = (distance.min(MAX_VALUE), intensity.min(MAX_VALUE));
-        self.valid += u16::from(code::is_range(distance));
-        self.pushed += 1;
+        // Counters of this scan's points: `valid <= pushed < point_count` (at most
+        // 4096) before the step, `gathered < BLOCK_POINTS` and `in_segment <
+        // segment_len`: none can wrap.
+        self.valid = self.valid.wrapping_add(u16::from(code::is_range(distance)));
+        self.pushed = self.pushed.wrapping_add(1);
         if self.in_segment == 0 {
             self.begin_segment(distance, intensity, out);
         } else {
@@ -124,8 +127,8 @@ impl ScanStream {
                 *d = distance;
                 *i = intensity;
             }
-            self.gathered += 1;
-            self.in_segment += 1;
+            self.gathered = self.gathered.wrapping_add(1);
+            self.in_segment = self.in_segment.wrapping_add(1);
             if self.gathered == BLOCK_POINTS {
                 self.put_blocks(out);
             }
@@ -151,6 +154,9 @@ impl ScanStream {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
+        // The counters stay below the scan's points (at most 4096), `ranges <= taken`,
+        // `gathered < BLOCK_POINTS` and `in_segment < segment_len` at the top of the
+        // loop (a full block or segment is sent at once): nothing here wraps.
         let (mut taken, mut ranges) = (0usize, 0usize);
         let mut rest = points;
         while !rest.is_empty() && self.pushed < self.point_count && out.lost == 0 {
@@ -160,27 +166,27 @@ impl ScanStream {
                 };
                 let (d, i) = code(first);
                 let d = d.min(MAX_VALUE);
-                ranges += usize::from(code::is_range(d));
-                self.valid += u16::from(code::is_range(d));
-                self.pushed += 1;
+                ranges = ranges.wrapping_add(usize::from(code::is_range(d)));
+                self.valid = self.valid.wrapping_add(u16::from(code::is_range(d)));
+                self.pushed = self.pushed.wrapping_add(1);
                 self.begin_segment(d, u32::from(i), out);
                 if self.in_segment >= self.segment_len {
                     self.end_segment(out);
                 }
                 rest = later;
-                taken += 1;
+                taken = taken.wrapping_add(1);
                 continue;
             }
-            let left = usize::from(self.point_count - self.pushed);
-            let room = (BLOCK_POINTS - self.gathered)
-                .min(self.segment_len - self.in_segment)
+            let left = usize::from(self.point_count.wrapping_sub(self.pushed));
+            let room = BLOCK_POINTS
+                .wrapping_sub(self.gathered)
+                .min(self.segment_len.wrapping_sub(self.in_segment))
                 .min(rest.len())
                 .min(left);
             let (now, later) = rest.split_at(room);
             let at = self.gathered;
-            let (Some(dd), Some(ii)) =
-                (self.d.get_mut(at..at + room), self.i.get_mut(at..at + room))
-            else {
+            let end = at.wrapping_add(room);
+            let (Some(dd), Some(ii)) = (self.d.get_mut(at..end), self.i.get_mut(at..end)) else {
                 break;
             };
             let mut valid = 0usize;
@@ -188,14 +194,14 @@ impl ScanStream {
                 let (dc, ic) = code(p);
                 *d = dc.min(MAX_VALUE);
                 *i = u32::from(ic);
-                valid += usize::from(dc >= code::RANGE_BASE);
+                valid = valid.wrapping_add(usize::from(dc >= code::RANGE_BASE));
             }
-            ranges += valid;
-            self.valid += valid as u16;
-            self.pushed += room as u16;
-            self.gathered += room;
-            self.in_segment += room;
-            taken += room;
+            ranges = ranges.wrapping_add(valid);
+            self.valid = self.valid.wrapping_add(valid as u16);
+            self.pushed = self.pushed.wrapping_add(room as u16);
+            self.gathered = self.gathered.wrapping_add(room);
+            self.in_segment = self.in_segment.wrapping_add(room);
+            taken = taken.wrapping_add(room);
             rest = later;
             if self.gathered == BLOCK_POINTS {
                 self.put_blocks(out);
@@ -204,20 +210,27 @@ impl ScanStream {
                 self.end_segment(out);
             }
         }
-        (taken, taken - ranges)
+        (taken, taken.wrapping_sub(ranges))
     }
 
     #[cold]
     fn begin_segment<S: FrameSink + ?Sized>(&mut self, d: u32, i: u32, out: &mut Out<'_, S>) {
-        let index = usize::from(self.pushed - 1) / SEGMENT_POINTS;
+        // Called after the segment's first point was counted: `pushed >= 1`.
+        let index = usize::from(self.pushed.wrapping_sub(1)) / SEGMENT_POINTS;
         self.segment_len = segment_points(usize::from(self.point_count), index);
         self.w.begin_segment(self.seq_low, index as u8, out);
-        self.w
-            .put(width(d) | d << WIDTH_BITS, WIDTH_BITS + width(d), out);
+        self.w.put(
+            width(d) | d << WIDTH_BITS,
+            WIDTH_BITS.wrapping_add(width(d)),
+            out,
+        );
         self.hd = History::anchor(d);
         if self.intensity {
-            self.w
-                .put(width(i) | i << WIDTH_BITS, WIDTH_BITS + width(i), out);
+            self.w.put(
+                width(i) | i << WIDTH_BITS,
+                WIDTH_BITS.wrapping_add(width(i)),
+                out,
+            );
             self.hi = History::anchor(i);
         }
         self.in_segment = 1;
