@@ -92,6 +92,14 @@ impl<W: Write> RecordWriter<W> {
     }
 }
 
+/// The longest chunk a record may hold: one read of a serial port or socket is far
+/// shorter; a header claiming more is a damaged (or hostile) file, refused before any
+/// allocation.
+pub const MAX_CHUNK: usize = 1 << 20;
+
+/// The longest chunk header or comment line.
+const MAX_LINE: u64 = 1024;
+
 fn bad(msg: String) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidData, msg)
 }
@@ -121,8 +129,16 @@ impl<R: BufRead> RecordReader<R> {
     pub fn next_chunk(&mut self) -> io::Result<Option<Chunk>> {
         loop {
             self.line.clear();
-            if self.input.read_until(b'\n', &mut self.line)? == 0 {
+            let n = (&mut self.input)
+                .take(MAX_LINE)
+                .read_until(b'\n', &mut self.line)?;
+            if n == 0 {
                 return Ok(None);
+            }
+            if self.line.last() != Some(&b'\n') && n as u64 == MAX_LINE {
+                return Err(bad(format!(
+                    "a chunk header or comment line longer than {MAX_LINE} bytes"
+                )));
             }
             if self.line.first() != Some(&b'#') {
                 break;
@@ -141,6 +157,11 @@ impl<R: BufRead> RecordReader<R> {
         };
         let t_us = num(parts.next())?;
         let len = usize::try_from(num(parts.next())?).map_err(|e| bad(e.to_string()))?;
+        if len > MAX_CHUNK {
+            return Err(bad(format!(
+                "chunk at {t_us} µs claims {len} bytes, more than {MAX_CHUNK}"
+            )));
+        }
         let mut bytes = vec![0u8; len];
         self.input.read_exact(&mut bytes)?;
         let mut lf = [0u8; 1];
@@ -252,5 +273,18 @@ mod tests {
         assert!(sensor_bytes(header).is_err());
         let no_lf = b"# scip2can record v1\n< 5 1\nxy";
         assert!(sensor_bytes(no_lf).is_err());
+    }
+
+    /// A header claiming a huge chunk, or a header line without end, is an error at once
+    /// (it used to allocate what the header claimed: 100 GB aborted the process).
+    #[test]
+    fn huge_claims_are_refused_before_allocating() {
+        let huge = b"# scip2can record v1\n< 5 100000000000\nVV\n";
+        let e = sensor_bytes(huge).unwrap_err();
+        assert!(e.to_string().contains("claims 100000000000 bytes"), "{e}");
+        let mut endless = b"# scip2can record v1\n< 5 ".to_vec();
+        endless.extend(std::iter::repeat_n(b'7', 5000));
+        let e = sensor_bytes(&endless).unwrap_err();
+        assert!(e.to_string().contains("longer than 1024"), "{e}");
     }
 }
