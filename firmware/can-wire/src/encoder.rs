@@ -808,13 +808,7 @@ impl ScanEncoder {
     ) -> Result<Run, Error> {
         if let Some(l) = self.open.lossless_mut() {
             let enc = l.header.encoding;
-            let mut out = Out {
-                sink,
-                id: self.ids.id(Kind::Data),
-                fd: self.format.is_fd(),
-                frames: 0,
-                lost: 0,
-            };
+            let mut out = Out::new(sink, self.ids.id(Kind::Data), self.format.is_fd());
             let d = code::distance_code(distance, enc.unit_exp);
             let i = u32::from(enc.intensity.encode(intensity));
             l.stream.push(d, i, &mut out)?;
@@ -861,13 +855,7 @@ impl ScanEncoder {
     {
         let l = self.open.lossless_mut().ok_or(Error::NoScan)?;
         let enc = l.header.encoding;
-        let mut out = Out {
-            sink,
-            id: self.ids.id(Kind::Data),
-            fd: self.format.is_fd(),
-            frames: 0,
-            lost: 0,
-        };
+        let mut out = Out::new(sink, self.ids.id(Kind::Data), self.format.is_fd());
         // The per-point work with every constant worked out once: the rule's band, the
         // unit's rounding, the intensity code as a shift and a mask (none: mask 0).
         let (min, [a, b]) = (rule.min, rule.except);

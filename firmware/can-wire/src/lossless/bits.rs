@@ -26,6 +26,19 @@ pub struct Out<'a, S: ?Sized> {
     pub lost: u32,
 }
 
+impl<'a, S: ?Sized> Out<'a, S> {
+    /// Frames with identifier `id` (CAN FD frames if `fd`) into `sink`, none yet.
+    pub fn new(sink: &'a mut S, id: Id, fd: bool) -> Self {
+        Out {
+            sink,
+            id,
+            fd,
+            frames: 0,
+            lost: 0,
+        }
+    }
+}
+
 /// Writes a scan's segments into data frames: a framing byte, then the stream's bytes,
 /// LSB first (stream bit `k` of a frame's payload is bit `k % 8` of byte `1 + k / 8`).
 ///
@@ -350,13 +363,7 @@ mod tests {
     #[test]
     fn a_segment_on_classic_can() {
         let mut sink = Frames::new();
-        let mut out = Out {
-            sink: &mut sink,
-            id: id(),
-            fd: false,
-            frames: 0,
-            lost: 0,
-        };
+        let mut out = Out::new(&mut sink, id(), false);
         let mut w = Writer::new(8);
         w.begin_segment(0x25, 2, &mut out);
         w.put(0b101, 3, &mut out);
@@ -377,13 +384,7 @@ mod tests {
     #[test]
     fn frames_are_cut_and_counted() {
         let mut sink = Frames::new();
-        let mut out = Out {
-            sink: &mut sink,
-            id: id(),
-            fd: true,
-            frames: 0,
-            lost: 0,
-        };
+        let mut out = Out::new(&mut sink, id(), true);
         let mut w = Writer::new(12);
         w.begin_segment(1, 0, &mut out);
         for i in 0..20u32 {
@@ -416,13 +417,7 @@ mod tests {
     #[test]
     fn rice_codes_read_back() {
         let mut sink = Frames::new();
-        let mut out = Out {
-            sink: &mut sink,
-            id: id(),
-            fd: true,
-            frames: 0,
-            lost: 0,
-        };
+        let mut out = Out::new(&mut sink, id(), true);
         let mut w = Writer::new(64);
         w.begin_segment(0, 0, &mut out);
         let cases = [

@@ -254,13 +254,7 @@ mod tests {
     fn round_trip(blocks: &[std::vec::Vec<u32>], anchor: u32) -> std::vec::Vec<Mode> {
         let mut sink = Frames::new();
         let id = IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data);
-        let mut out = Out {
-            sink: &mut sink,
-            id,
-            fd: true,
-            frames: 0,
-            lost: 0,
-        };
+        let mut out = Out::new(&mut sink, id, true);
         let mut w = Writer::new(64);
         w.begin_segment(0, 0, &mut out);
         let mut h = History::anchor(anchor);

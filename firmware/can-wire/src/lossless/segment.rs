@@ -132,13 +132,7 @@ mod tests {
         let mut sink = Frames::new();
         let id = IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data);
         let fd = full > 8;
-        let mut out = Out {
-            sink: &mut sink,
-            id,
-            fd,
-            frames: 0,
-            lost: 0,
-        };
+        let mut out = Out::new(&mut sink, id, fd);
         let mut s = ScanStream::new(0x1234, d.len() as u16, i.is_some(), full, &[0; 8], &[0; 8]);
         for (k, &v) in d.iter().enumerate() {
             let iv = i.map_or(0, |i| i[k]);
@@ -195,13 +189,7 @@ mod tests {
     fn reserved_codes_and_bad_crc_are_corrupt() {
         let mut sink = Frames::new();
         let id = IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data);
-        let mut out = Out {
-            sink: &mut sink,
-            id,
-            fd: true,
-            frames: 0,
-            lost: 0,
-        };
+        let mut out = Out::new(&mut sink, id, true);
         let mut s = ScanStream::new(0, 3, false, 64, &[0; 8], &[0; 8]);
         for v in [200, 110, 200] {
             s.push(v, 0, &mut out).unwrap();
@@ -214,13 +202,7 @@ mod tests {
         );
 
         let mut sink = Frames::new();
-        let mut out = Out {
-            sink: &mut sink,
-            id,
-            fd: true,
-            frames: 0,
-            lost: 0,
-        };
+        let mut out = Out::new(&mut sink, id, true);
         let mut s = ScanStream::new(0, 3, false, 64, &[0; 8], &[0; 8]);
         for v in [200, 300, 200] {
             s.push(v, 0, &mut out).unwrap();
