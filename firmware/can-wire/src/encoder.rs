@@ -810,7 +810,7 @@ impl ScanEncoder {
             let enc = l.header.encoding;
             let mut out = Out::new(sink, self.ids.id(Kind::Data), self.format.is_fd());
             let d = code::distance_code(distance, enc.unit_exp);
-            let i = u32::from(enc.intensity.encode(intensity));
+            let i = enc.intensity.encode(intensity);
             l.stream.push(d, i, &mut out)?;
             return Ok(Run {
                 points: 1,

@@ -89,11 +89,6 @@ impl Writer {
         self.bytes.wrapping_add(self.len.saturating_sub(1) as u32)
     }
 
-    /// Data frames begun so far (the counter before it wraps).
-    pub fn frames_begun(&self) -> u8 {
-        self.counter
-    }
-
     /// Start a segment in a fresh frame: its header fields.
     pub fn begin_segment<S: FrameSink + ?Sized>(
         &mut self,

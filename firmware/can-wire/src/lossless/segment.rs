@@ -135,7 +135,7 @@ mod tests {
         let mut out = Out::new(&mut sink, id, fd);
         let mut s = ScanStream::new(0x1234, d.len() as u16, i.is_some(), full, &[0; 8], &[0; 8]);
         for (k, &v) in d.iter().enumerate() {
-            let iv = i.map_or(0, |i| i[k]);
+            let iv = i.map_or(0, |i| i[k] as u16);
             s.push(v, iv, &mut out).unwrap();
         }
         assert_eq!(s.sent() as usize, d.len());

@@ -101,41 +101,18 @@ impl ScanStream {
     }
 
     /// Take the next point: its distance code and intensity code (0 without the
-    /// channel). Frames that fill go into `out`.
-    #[inline(always)]
+    /// channel). Frames that fill go into `out`. The same as [`ScanStream::push_run`]
+    /// of one point.
     pub fn push<S: FrameSink + ?Sized>(
         &mut self,
         distance: u32,
-        intensity: u32,
+        intensity: u16,
         out: &mut Out<'_, S>,
     ) -> Result<(), Error> {
         if self.pushed >= self.point_count {
             return Err(Error::TooManyPoints);
         }
-        let (distance, intensity) = (distance.min(MAX_VALUE), intensity.min(MAX_VALUE));
-        // Counters of this scan's points: `valid <= pushed < point_count` (at most
-        // 4096) before the step, `gathered < BLOCK_POINTS` and `in_segment <
-        // segment_len`: none can wrap.
-        self.valid = self.valid.wrapping_add(u16::from(code::is_range(distance)));
-        self.pushed = self.pushed.wrapping_add(1);
-        if self.in_segment == 0 {
-            self.begin_segment(distance, intensity, out);
-        } else {
-            if let (Some(d), Some(i)) =
-                (self.d.get_mut(self.gathered), self.i.get_mut(self.gathered))
-            {
-                *d = distance;
-                *i = intensity;
-            }
-            self.gathered = self.gathered.wrapping_add(1);
-            self.in_segment = self.in_segment.wrapping_add(1);
-            if self.gathered == BLOCK_POINTS {
-                self.put_blocks(out);
-            }
-        }
-        if self.in_segment >= self.segment_len {
-            self.end_segment(out);
-        }
+        self.push_run(&[(distance, intensity)], |p| *p, out);
         Ok(())
     }
 
