@@ -1,0 +1,190 @@
+//! The SCIP decoder check shared by the `decoder` and `decoder_small` targets: arbitrary
+//! bytes, fed whole, byte by byte and in a chunking derived from the first input byte,
+//! must never panic, must keep the response framing rules, and must give the same events
+//! and counters every way, and the same as the char-by-char reference decoder (no
+//! whole-step fast path).
+//!
+//! Events are compared by a 64-bit digest (FNV-1a) of their contents rather than as text:
+//! the data lines' readings are hashed as numbers, the other (rare) events through their
+//! `Debug` form written into the hasher, so no event allocates. Formatting every reading
+//! as text made the target run at about 300 inputs per second.
+
+use core::fmt::Write as _;
+use scip::{Decoder, DecoderStats, ErrorKind, Event};
+
+/// FNV-1a over bytes; also a `fmt::Write` sink, so `Debug` output hashes without a String.
+struct Fnv(u64);
+
+impl Fnv {
+    fn bytes(&mut self, b: &[u8]) {
+        for &x in b {
+            self.0 = (self.0 ^ u64::from(x)).wrapping_mul(0x100_0000_01b3);
+        }
+    }
+    fn word(&mut self, w: u64) {
+        self.bytes(&w.to_le_bytes());
+    }
+}
+
+impl core::fmt::Write for Fnv {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        self.bytes(s.as_bytes());
+        Ok(())
+    }
+}
+
+/// The digest of one event.
+fn digest(ev: &Event<'_>) -> u64 {
+    let mut h = Fnv(0xcbf2_9ce4_8422_2325);
+    match ev {
+        Event::Data(line) => {
+            h.word(0xDA7A);
+            let _ = write!(h, "{:?}{:?}{}", line.data, line.limits, line.line);
+            for r in line.readings {
+                h.word(u64::from(r.index) | u64::from(r.echo) << 16);
+                h.word(u64::from(r.distance) | u64::from(r.aux) << 32);
+            }
+        }
+        other => {
+            let _ = write!(h, "{other:?}");
+        }
+    }
+    h.0
+}
+
+/// Checks the event order rules while recording every event's digest.
+#[derive(Default)]
+struct Checker {
+    log: Vec<u64>,
+    /// A response started and has not ended (End or its first Error).
+    open: bool,
+    /// The open response already reported its first Error.
+    failed: bool,
+    /// Values (first echoes) and extra echoes published in the open response.
+    values: u32,
+    extra: u32,
+    /// Bytes consumed so far.
+    fed: u64,
+}
+
+impl Checker {
+    fn event(&mut self, ev: &Event<'_>) {
+        self.log.push(digest(ev));
+        let live = self.open && !self.failed;
+        match ev {
+            Event::Start { .. } => {
+                assert!(!live, "Start while the previous response is still open");
+                self.open = true;
+                self.failed = false;
+                self.values = 0;
+                self.extra = 0;
+            }
+            Event::End(summary) => {
+                assert!(live, "End outside a live response");
+                self.open = false;
+                assert_eq!(u32::from(summary.values), self.values, "End values");
+                assert_eq!(u32::from(summary.extra_echoes), self.extra, "End echoes");
+            }
+            Event::Error(e) => {
+                assert!(e.offset <= self.fed, "error offset beyond the bytes fed");
+                if live {
+                    self.failed = true;
+                }
+            }
+            Event::Data(line) => {
+                assert!(live, "Data outside a live response (or after its Error)");
+                for r in line.readings {
+                    if r.echo == 0 {
+                        assert_eq!(u32::from(r.index), self.values, "value index");
+                        self.values += 1;
+                    } else {
+                        assert!(r.echo < 3, "echo number");
+                        assert_eq!(u32::from(r.index) + 1, self.values, "echo index");
+                        self.extra += 1;
+                    }
+                }
+            }
+            Event::Status(_) | Event::Field(_) | Event::Timestamp(_) | Event::Payload(_) => {
+                assert!(live, "payload event outside a live response");
+            }
+        }
+    }
+}
+
+/// Feeds `stream` in pieces of the sizes `sizes` yields (the last piece takes the rest),
+/// then finishes; returns the events as text and the counters.
+fn run(stream: &[u8], sizes: impl FnMut() -> usize) -> (Vec<u64>, DecoderStats) {
+    run_with(Decoder::new(), stream, sizes)
+}
+
+fn run_with(
+    mut dec: Decoder,
+    stream: &[u8],
+    mut sizes: impl FnMut() -> usize,
+) -> (Vec<u64>, DecoderStats) {
+    let mut ck = Checker::default();
+    let mut rest = stream;
+    while !rest.is_empty() {
+        let n = sizes().clamp(1, rest.len());
+        let (mut chunk, tail) = rest.split_at(n);
+        rest = tail;
+        while !chunk.is_empty() {
+            let (used, ev) = dec.feed(chunk);
+            assert!(used >= 1, "feed made no progress");
+            assert!(used <= chunk.len(), "feed consumed more than it got");
+            ck.fed += used as u64;
+            if let Some(ev) = ev {
+                ck.event(&ev);
+            }
+            chunk = &chunk[used..];
+        }
+    }
+    let live = ck.open && !ck.failed;
+    match dec.finish() {
+        Some(ev) => {
+            assert!(matches!(ev, Event::Error(e) if e.kind == ErrorKind::Truncated));
+            ck.event(&ev);
+        }
+        None => assert!(!live, "finish left a response open"),
+    }
+    assert!(dec.is_idle(), "not idle after finish");
+    let stats = *dec.stats();
+    assert_eq!(stats.bytes, stream.len() as u64);
+    (ck.log, stats)
+}
+
+/// Checks one input: the first byte selects the chunking, the rest is the stream.
+pub fn check(data: &[u8]) {
+    let Some((&sel, stream)) = data.split_first() else {
+        return;
+    };
+    let whole = run(stream, || usize::MAX);
+    let reference = run_with(Decoder::char_by_char(), stream, || usize::MAX);
+    assert_eq!(
+        whole, reference,
+        "fast path differs from the char-by-char reference"
+    );
+    let bytewise = run(stream, || 1);
+    assert_eq!(
+        whole, bytewise,
+        "byte-by-byte feeding differs from one-shot"
+    );
+    let chunked = if sel < 0x80 {
+        // Fixed chunks of 1..=128 bytes.
+        let size = usize::from(sel) + 1;
+        run(stream, || size)
+    } else {
+        // Varying chunks of 1..=80 bytes from a small xorshift sequence.
+        let mut x = u32::from(sel) | 0x9E37_7900;
+        run(stream, || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            (x % 80) as usize + 1
+        })
+    };
+    assert_eq!(
+        whole, chunked,
+        "chunked feeding (selector {sel}) differs from one-shot"
+    );
+}
