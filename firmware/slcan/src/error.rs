@@ -33,6 +33,8 @@ pub enum Error {
     ListenOnly,
     /// A CAN FD frame, or `Y`, on an adapter that only does classic CAN.
     FdNotSupported,
+    /// A frame's timestamp above `EA5F` (timestamps count ms modulo 60000).
+    BadTimestamp,
 }
 
 impl fmt::Display for Error {
@@ -51,6 +53,7 @@ impl fmt::Display for Error {
             Error::AlreadyOpen => f.write_str("channel already open"),
             Error::ListenOnly => f.write_str("channel is listen-only"),
             Error::FdNotSupported => f.write_str("CAN FD not supported"),
+            Error::BadTimestamp => f.write_str("timestamp above EA5F (59999 ms)"),
         }
     }
 }

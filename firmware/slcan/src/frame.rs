@@ -21,6 +21,9 @@ use crate::Error;
 /// Largest payload (CAN FD).
 pub const MAX_DATA: usize = 64;
 
+/// Timestamps count milliseconds modulo this (`0000`..=`EA5F`).
+const TIMESTAMP_MODULUS: u32 = 60_000;
+
 /// Payload length of each CAN FD data length code.
 const FD_LENGTHS: [u8; 16] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64];
 
@@ -185,7 +188,7 @@ impl Frame {
             out.hex(u32::from(b), 2)?;
         }
         if let Some(ts) = timestamp_ms {
-            out.hex(u32::from(ts % 60_000), 4)?;
+            out.hex(u32::from(ts) % TIMESTAMP_MODULUS, 4)?;
         }
         out.byte(crate::CR)?;
         Ok(out.len)
@@ -220,7 +223,10 @@ impl Frame {
         let (data_chars, tail) = body.split_at_checked(chars).ok_or(Error::BadLength)?;
         let ts = match (tail.len(), timestamp) {
             (0, _) => None,
-            (4, true) => Some(u16::try_from(hex::number(tail)?).map_err(|_| Error::BadDigit)?),
+            (4, true) => match hex::number(tail)? {
+                ms @ 0..TIMESTAMP_MODULUS => Some(u16::try_from(ms).map_err(|_| Error::BadDigit)?),
+                _ => return Err(Error::BadTimestamp),
+            },
             _ => return Err(Error::BadLength),
         };
         let mut data = [0u8; MAX_DATA];
@@ -397,5 +403,15 @@ mod tests {
         let mut small = [0u8; 5];
         let f = Frame::new(std_id(1), FrameKind::Data, &[1]).unwrap();
         assert_eq!(f.emit(None, &mut small), Err(Error::BufferTooSmall));
+    }
+
+    /// Found by the `slcan` fuzz target: `d0dd1d1ed1d` is a CAN FD frame with a timestamp
+    /// of 0xED1D = 60701 ms, which no adapter sends (they count modulo 60000) and which
+    /// would emit back as 701.
+    #[test]
+    fn timestamp_above_ea5f_is_rejected() {
+        assert_eq!(Frame::parse(b"d0dd1d1ed1d", true), Err(Error::BadTimestamp));
+        let (_, ts) = Frame::parse(b"d0dd1d1ea5f", true).unwrap();
+        assert_eq!(ts, Some(59_999));
     }
 }

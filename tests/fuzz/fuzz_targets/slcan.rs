@@ -63,7 +63,7 @@ fn round_trips(text: &[u8]) {
             assert_eq!(buf[n - 1], b'\r');
             assert_eq!(
                 Frame::parse(&buf[..n - 1], ts),
-                Ok((frame, stamp.map(|s| s % 60_000))),
+                Ok((frame, stamp)),
                 "frame round trip"
             );
         }
