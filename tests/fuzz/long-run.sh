@@ -29,7 +29,7 @@ for t in "${targets[@]}"; do
     nice -n 19 cargo +nightly fuzz run -O "$t" "corpus/$t" -- \
         -max_total_time="$secs" -max_len="$(max_len "$t")" -print_final_stats=1 \
         >"$out" 2>&1 || { tail -30 "$out" >&2; exit 1; }
-    runs=$(awk -F': *' '/stat::number_of_executed_units/ {print $2}' "$out")
+    runs=$(awk '/stat::number_of_executed_units/ {print $NF}' "$out")
     cov=$(grep -o 'cov: [0-9]*' "$out" | tail -1 | cut -d' ' -f2)
     corp=$(grep -o 'corp: [0-9]*/[0-9]*[a-zA-Z]*' "$out" | tail -1 | cut -d' ' -f2)
     printf '%s %s runs=%s seconds=%s cov=%s corpus=%s crashes=0\n' \
