@@ -305,6 +305,9 @@ pub struct DecodeArgs {
     /// Identifier window.
     #[command(flatten)]
     pub window: WindowArgs,
+    /// MCAP output.
+    #[command(flatten)]
+    pub mcap: crate::view::mcap::McapArgs,
 }
 
 /// Opens a log path or `-`.
@@ -319,6 +322,8 @@ pub fn open_log(path: &str) -> anyhow::Result<Box<dyn BufRead>> {
 /// `scip2can decode`.
 pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
     let window = args.window.window()?;
+    // The MCAP file is created first: a bad path fails before any input is read.
+    let mut mcap = crate::view::mcap::McapSink::from_args(&args.mcap)?;
     let input = open_log(&args.log)?;
     let mut out = io::BufWriter::new(io::stdout().lock());
     let mut dec = LogDecoder::new(window);
@@ -348,12 +353,25 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
             .with_context(|| format!("reading {}", args.log))?;
         if let Some(item) = item {
             emit(&item, &mut out)?;
+            if let Some(m) = &mut mcap {
+                m.push(&item)?;
+            }
         }
     }
     for item in dec.finish() {
         emit(&item, &mut out)?;
+        if let Some(m) = &mut mcap {
+            m.push(&item)?;
+        }
     }
     out.flush()?;
+    if let Some(m) = mcap {
+        let c = m.finish()?;
+        eprintln!(
+            "mcap: {} scans, {} diagnostics written; {} scans without geometry and {} damaged left out",
+            c.scans, c.diagnostics, c.geometry_unknown, c.damaged
+        );
+    }
     if args.stats {
         eprintln!("{}", json::summary(&dec));
     } else {
