@@ -148,6 +148,9 @@ fn create(path: &Path) -> anyhow::Result<File> {
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
+    if parent.exists() && !parent.is_dir() {
+        bail!("--mcap {shown}: {} is not a directory", parent.display());
+    }
     if !parent.is_dir() {
         bail!(
             "--mcap {shown}: the directory {} does not exist",
