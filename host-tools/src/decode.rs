@@ -365,17 +365,26 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
         }
     }
     out.flush()?;
-    if let Some(m) = mcap {
-        let c = m.finish()?;
-        eprintln!(
-            "mcap: {} scans, {} diagnostics written; {} scans without geometry and {} damaged left out",
-            c.scans, c.diagnostics, c.geometry_unknown, c.damaged
-        );
-    }
+    let mcap = mcap.map(|m| m.finish()).transpose()?;
     if args.stats {
-        eprintln!("{}", json::summary(&dec));
+        let mut summary = json::summary(&dec);
+        if let (Some(c), Some(o)) = (mcap, summary.as_object_mut()) {
+            o.insert(
+                "mcap".into(),
+                serde_json::json!({"scans": c.scans, "diagnostics": c.diagnostics,
+                    "geometry_unknown": c.geometry_unknown, "damaged": c.damaged}),
+            );
+        }
+        eprintln!("{summary}");
     } else {
         eprint!("{}", json::summary_text(&dec));
+        if let Some(c) = mcap {
+            eprintln!(
+                "mcap: {} scans, {} diagnostics written; {} scans without geometry and {} \
+                 damaged left out",
+                c.scans, c.diagnostics, c.geometry_unknown, c.damaged
+            );
+        }
     }
     Ok(())
 }

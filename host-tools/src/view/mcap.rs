@@ -18,7 +18,9 @@
 //! Every message's log and publish time is the log time of the frame that completed it
 //! (when it was received); a scan's header stamp is the scan's own time
 //! ([`super::scan_stamp_ns`]); a diagnostic's stamp is its log time (status frames
-//! carry no time). Chunks are not compressed.
+//! carry no time). Chunks are not compressed. The file is finished (summary and
+//! footer) at the end of the input, and also when decoding stops on an error, so it
+//! always holds what was written.
 
 use std::collections::BTreeMap;
 use std::fs::File;
