@@ -85,7 +85,9 @@ pub struct DecodedScan {
 }
 
 impl DecodedScan {
-    fn new<const P: usize>(node: u8, time_us: u64, scan: &Scan<P>) -> Self {
+    /// The owned copy of `scan` of bridge `node`, completed at `time_us` (what
+    /// [`crate::view::laser_scan`] converts).
+    pub fn new<const P: usize>(node: u8, time_us: u64, scan: &Scan<P>) -> Self {
         Self {
             node,
             time_us,
