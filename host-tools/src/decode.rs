@@ -85,7 +85,9 @@ pub struct DecodedScan {
 }
 
 impl DecodedScan {
-    fn new<const P: usize>(node: u8, time_us: u64, scan: &Scan<P>) -> Self {
+    /// The owned copy of `scan` of bridge `node`, completed at `time_us` (what
+    /// [`crate::view::laser_scan`] converts).
+    pub fn new<const P: usize>(node: u8, time_us: u64, scan: &Scan<P>) -> Self {
         Self {
             node,
             time_us,
@@ -305,6 +307,9 @@ pub struct DecodeArgs {
     /// Identifier window.
     #[command(flatten)]
     pub window: WindowArgs,
+    /// MCAP output.
+    #[command(flatten)]
+    pub mcap: crate::view::mcap::McapArgs,
 }
 
 /// Opens a log path or `-`.
@@ -319,6 +324,8 @@ pub fn open_log(path: &str) -> anyhow::Result<Box<dyn BufRead>> {
 /// `scip2can decode`.
 pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
     let window = args.window.window()?;
+    // The MCAP file is created first: a bad path fails before any input is read.
+    let mut mcap = crate::view::mcap::McapSink::from_args(&args.mcap)?;
     let input = open_log(&args.log)?;
     let mut out = io::BufWriter::new(io::stdout().lock());
     let mut dec = LogDecoder::new(window);
@@ -348,16 +355,38 @@ pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
             .with_context(|| format!("reading {}", args.log))?;
         if let Some(item) = item {
             emit(&item, &mut out)?;
+            if let Some(m) = &mut mcap {
+                m.push(&item)?;
+            }
         }
     }
     for item in dec.finish() {
         emit(&item, &mut out)?;
+        if let Some(m) = &mut mcap {
+            m.push(&item)?;
+        }
     }
     out.flush()?;
+    let mcap = mcap.map(|m| m.finish()).transpose()?;
     if args.stats {
-        eprintln!("{}", json::summary(&dec));
+        let mut summary = json::summary(&dec);
+        if let (Some(c), Some(o)) = (mcap, summary.as_object_mut()) {
+            o.insert(
+                "mcap".into(),
+                serde_json::json!({"scans": c.scans, "diagnostics": c.diagnostics,
+                    "geometry_unknown": c.geometry_unknown, "damaged": c.damaged}),
+            );
+        }
+        eprintln!("{summary}");
     } else {
         eprint!("{}", json::summary_text(&dec));
+        if let Some(c) = mcap {
+            eprintln!(
+                "mcap: {} scans, {} diagnostics written; {} scans without geometry and {} \
+                 damaged left out",
+                c.scans, c.diagnostics, c.geometry_unknown, c.damaged
+            );
+        }
     }
     Ok(())
 }

@@ -8,6 +8,7 @@ mod host_streaming;
 mod icount;
 mod live_bridge;
 mod lossless_replay;
+mod mcap_view;
 mod noise;
 mod pp_faults;
 mod qemu;

@@ -1,5 +1,33 @@
 //! The reassembling decoder: frames of up to 16 bridges in any interleaving in, whole
 //! scans with per-point presence and a completeness verdict out (SPEC section 7).
+//!
+//! # Receiving scans in your own program
+//!
+//! [`Decoder`] is the receiver API: no_std, no allocation, no I/O. Give it every frame
+//! your CAN driver receives, as `(identifier, data)` with [`Decoder::push`] (or a
+//! [`Frame`] with [`Decoder::push_frame`]); frames outside the identifier window are
+//! ignored. A frame that completes something returns an [`Event`]: a [`Scan`] of bridge
+//! `node` (when its trailer or abort arrives, or when the bridge's next scan begins), a
+//! [`Status`] page, a control answer or request. Time is yours: the receive time of the
+//! frame that returned the event is the event's receive time; a scan's own time is its
+//! header's `timestamp_ms` (sensor time, or the bridge's clock when `time_synced`).
+//!
+//! - Sizing: `Decoder<P, B>` holds `B` bridges of up to `P` points (`P =`
+//!   [`crate::MAX_POINTS`] takes any scan), about `B * 2 * 5 * P` bytes: keep a large
+//!   one in a `static` or a `Box`.
+//! - Use a scan's points only when [`Scan::completeness`] is `Intact` or `Incomplete`
+//!   (missing points are `None`); a CRC mismatch, corrupt or aborted scan's points are
+//!   not the values sent. [`Scan::points`] lists the points the scan has (the trailer's
+//!   count when it arrived); [`ScanHeader::angle`] gives each point's angle (`None`
+//!   when the bridge did not know the sensor's geometry).
+//! - The scan of an [`Event::Scan`] borrows the decoder: copy out what you need before
+//!   the next push.
+//! - A bridge that stops mid-scan leaves it in progress: [`Decoder::flush`] finishes it
+//!   as incomplete (after a timeout of your choosing, or at the end of a log).
+//! - [`Decoder::stats`] counts per bridge what was lost, duplicated or corrupt.
+//!
+//! The crate's example `receive` reads a candump log (or standard input) this way and
+//! prints every scan with its time: `cargo run -p can-wire --example receive -- LOG`.
 
 use embedded_can::Id;
 
