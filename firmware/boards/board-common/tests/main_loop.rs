@@ -383,14 +383,35 @@ impl Board for TcpBoard {
     }
 }
 
+/// Runs `fut` to completion, the thread parked between wake-ups (embassy-futures'
+/// `block_on` spins, which on a small machine starves the other tests' real-time loops
+/// during this test's 1.8 s).
+fn block_on_parked<F: std::future::Future>(fut: F) -> F::Output {
+    struct Unpark(std::thread::Thread);
+    impl std::task::Wake for Unpark {
+        fn wake(self: std::sync::Arc<Self>) {
+            self.0.unpark();
+        }
+    }
+    let waker = std::task::Waker::from(std::sync::Arc::new(Unpark(std::thread::current())));
+    let mut cx = std::task::Context::from_waker(&waker);
+    let mut fut = std::pin::pin!(fut);
+    loop {
+        if let std::task::Poll::Ready(out) = fut.as_mut().poll(&mut cx) {
+            return out;
+        }
+        std::thread::park();
+    }
+}
+
 #[test]
 fn a_tcp_sensor_is_connected_with_back_off_and_reconnected_after_a_reset() {
     let shared = Shared::new(config::ethernet_bridge(CanBus::FD_1M_5M).expect("bridge"));
     // Two refused attempts, then a connection that the sensor resets 300 ms later.
     let mut board = TcpBoard::new(2, Some(300));
-    let outcome = embassy_futures::block_on(select(
+    let outcome = block_on_parked(select(
         sensor::run(&shared, &mut board),
-        Timer::after(Duration::from_millis(1500)),
+        Timer::after(Duration::from_millis(1800)),
     ));
     assert!(matches!(outcome, Either::Second(())));
     let log = board.log.borrow().clone();
@@ -411,23 +432,23 @@ fn a_tcp_sensor_is_connected_with_back_off_and_reconnected_after_a_reset() {
     // The schedule (link.rs): at once; the refusal is seen a tick later and the next
     // attempt waits 250 ms; refused again, it waits 500 ms; connected. The reset 300 ms
     // later closes the link; the wait is back to 250 ms; connected again. Each step may
-    // be a tick or two late on a busy host, never early.
+    // be a few ticks late on a busy host, never early.
     assert_eq!(opens.len(), 4, "{log:?}");
-    assert!(opens[0] <= 20, "{opens:?}");
-    assert!((250..=330).contains(&(opens[1] - opens[0])), "{opens:?}");
-    assert!((500..=580).contains(&(opens[2] - opens[1])), "{opens:?}");
+    assert!(opens[0] <= 50, "{opens:?}");
+    assert!((250..=400).contains(&(opens[1] - opens[0])), "{opens:?}");
+    assert!((500..=650).contains(&(opens[2] - opens[1])), "{opens:?}");
     assert_eq!(changes.len(), 3, "{log:?}");
     let [(true, up1), (false, down), (true, up2)] = changes[..] else {
         panic!("up, down, up: {log:?}");
     };
-    assert!(up1 >= opens[2] && up1 - opens[2] <= 30, "{log:?}");
-    assert!((300..=340).contains(&(down - opens[2])), "{log:?}");
+    assert!(up1 >= opens[2] && up1 - opens[2] <= 100, "{log:?}");
+    assert!((300..=400).contains(&(down - opens[2])), "{log:?}");
     assert!(
         log.contains(&Net::Close(down)),
         "the reset link is closed: {log:?}"
     );
-    assert!((250..=330).contains(&(opens[3] - down)), "{log:?}");
-    assert!(up2 >= opens[3] && up2 - opens[3] <= 30, "{log:?}");
+    assert!((250..=400).contains(&(opens[3] - down)), "{log:?}");
+    assert!(up2 >= opens[3] && up2 - opens[3] <= 100, "{log:?}");
     // The session ran on each connection (it probes with QT first), wrote nothing while
     // the link was down, and never asked for a bit rate.
     let writes: Vec<(Vec<u8>, u64)> = log
