@@ -4,7 +4,7 @@
 //!
 //! ```text
 //!            ┌────────── select ──────────┐
-//! UART rx ──▶│ chunk → Bridge::on_uart    │──▶ Bridge::poll → Send: UART tx
+//! UART/TCP ─▶│ chunk → Bridge::on_uart    │──▶ Bridge::poll → Send: UART/TCP tx
 //! Ticker  ──▶│ tick  → watchdog, bus, load│              → SetBitRate: UART rate
 //!            └────────────────────────────┘──▶ notify the CAN transmit task
 //! ```
@@ -15,7 +15,7 @@
 //! loop: frames wait in the bridge's queue until the transmit task takes them.
 //!
 //! **Links that go down** (TCP; [`Board::link_state`]): the session starts when the
-//! link is first up. A reset or end of stream on a read, or a link the board reports
+//! link is first up. An error or end of stream on a read, or a link the board reports
 //! down at a tick (cable pulled, connection closed), closes the link and tells the
 //! bridge ([`Board::link_changed`]); the loop then keeps ticking (watchdog, status
 //! frames, CAN) and opens the link again on the [`Backoff`] schedule (250 ms doubling
@@ -260,8 +260,9 @@ pub async fn run<B: Board>(shared: &Shared, board: &mut B) -> ! {
                 shared.with(|b| b.on_uart(bytes, now));
             }
             Either::First(result) => {
-                if B::LINK_CAN_FAIL && board.link_state() != LinkState::Up {
-                    // A connection reset or closed by the sensor.
+                if B::LINK_CAN_FAIL {
+                    // A connection reset or closed by the sensor (a socket reads 0
+                    // bytes only at the end of the stream).
                     link.lost(shared, board, now, &mut stats);
                 } else if result.is_err() {
                     // The driver drops what it held and restarts reception; the decoder
