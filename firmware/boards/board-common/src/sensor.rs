@@ -23,6 +23,8 @@
 //! links have no bit rate: the session's `bit_rate` is `None`, so no `SS` and no rate
 //! reset at boot.
 
+use core::future::Future;
+
 use bridge::session::Action;
 use can_wire::BusState;
 use embassy_futures::select::{select, Either};
@@ -123,19 +125,20 @@ impl<Rx: ErrorType, Tx: ErrorType<Error = Rx::Error>> ErrorType for Uart<Rx, Tx>
     type Error = Rx::Error;
 }
 
+// The halves' own futures, not wrapped in one more state machine each (smaller code).
 impl<Rx: Read, Tx: ErrorType<Error = Rx::Error>> Read for Uart<Rx, Tx> {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        self.rx.read(buf).await
+    fn read(&mut self, buf: &mut [u8]) -> impl Future<Output = Result<usize, Self::Error>> {
+        self.rx.read(buf)
     }
 }
 
 impl<Rx: ErrorType, Tx: Write<Error = Rx::Error>> Write for Uart<Rx, Tx> {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
-        self.tx.write(buf).await
+    fn write(&mut self, buf: &[u8]) -> impl Future<Output = Result<usize, Self::Error>> {
+        self.tx.write(buf)
     }
 
-    async fn flush(&mut self) -> Result<(), Self::Error> {
-        self.tx.flush().await
+    fn flush(&mut self) -> impl Future<Output = Result<(), Self::Error>> {
+        self.tx.flush()
     }
 }
 

@@ -224,7 +224,9 @@ fn bus_off_is_recovered_after_100_ms_and_at_most_every_100_ms() {
     // then every 100 ms while it stays off: 250, 350, 450, each a tick late at most on
     // an idle host (allow more on a busy one, never earlier).
     assert!(!r.is_empty() && (250..=300).contains(&r[0]), "{r:?}");
-    assert!(r.windows(2).all(|w| w[1] - w[0] >= 100), "{r:?}");
+    // (The board's clock starts a moment before the loop's and both truncate to whole
+    // ms, so a 100 ms spacing may read as 99.)
+    assert!(r.windows(2).all(|w| w[1] - w[0] >= 99), "{r:?}");
     assert!(r.len() <= 3, "{r:?}");
     let health = shared.with(|b| *b.health());
     assert_eq!(health.bus_state, u8::from(BusState::BusOff));
