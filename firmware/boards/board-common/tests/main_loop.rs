@@ -387,7 +387,7 @@ impl Board for TcpBoard {
 
 /// Runs `fut` to completion, the thread parked between wake-ups (embassy-futures'
 /// `block_on` spins, which on a small machine starves the other tests' real-time loops
-/// during this test's 1.8 s).
+/// during this test's 2.6 s).
 fn block_on_parked<F: std::future::Future>(fut: F) -> F::Output {
     struct Unpark(std::thread::Thread);
     impl std::task::Wake for Unpark {
@@ -413,7 +413,7 @@ fn a_tcp_sensor_is_connected_with_back_off_and_reconnected_after_a_reset() {
     let mut board = TcpBoard::new(2, Some(300));
     let outcome = block_on_parked(select(
         sensor::run(&shared, &mut board),
-        Timer::after(Duration::from_millis(1800)),
+        Timer::after(Duration::from_millis(2600)),
     ));
     assert!(matches!(outcome, Either::Second(())));
     let log = board.log.borrow().clone();
@@ -433,24 +433,25 @@ fn a_tcp_sensor_is_connected_with_back_off_and_reconnected_after_a_reset() {
         .collect();
     // The schedule (link.rs): at once; the refusal is seen a tick later and the next
     // attempt waits 250 ms; refused again, it waits 500 ms; connected. The reset 300 ms
-    // later closes the link; the wait is back to 250 ms; connected again. Each step may
-    // be a few ticks late on a busy host, never early.
+    // later closes the link; the wait is back to 250 ms; connected again. Never early;
+    // late by up to 400 ms on a loaded host (the lower bounds carry the schedule: 500
+    // ms shows the doubling, and under 650 ms after the reset shows it was reset).
     assert_eq!(opens.len(), 4, "{log:?}");
-    assert!(opens[0] <= 50, "{opens:?}");
-    assert!((250..=400).contains(&(opens[1] - opens[0])), "{opens:?}");
-    assert!((500..=650).contains(&(opens[2] - opens[1])), "{opens:?}");
+    assert!(opens[0] <= 200, "{opens:?}");
+    assert!((250..=650).contains(&(opens[1] - opens[0])), "{opens:?}");
+    assert!((500..=900).contains(&(opens[2] - opens[1])), "{opens:?}");
     assert_eq!(changes.len(), 3, "{log:?}");
     let [(true, up1), (false, down), (true, up2)] = changes[..] else {
         panic!("up, down, up: {log:?}");
     };
-    assert!(up1 >= opens[2] && up1 - opens[2] <= 100, "{log:?}");
-    assert!((300..=400).contains(&(down - opens[2])), "{log:?}");
+    assert!(up1 >= opens[2] && up1 - opens[2] <= 300, "{log:?}");
+    assert!((300..=700).contains(&(down - opens[2])), "{log:?}");
     assert!(
         log.contains(&Net::Close(down)),
         "the reset link is closed: {log:?}"
     );
-    assert!((250..=400).contains(&(opens[3] - down)), "{log:?}");
-    assert!(up2 >= opens[3] && up2 - opens[3] <= 100, "{log:?}");
+    assert!((250..=650).contains(&(opens[3] - down)), "{log:?}");
+    assert!(up2 >= opens[3] && up2 - opens[3] <= 300, "{log:?}");
     // The session ran on each connection (it probes with QT first), wrote nothing while
     // the link was down, and never asked for a bit rate.
     let writes: Vec<(Vec<u8>, u64)> = log
