@@ -18,11 +18,11 @@ skip_or_fail() {
     echo "skipped: $1"
 }
 
-cargo fmt -p scip2can-qemu -p board-common -p stm32g474 -p stm32f446 -- --check
+cargo fmt -p scip2can-qemu -p board-common -p stm32g474 -p stm32f446 -p stm32h723 -- --check
 # One cargo invocation per board binary: features are unified across the packages of
-# one build, and the two STM32 chips are two features of the same embassy-stm32 (which
+# one build, and the STM32 chips are features of the same embassy-stm32 (which
 # also turns on cortex-m-rt's `device` feature, wrong for the QEMU board).
-for board in scip2can-qemu stm32g474 stm32f446; do
+for board in scip2can-qemu stm32g474 stm32f446 stm32h723; do
     cargo clippy --release -p "$board" --all-targets -- -D warnings
     cargo build --release -p "$board"
 done

@@ -2,19 +2,25 @@
 # Flash, static RAM and worst-case stack of the STM32 board binaries, measured from
 # their release ELFs (build them first: check.sh does) and compared with sizes.txt:
 #   flash = .vector_table + .text + .rodata + .data   (the image written to flash)
-#   ram   = .data + .bss + .uninit + 14336            (statics + the stack reservation)
+#   ram   = .data + .bss + .uninit + the stack reservation
 #   stack = stack-usage.py's worst case (boot included), and once the tasks run
-# Fails when a binary is over the bridge's budget (flash 96 KiB, RAM 24 KiB; the
-# linker enforces the same through board-common/budget.x), when the worst-case stack
-# exceeds the reservation, or when flash or RAM grew by more than 10 % over sizes.txt.
+# Fails when a binary is over its budget (the CAN-only boards: flash 96 KiB, RAM 24 KiB,
+# 14 KiB of it the stack, board-common/budget.x; the Ethernet board NUCLEO-H723ZG: flash
+# 256 KiB, RAM 128 KiB, 32 KiB of it the stack, stm32h723/budget.x; the linker enforces
+# the same), when the worst-case stack exceeds the reservation, or when flash or RAM grew
+# by more than 10 % over sizes.txt.
 # BLESS=1 rewrites sizes.txt. Under CI=true a missing llvm-size or llvm-objdump fails.
 set -euo pipefail
 cd "$(dirname "$0")"
 
-flash_budget=$((96 * 1024))
-ram_budget=$((24 * 1024))
-stack_reserve=14336 # _scip2can_stack_reserve in board-common/budget.x
-binaries="scip2can-stm32g474 scip2can-stm32f446"
+binaries="scip2can-stm32g474 scip2can-stm32f446 scip2can-stm32h723"
+# "flash ram stack-reservation" of a binary, bytes: its budget.x.
+budget() {
+    case "$1" in
+        scip2can-stm32h723) echo $((256 * 1024)) $((128 * 1024)) $((32 * 1024)) ;;
+        *) echo $((96 * 1024)) $((24 * 1024)) $((14 * 1024)) ;;
+    esac
+}
 target_dir=${CARGO_TARGET_DIR:-target}
 release=$target_dir/thumbv7em-none-eabihf/release
 
@@ -42,14 +48,15 @@ fi
 # "name flash ram text data bss stack stack_run" for one ELF (llvm-size -A: section,
 # size, address; stack-usage.py's last line is "STACK <bytes>").
 measure() {
-    local stack run
+    local stack run reserve
+    read -r _ _ reserve <<< "$(budget "$1")"
     if ! python3 stack-usage.py "$release/$1" --boot '(^|[^a-z])(setup|shared_bridge)' > "$tmp/$1.stack"; then
         echo "FAIL: stack-usage.py on $1" >&2
         exit 1
     fi
     stack=$(sed -n 's/^STACK //p' "$tmp/$1.stack")
     run=$(sed -n 's/^after start-up.* = \([0-9]*\) bytes$/\1/p' "$tmp/$1.stack")
-    "$size_tool" -A "$release/$1" | awk -v name="$1" -v reserve="$stack_reserve" \
+    "$size_tool" -A "$release/$1" | awk -v name="$1" -v reserve="$reserve" \
         -v stack="$stack" -v run="$run" '
         $1 == ".vector_table" || $1 == ".text" || $1 == ".rodata" { text += $2 }
         $1 == ".data" { data += $2 }
@@ -62,10 +69,11 @@ trap 'rm -rf "$tmp"' EXIT
 
 header="# Flash, static RAM and worst-case stack of the STM32 board binaries (release), bytes,
 # from the ELF: flash = .vector_table + .text + .rodata + .data;
-# ram = .data + .bss + .uninit + $stack_reserve (the stack reservation of board-common/budget.x);
+# ram = .data + .bss + .uninit + the stack reservation of the board's budget.x;
 # stack = stack-usage.py's bound at boot (must fit the reservation), run = once the tasks run.
-# Budget: flash <= $flash_budget, ram <= $ram_budget. Reproduce: ./check.sh (or build, then
-# ./stm32-sizes.sh); BLESS=1 rewrites this file.
+# Budget (flash, ram, stack reservation): G474 and F446 $(budget g474 | tr ' ' '/'),
+# H723 (Ethernet) $(budget scip2can-stm32h723 | tr ' ' '/'). Reproduce: ./check.sh (or build,
+# then ./stm32-sizes.sh); BLESS=1 rewrites this file.
 # binary               flash     ram    text    data     bss   stack     run"
 
 measured=$(for b in $binaries; do measure "$b"; done)
@@ -74,6 +82,7 @@ echo "$measured"
 
 failed=0
 while read -r name flash ram _ _ _ stack _; do
+    read -r flash_budget ram_budget stack_reserve <<< "$(budget "$name")"
     if [ "$flash" -gt "$flash_budget" ] || [ "$ram" -gt "$ram_budget" ]; then
         echo "FAIL: $name is over budget (flash $flash > $flash_budget or ram $ram > $ram_budget)" >&2
         failed=1

@@ -32,6 +32,11 @@ pub const SENSOR_POWER_UP_BIT_RATE: u32 = 19_200;
 /// specified for, and enough for a URG-04LX's full stream (about 23 kB/s).
 pub const SENSOR_BIT_RATE: u32 = 250_000;
 
+/// The sensor link's speed on Ethernet, bit/s, for the governor's estimate of how long a
+/// scan takes to arrive: 100 Mbit/s, i.e. a scan arrives as one burst and must fit the
+/// queue's free room (the TCP link is never the bottleneck, the CAN bus is).
+pub const ETHERNET_BIT_RATE: u32 = 100_000_000;
+
 /// The bridge's node number in the default identifier window (0x100).
 pub const NODE: u8 = 0;
 
@@ -130,6 +135,23 @@ pub fn bridge(bus: CanBus) -> Result<Bridge, BridgeError> {
     Bridge::new(bridge_config(bus)?)
 }
 
+/// The bridge configuration of a board whose sensor is on Ethernet (a TCP connection to
+/// a UST-10LX/20LX, UTM-30LX-EW, ...): as [`bridge_config`], but no SCIP bit-rate steps
+/// (`SS` is for serial links; the session's `bit_rate` is `None`) and the link's speed
+/// is [`ETHERNET_BIT_RATE`].
+pub fn ethernet_bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
+    let mut config = bridge_config(bus)?;
+    config.session.bit_rate = None;
+    config.uart_bit_rate = ETHERNET_BIT_RATE;
+    Ok(config)
+}
+
+/// The bridge of an Ethernet board on `bus`, with [`ethernet_bridge_config`]; its session
+/// is not started.
+pub fn ethernet_bridge(bus: CanBus) -> Result<Bridge, BridgeError> {
+    Bridge::new(ethernet_bridge_config(bus)?)
+}
+
 /// The identifiers of this bridge: node [`NODE`] of the default window.
 pub fn node_ids() -> Result<can_wire::NodeIds, BridgeError> {
     IdWindow::DEFAULT.node(NODE).map_err(BridgeError::Wire)
@@ -150,6 +172,15 @@ mod tests {
             assert_eq!(config.session.bit_rate, Some(250_000));
             assert!(bridge(bus).is_ok(), "{bus:?}");
         }
+    }
+
+    #[test]
+    fn an_ethernet_bridge_has_no_bit_rate_steps() {
+        let config = ethernet_bridge_config(CanBus::FD_1M_5M).expect("config");
+        assert_eq!(config.session.bit_rate, None);
+        assert_eq!(config.uart_bit_rate, 100_000_000);
+        assert!(config.fd_capable);
+        assert!(ethernet_bridge(CanBus::FD_1M_5M).is_ok());
     }
 
     #[test]

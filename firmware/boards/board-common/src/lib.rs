@@ -5,10 +5,11 @@
 //!   node, status period, bus share) and the timing of the main loop.
 //! - [`shared`]: the bridge shared by the tasks of the one thread-mode executor, and the
 //!   "frames queued" signal that wakes the CAN transmit task.
-//! - [`sensor`]: the main loop: sensor UART in and out, the session's commands and bit
+//! - [`sensor`]: the main loop: sensor UART (or TCP) in and out, the session's commands and bit
 //!   rate changes, and once per tick the watchdog, the CAN bus state with rate-limited
 //!   bus-off recovery, and the CPU load. A board implements [`sensor::Board`].
 //! - [`recovery`]: the bus-off recovery policy (sans-IO, tested on the host).
+//! - [`link`]: the reconnect policy of a sensor link that can go down (TCP).
 //! - [`load`]: CPU load from the executor's busy time.
 //! - [`tdc`]: the CAN FD transmitter delay compensation offset of a data bit timing.
 //!
@@ -26,6 +27,7 @@
 mod fmt;
 
 pub mod config;
+pub mod link;
 pub mod load;
 pub mod recovery;
 pub mod sensor;

@@ -1,9 +1,10 @@
-//! The main loop: the sensor's UART, the session's commands, and the once-per-tick
-//! housekeeping (watchdog, bus state and recovery, CPU load).
+//! The main loop: the sensor link (a UART, or a TCP connection to an Ethernet sensor),
+//! the session's commands, and the once-per-tick housekeeping (watchdog, bus state and
+//! recovery, CPU load, the link's state).
 //!
 //! ```text
 //!            ┌────────── select ──────────┐
-//! UART rx ──▶│ chunk → Bridge::on_uart    │──▶ Bridge::poll → Send: UART tx
+//! UART/TCP ─▶│ chunk → Bridge::on_uart    │──▶ Bridge::poll → Send: UART/TCP tx
 //! Ticker  ──▶│ tick  → watchdog, bus, load│              → SetBitRate: UART rate
 //!            └────────────────────────────┘──▶ notify the CAN transmit task
 //! ```
@@ -12,17 +13,29 @@
 //! the loop writes a command or works on a chunk, and reading it is cancel-safe, so
 //! nothing the sensor sends is lost to the `select`. The CAN side never blocks this
 //! loop: frames wait in the bridge's queue until the transmit task takes them.
+//!
+//! **Links that go down** (TCP; [`Board::link_state`]): the session starts when the
+//! link is first up. An error or end of stream on a read, or a link the board reports
+//! down at a tick (cable pulled, connection closed), closes the link and tells the
+//! bridge ([`Board::link_changed`]); the loop then keeps ticking (watchdog, status
+//! frames, CAN) and opens the link again on the [`Backoff`] schedule (250 ms doubling
+//! to 4 s). Commands the session wants sent while the link is down are dropped. Such
+//! links have no bit rate: the session's `bit_rate` is `None`, so no `SS` and no rate
+//! reset at boot.
+
+use core::future::Future;
 
 use bridge::session::Action;
 use can_wire::BusState;
 use embassy_futures::select::{select, Either};
-use embassy_time::{Duration, Instant, Ticker, Timer};
-use embedded_io_async::{Read, Write};
+use embassy_time::{with_timeout, Duration, Instant, Ticker, Timer};
+use embedded_io_async::{ErrorType, Read, Write};
 
 use crate::config::{
-    BUS_OFF_RETRY_MS, LOAD_WINDOW_MS, SENSOR_BIT_RATE, SENSOR_POWER_UP_BIT_RATE, TICK_MS,
+    Bridge, BUS_OFF_RETRY_MS, LOAD_WINDOW_MS, SENSOR_BIT_RATE, SENSOR_POWER_UP_BIT_RATE, TICK_MS,
     UART_CHUNK,
 };
+use crate::link::{Backoff, FIRST_RETRY_MS, MAX_RETRY_MS};
 use crate::load;
 use crate::recovery::BusOff;
 use crate::shared::Shared;
@@ -37,17 +50,31 @@ const RATE_RESET: &[u8] = b"QT\nRS\n";
 /// Time the sensor gets to answer and reset before the session starts, ms.
 const RATE_RESET_WAIT_MS: u64 = 100;
 
+/// A command write that takes longer than this (a TCP send buffer that stays full) is
+/// given up, ms: well inside the watchdog's timeout.
+const WRITE_TIMEOUT_MS: u64 = 100;
+
+/// The state of the sensor link.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkState {
+    /// Bytes flow (a UART always; a TCP connection established).
+    Up,
+    /// Being opened ([`Board::open_link`] was called; a TCP handshake runs).
+    Opening,
+    /// Closed: the last attempt failed, or the link was lost.
+    Down,
+}
+
 /// What the main loop needs from a board.
 pub trait Board {
-    /// The sensor UART's receiver (a DMA ring buffer with idle-line detection).
-    type Rx: Read;
-    /// The sensor UART's transmitter.
-    type Tx: Write;
+    /// The sensor link: a UART ([`Uart`] joins its two halves) or a TCP socket.
+    type Sensor: Read + Write;
 
-    /// The sensor UART's two halves.
-    fn sensor(&mut self) -> (&mut Self::Rx, &mut Self::Tx);
+    /// The sensor link.
+    fn sensor(&mut self) -> &mut Self::Sensor;
 
-    /// Switches the sensor UART to `bit_rate`; false if the UART cannot.
+    /// Switches the sensor UART to `bit_rate`; false if the UART cannot (or the link has
+    /// no bit rate).
     fn set_sensor_bit_rate(&mut self, bit_rate: u32) -> bool;
 
     /// The CAN controller's error state.
@@ -62,6 +89,57 @@ pub trait Board {
 
     /// Feeds the independent watchdog.
     fn feed_watchdog(&mut self);
+
+    /// Whether the sensor link can go down (a TCP connection). A UART cannot (the
+    /// default): the loop's link supervision and write timeout are then compiled out.
+    const LINK_CAN_FAIL: bool = false;
+
+    /// The sensor link's state. A UART is always up (the default).
+    fn link_state(&mut self) -> LinkState {
+        LinkState::Up
+    }
+
+    /// Starts opening the link (a TCP connect) without waiting for it;
+    /// [`Board::link_state`] tells how it went. A UART has nothing to open.
+    fn open_link(&mut self) {}
+
+    /// Closes the link at once (a TCP abort), after it failed.
+    fn close_link(&mut self) {}
+
+    /// The link came up (`up`) or went down at `now_ms`: the one place where the bridge
+    /// learns it. Never called for a UART (always up); the default does nothing.
+    fn link_changed(&mut self, bridge: &mut Bridge, up: bool, now_ms: u64) {
+        let _ = (bridge, up, now_ms);
+    }
+}
+
+/// A sensor UART's receiver and transmitter as one link.
+pub struct Uart<Rx, Tx> {
+    /// The receiver (a DMA ring buffer with idle-line detection).
+    pub rx: Rx,
+    /// The transmitter.
+    pub tx: Tx,
+}
+
+impl<Rx: ErrorType, Tx: ErrorType<Error = Rx::Error>> ErrorType for Uart<Rx, Tx> {
+    type Error = Rx::Error;
+}
+
+// The halves' own futures, not wrapped in one more state machine each (smaller code).
+impl<Rx: Read, Tx: ErrorType<Error = Rx::Error>> Read for Uart<Rx, Tx> {
+    fn read(&mut self, buf: &mut [u8]) -> impl Future<Output = Result<usize, Self::Error>> {
+        self.rx.read(buf)
+    }
+}
+
+impl<Rx: ErrorType, Tx: Write<Error = Rx::Error>> Write for Uart<Rx, Tx> {
+    fn write(&mut self, buf: &[u8]) -> impl Future<Output = Result<usize, Self::Error>> {
+        self.tx.write(buf)
+    }
+
+    fn flush(&mut self) -> impl Future<Output = Result<(), Self::Error>> {
+        self.tx.flush()
+    }
 }
 
 /// Milliseconds since boot.
@@ -78,12 +156,75 @@ pub struct LoopStats {
     pub command_errors: u32,
     /// Bit rate changes the UART refused.
     pub bit_rate_errors: u32,
+    /// Times the sensor link went down.
+    pub link_losses: u32,
+    /// Commands dropped because the link was down.
+    pub dropped_commands: u32,
 }
 
-/// Runs the bridge on `board` forever: starts the sensor session, then serves the UART
-/// and the tick.
+/// The main loop's view of the sensor link: up or not, and when to open it again.
+struct Link {
+    up: bool,
+    opening: bool,
+    backoff: Backoff,
+}
+
+impl Link {
+    /// Follows the board's link state at `now_ms`: reports changes to the bridge, opens
+    /// the link when the back-off says so.
+    fn supervise<B: Board>(
+        &mut self,
+        shared: &Shared,
+        board: &mut B,
+        now: u64,
+        stats: &mut LoopStats,
+    ) {
+        let state = board.link_state();
+        match (self.up, state) {
+            (true, LinkState::Up) | (false, LinkState::Opening) => {}
+            (true, _) => self.lost(shared, board, now, stats),
+            (false, LinkState::Up) => {
+                self.up = true;
+                self.opening = false;
+                self.backoff.up();
+                shared.with(|b| board.link_changed(b, true, now));
+                info!("sensor link up");
+            }
+            (false, LinkState::Down) => {
+                if self.opening {
+                    // The attempt failed: wait longer before the next.
+                    self.opening = false;
+                    self.backoff.down(now);
+                } else if self.backoff.due(now) {
+                    self.opening = true;
+                    board.open_link();
+                    info!(
+                        "sensor link: connecting (attempt {})",
+                        self.backoff.attempts()
+                    );
+                }
+            }
+        }
+    }
+
+    /// The link failed (a read error, the end of the stream, or the board said so).
+    fn lost<B: Board>(&mut self, shared: &Shared, board: &mut B, now: u64, stats: &mut LoopStats) {
+        self.up = false;
+        self.opening = false;
+        board.close_link();
+        self.backoff.down(now);
+        shared.with(|b| board.link_changed(b, false, now));
+        stats.link_losses = stats.link_losses.wrapping_add(1);
+        warn!("sensor link lost (#{})", stats.link_losses);
+    }
+}
+
+/// Runs the bridge on `board` forever: starts the sensor session (once the link is up),
+/// then serves the link and the tick.
 pub async fn run<B: Board>(shared: &Shared, board: &mut B) -> ! {
-    reset_sensor_bit_rate(board).await;
+    if shared.with(|b| b.config().session.bit_rate.is_some()) {
+        reset_sensor_bit_rate(board).await;
+    }
 
     let mut chunk = [0u8; UART_CHUNK];
     let mut ticker = Ticker::every(Duration::from_millis(TICK_MS));
@@ -93,26 +234,51 @@ pub async fn run<B: Board>(shared: &Shared, board: &mut B) -> ! {
     let mut stats = LoopStats::default();
 
     let now = now_ms();
-    shared.with(|b| b.start(now));
-    info!("bridge started");
+    let mut link = Link {
+        up: !B::LINK_CAN_FAIL || board.link_state() == LinkState::Up,
+        opening: false,
+        backoff: Backoff::new(FIRST_RETRY_MS, MAX_RETRY_MS),
+    };
+    if link.up {
+        shared.with(|b| b.start(now));
+        info!("bridge started");
+    } else {
+        // The first attempt at once; the session starts when the link is up.
+        link.opening = true;
+        board.open_link();
+    }
 
     loop {
-        let (rx, _) = board.sensor();
-        let event = select(rx.read(&mut chunk), ticker.next()).await;
+        let event = if !B::LINK_CAN_FAIL || link.up {
+            let sensor = board.sensor();
+            select(sensor.read(&mut chunk), ticker.next()).await
+        } else {
+            ticker.next().await;
+            Either::Second(())
+        };
         let now = now_ms();
         match event {
-            Either::First(Ok(n)) => {
+            Either::First(Ok(n)) if n > 0 => {
                 let bytes = chunk.get(..n).unwrap_or(&[]);
                 shared.with(|b| b.on_uart(bytes, now));
             }
-            Either::First(Err(_)) => {
-                // The driver drops what it held and restarts reception; the decoder
-                // sees the gap as a damaged line and resynchronises.
-                stats.uart_errors = stats.uart_errors.wrapping_add(1);
-                warn!("sensor UART error #{}", stats.uart_errors);
+            Either::First(result) => {
+                if B::LINK_CAN_FAIL {
+                    // A connection reset or closed by the sensor (a socket reads 0
+                    // bytes only at the end of the stream).
+                    link.lost(shared, board, now, &mut stats);
+                } else if result.is_err() {
+                    // The driver drops what it held and restarts reception; the decoder
+                    // sees the gap as a damaged line and resynchronises.
+                    stats.uart_errors = stats.uart_errors.wrapping_add(1);
+                    warn!("sensor UART error #{}", stats.uart_errors);
+                }
             }
             Either::Second(()) => {
                 board.feed_watchdog();
+                if B::LINK_CAN_FAIL {
+                    link.supervise(shared, board, now, &mut stats);
+                }
                 supervise_bus(shared, board, &mut bus, now);
                 if now >= load_due {
                     load_due = now + LOAD_WINDOW_MS;
@@ -121,7 +287,7 @@ pub async fn run<B: Board>(shared: &Shared, board: &mut B) -> ! {
                 }
             }
         }
-        drive_session(shared, board, now, &mut stats).await;
+        drive_session(shared, board, now, !B::LINK_CAN_FAIL || link.up, &mut stats).await;
         shared.notify_frames();
     }
 }
@@ -139,8 +305,8 @@ async fn reset_sensor_bit_rate<B: Board>(board: &mut B) {
     if SENSOR_BIT_RATE == SENSOR_POWER_UP_BIT_RATE || !board.set_sensor_bit_rate(SENSOR_BIT_RATE) {
         return;
     }
-    let (_, tx) = board.sensor();
-    let sent = tx.write_all(RATE_RESET).await.is_ok() && tx.flush().await.is_ok();
+    let sensor = board.sensor();
+    let sent = sensor.write_all(RATE_RESET).await.is_ok() && sensor.flush().await.is_ok();
     Timer::after(Duration::from_millis(RATE_RESET_WAIT_MS)).await;
     let restored = board.set_sensor_bit_rate(SENSOR_POWER_UP_BIT_RATE);
     if !sent || !restored {
@@ -171,19 +337,34 @@ fn supervise_bus<B: Board>(shared: &Shared, board: &mut B, bus: &mut BusOff, now
     }
 }
 
-/// Carries out what the session asks for: commands to the sensor, bit rate changes.
-async fn drive_session<B: Board>(shared: &Shared, board: &mut B, now: u64, stats: &mut LoopStats) {
+/// Carries out what the session asks for: commands to the sensor (dropped while the
+/// link is down), bit rate changes.
+async fn drive_session<B: Board>(
+    shared: &Shared,
+    board: &mut B,
+    now: u64,
+    link_up: bool,
+    stats: &mut LoopStats,
+) {
     for _ in 0..MAX_ACTIONS {
         let Some(action) = shared.with(|b| b.poll(now)) else {
             return;
         };
         match action {
+            Action::Send(_) if !link_up => {
+                stats.dropped_commands = stats.dropped_commands.wrapping_add(1);
+            }
             Action::Send(request) => {
                 let mut line = [0u8; scip::REQUEST_MAX];
                 let written = match request.encode(&mut line) {
                     Ok(n) => {
-                        let (_, tx) = board.sensor();
-                        tx.write_all(line.get(..n).unwrap_or(&[])).await.is_ok()
+                        let write = board.sensor().write_all(line.get(..n).unwrap_or(&[]));
+                        if B::LINK_CAN_FAIL {
+                            let timeout = Duration::from_millis(WRITE_TIMEOUT_MS);
+                            matches!(with_timeout(timeout, write).await, Ok(Ok(())))
+                        } else {
+                            write.await.is_ok()
+                        }
                     }
                     Err(_) => false,
                 };
@@ -194,8 +375,7 @@ async fn drive_session<B: Board>(shared: &Shared, board: &mut B, now: u64, stats
             }
             Action::SetBitRate(bit_rate) => {
                 // The last command's bytes must be out of the shift register first.
-                let (_, tx) = board.sensor();
-                let flushed = tx.flush().await.is_ok();
+                let flushed = board.sensor().flush().await.is_ok();
                 if !flushed || !board.set_sensor_bit_rate(bit_rate) {
                     stats.bit_rate_errors = stats.bit_rate_errors.wrapping_add(1);
                     warn!("sensor UART bit rate {} refused", bit_rate);

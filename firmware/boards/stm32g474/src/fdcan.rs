@@ -27,6 +27,9 @@
 //! programmed (read back from `DBTP`): its sample point in kernel clock periods
 //! (`board_common::tdc`; 14 for 5 Mbit/s on the 80 MHz kernel clock).
 //!
+//! The NUCLEO-H723ZG board (`stm32h723`) builds this same file (`#[path]`): its FDCAN1
+//! has the registers and the embassy API used here, and the same 80 MHz kernel clock.
+//!
 //! Register access that embassy does not offer (`CCCR.INIT`, `ECR.CEL`, `TDCR`,
 //! `DBTP.TDC`) goes through `embassy_stm32::pac` (the `unstable-pac` feature).
 

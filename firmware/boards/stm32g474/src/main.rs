@@ -77,23 +77,21 @@ fn clocks() -> Config {
 
 /// What the main loop drives on this board.
 struct G474 {
-    rx: RingBufferedUartRx<'static>,
-    tx: UartTx<'static, Async>,
+    sensor: sensor::Uart<RingBufferedUartRx<'static>, UartTx<'static, Async>>,
     watchdog: IndependentWatchdog<'static, IWDG>,
     can: fdcan::Supervisor,
 }
 
 impl Board for G474 {
-    type Rx = RingBufferedUartRx<'static>;
-    type Tx = UartTx<'static, Async>;
+    type Sensor = sensor::Uart<RingBufferedUartRx<'static>, UartTx<'static, Async>>;
 
-    fn sensor(&mut self) -> (&mut Self::Rx, &mut Self::Tx) {
-        (&mut self.rx, &mut self.tx)
+    fn sensor(&mut self) -> &mut Self::Sensor {
+        &mut self.sensor
     }
 
     fn set_sensor_bit_rate(&mut self, bit_rate: u32) -> bool {
         // One baud-rate register for both directions.
-        self.tx.set_baudrate(bit_rate).is_ok()
+        self.sensor.tx.set_baudrate(bit_rate).is_ok()
     }
 
     fn bus_state(&mut self) -> BusState {
@@ -169,8 +167,7 @@ fn setup(shared: &'static Shared) -> Setup {
     Setup {
         shared,
         board: G474 {
-            rx,
-            tx,
+            sensor: sensor::Uart { rx, tx },
             watchdog,
             can: supervisor,
         },
