@@ -36,6 +36,8 @@ pub struct TimeSyncStats {
     pub duplicates: u32,
     /// Times the mapping started over (first sample, clock step).
     pub restarts: u32,
+    /// Frames on the time identifier that did not parse (SPEC 9.2).
+    pub malformed: u32,
 }
 
 /// The mapping `m(b) = M + (b − B) × (1 + drift)`.
@@ -79,6 +81,7 @@ impl TimeSync {
                 orphans: 0,
                 duplicates: 0,
                 restarts: 0,
+                malformed: 0,
             },
         }
     }
@@ -141,6 +144,11 @@ impl TimeSync {
     /// The tracked rate difference of the master's clock against the bridge's, ppb.
     pub fn drift_ppb(&self) -> i64 {
         self.drift_ppb
+    }
+
+    /// A frame on the time identifier that did not parse: counted.
+    pub fn on_malformed(&mut self) {
+        self.stats.malformed = self.stats.malformed.wrapping_add(1);
     }
 
     /// The counters.

@@ -185,6 +185,15 @@ fn rust_decode(frame: &Frame) -> (String, Signals) {
                 Status::SensorTiming { afrt, scan_rpm } => {
                     vec![("afrt", afrt.into()), ("scan_rpm", scan_rpm.into())]
                 }
+                Status::TimeSync {
+                    synced,
+                    error_us,
+                    master_time,
+                } => vec![
+                    ("time_synced", synced.into()),
+                    ("time_error", error_us.into()),
+                    ("master_time_low", master_time.into()),
+                ],
             };
             s.extend(fields.into_iter().map(|(k, v)| (k.to_string(), v)));
             ("Status".into(), s)
@@ -443,6 +452,11 @@ fn all_frames() -> Vec<Frame> {
         Status::SensorTiming {
             afrt: 380,
             scan_rpm: 1200,
+        },
+        Status::TimeSync {
+            synced: true,
+            error_us: 65535,
+            master_time: 0x8765_4321,
         },
     ];
     for s in statuses {
