@@ -683,6 +683,7 @@ impl<const Q: usize> Core<Q> {
 
     /// A frame on the time identifier (SPEC 9): taken by the time sync, and page 7 sent
     /// after a FOLLOW-UP. Returns whether it was one (malformed ones are counted).
+    #[inline(never)]
     fn time_frame(&mut self, frame: &Frame, now_us: u64) -> bool {
         if self.time_id != Some(frame.id()) {
             return false;

@@ -16,6 +16,10 @@ pub const MIN_OUTLIER_US: i64 = 1_000;
 pub const MAX_DRIFT_PPB: i64 = 1_000_000;
 /// Rejections in a row after which the master's clock is taken as stepped.
 pub const STEP_AFTER: u8 = 3;
+/// Bridge times further than this from the anchor are not mapped (µs, about 12.7 days).
+const MAX_MAP_SPAN_US: u64 = 1 << 40;
+/// Bound of the mean error (µs): keeps the outlier limit bounded.
+const MAX_MEAN_US: i64 = 1_000_000;
 /// Samples closer together than this (µs) do not update the rate.
 const MIN_RATE_SPAN_US: i64 = 100_000;
 const PPB: i64 = 1_000_000_000;
@@ -103,8 +107,8 @@ impl TimeSync {
             Some((s, rx)) if s == seq => {
                 self.pending = None;
                 match i64::try_from(master_us) {
-                    Ok(m) => self.sample(rx, m),
-                    Err(_) => false,
+                    Ok(m) if master_us <= can_wire::timesync::MAX_MASTER_US => self.sample(rx, m),
+                    _ => false,
                 }
             }
             _ => {
@@ -164,10 +168,16 @@ impl TimeSync {
         };
     }
 
+    /// `m(b)`; `None` more than [`MAX_MAP_SPAN_US`] from the anchor. Within that span
+    /// nothing can overflow: `|dt × drift| <= 2^40 × 10^6 < 2^63`, and master times are
+    /// below 2^56 (SPEC 9.2), so wrapping operations are exact and cheap.
     fn map(&self, a: Anchor, bridge_us: u64) -> Option<i64> {
         let dt = signed_diff(bridge_us, a.bridge_us)?;
-        let correction = dt.saturating_mul(self.drift_ppb).saturating_div(PPB);
-        a.master_us.checked_add(dt)?.checked_add(correction)
+        if dt.unsigned_abs() > MAX_MAP_SPAN_US {
+            return None;
+        }
+        let correction = dt.wrapping_mul(self.drift_ppb).wrapping_div(PPB);
+        Some(a.master_us.wrapping_add(dt).wrapping_add(correction))
     }
 
     fn restart(&mut self, rx: u64, m: i64) {
@@ -210,47 +220,43 @@ impl TimeSync {
             // Not after the anchor: a SYNC older than the last one used.
             _ => return self.reject(rx, m),
         };
+        // From here `0 < dt <= HOLD_US` (the anchor is the last sample), so `|e| <= dt`
+        // and `|e| <= limit <= 8 × MAX_MEAN_US` keep every product below 2^63.
         let Some(predicted) = self.map(a, rx) else {
             return self.reject(rx, m);
         };
-        let e = m.saturating_sub(predicted);
+        let e = m.wrapping_sub(predicted);
+        let rate = |e: i64| e.wrapping_mul(PPB).checked_div(dt).unwrap_or(0);
         if self.samples == 1 {
             // The second sample: the rate from the two.
-            let drift = if dt >= MIN_RATE_SPAN_US {
-                self.drift_ppb
-                    .saturating_add(e.saturating_mul(PPB).checked_div(dt).unwrap_or(0))
-            } else {
-                self.drift_ppb
-            };
-            if drift.abs() > MAX_DRIFT_PPB {
+            let mut drift = self.drift_ppb;
+            if dt >= MIN_RATE_SPAN_US && e.unsigned_abs() <= dt.unsigned_abs() {
+                drift = drift.wrapping_add(rate(e));
+            }
+            if e.unsigned_abs() > dt.unsigned_abs() || drift.wrapping_abs() > MAX_DRIFT_PPB {
                 // Rates this far apart are no clocks of one robot: a step.
                 self.restart(rx, m);
                 return true;
             }
             self.drift_ppb = drift;
-            self.accept(rx, m);
-            return true;
+            return self.accept(rx, m);
         }
-        let limit = self.mean_abs_us.saturating_mul(8).max(MIN_OUTLIER_US);
-        if e.saturating_abs() > limit {
+        let limit = self.mean_abs_us.wrapping_mul(8).max(MIN_OUTLIER_US);
+        let abs = e.wrapping_abs();
+        if abs > limit {
             return self.reject(rx, m);
         }
         if dt >= MIN_RATE_SPAN_US {
-            let step = e
-                .saturating_mul(PPB)
-                .checked_div(dt)
-                .unwrap_or(0)
-                .saturating_div(8);
             self.drift_ppb = self
                 .drift_ppb
-                .saturating_add(step)
+                .wrapping_add(rate(e).wrapping_div(8))
                 .clamp(-MAX_DRIFT_PPB, MAX_DRIFT_PPB);
         }
-        let abs = e.saturating_abs();
-        self.mean_abs_us = self
-            .mean_abs_us
-            .saturating_add(abs.saturating_sub(self.mean_abs_us).saturating_div(8));
-        self.accept(rx, predicted.saturating_add(e.saturating_div(2)))
+        let mean = self.mean_abs_us;
+        self.mean_abs_us = mean
+            .wrapping_add(abs.wrapping_sub(mean).wrapping_div(8))
+            .min(MAX_MEAN_US);
+        self.accept(rx, predicted.wrapping_add(e.wrapping_div(2)))
     }
 
     fn accept(&mut self, rx: u64, master: i64) -> bool {
