@@ -15,3 +15,4 @@ pub mod replay;
 pub mod sensor;
 pub mod sim;
 pub mod view;
+pub mod timesync;

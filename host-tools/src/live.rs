@@ -5,7 +5,9 @@
 //! The loop: bytes from the sensor go to `Bridge::on_uart`; the session's commands go
 //! back to the sensor (and a bit-rate change to the serial port); frames leave through
 //! the CAN port in queue order; frames received on the port (control frames addressed to
-//! this bridge) go to `Bridge::on_can_frame`, which answers them. Once a second a
+//! this bridge) go to `Bridge::on_can_frame_at`, which answers them, and a time master's
+//! SYNC / FOLLOW-UP frames on the bus (`scip2can timesync`, SPEC 9) map the bridge's
+//! clock to the robot's ([`bridge::engine::Bridge::to_master`]). Once a second a
 //! summary line goes to standard error (`--quiet` turns it off).
 
 pub mod port;
@@ -144,7 +146,8 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
             can.send(&frame).context("writing to the CAN port")?;
         }
         while let Some(frame) = can.recv().context("reading the CAN port")? {
-            bridge.on_can_frame(&frame, now_ms());
+            // µs of the same clock: time frames (SPEC 9) are stamped at that resolution.
+            bridge.on_can_frame_at(&frame, start.elapsed().as_micros() as u64);
         }
         if !args.quiet && start.elapsed() >= next_report {
             next_report += Duration::from_secs(1);

@@ -51,6 +51,10 @@ enum Cmd {
     /// deterministic stream through the real firmware in QEMU (`-icount shift=0`),
     /// its CAN frames checked against the same core on the host.
     Icount(scip2can_host::icount::IcountArgs),
+    /// The time master of the bus (SPEC 9): SYNC and FOLLOW-UP with this host's clock
+    /// (Unix time, µs), periodically, so that the bridges publish in the robot's clock;
+    /// prints the bridges' status page 7 (sync state, error) as JSON lines.
+    Timesync(scip2can_host::timesync::TimesyncArgs),
     /// Statistics that decide a predictive coder's gain (range noise, edges, no-return
     /// runs, intensities, ideal Rice cost), for recordings and simulators side by side.
     Noise(scip2can_host::noise::NoiseArgs),
@@ -79,6 +83,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Bridge(args) => scip2can_host::live::run(args),
         Cmd::Emulate(args) => scip2can_host::emulate::run(args),
         Cmd::Icount(args) => scip2can_host::icount::run(args),
+        Cmd::Timesync(args) => scip2can_host::timesync::run(args),
         Cmd::Noise(args) => scip2can_host::noise::run(args),
         Cmd::Parse { file } => {
             let out = BufWriter::new(io::stdout().lock());

@@ -5,6 +5,7 @@ mod can_tools;
 mod codec_props;
 mod emulate_e2e;
 mod host_streaming;
+mod host_time_master;
 mod icount;
 mod live_bridge;
 mod lossless_replay;

@@ -165,6 +165,9 @@ struct Core<const Q: usize> {
     assumed: (Option<u32>, Option<u32>),
     /// The model the sensor's `MODL` or `PROD` text named (status page 4).
     model: Option<can_wire::SensorModel>,
+    /// Following a time master over CAN (SPEC 9), on identifier `time_id`.
+    time_sync: crate::timesync::TimeSync,
+    time_id: Option<embedded_can::Id>,
 }
 
 /// The bridge. `Q` is the capacity of the CAN transmit queue, in frames (at least 4).
@@ -215,6 +218,12 @@ impl<const Q: usize> Bridge<Q> {
                 sync_offset: None,
                 assumed: (None, None),
                 model: None,
+                time_sync: crate::timesync::TimeSync::new(),
+                time_id: can_wire::timesync::time_id(
+                    can_wire::timesync::DEFAULT_TIME_ID.into(),
+                    &config.ids.window(),
+                )
+                .ok(),
                 config,
             },
         })
@@ -319,6 +328,9 @@ impl<const Q: usize> Bridge<Q> {
     /// Takes a frame received from the bus; control frames addressed to this bridge are
     /// applied and answered (the answer is queued). Returns true for such a frame.
     pub fn on_can_frame(&mut self, frame: &Frame, now_ms: u64) -> bool {
+        if self.core.time_frame(frame, now_ms.saturating_mul(1000)) {
+            return false;
+        }
         let ids = self.core.config.ids;
         match ids.window().classify(frame.id()) {
             Some((node, can_wire::Kind::Control)) if node == ids.node() => {
@@ -327,6 +339,41 @@ impl<const Q: usize> Bridge<Q> {
             }
             _ => false,
         }
+    }
+
+    /// [`Bridge::on_can_frame`] with the reception time in µs of the bridge's clock (the
+    /// CAN controller's RX timestamp where it has one): time frames (SPEC 9) are taken at
+    /// this resolution instead of the millisecond.
+    pub fn on_can_frame_at(&mut self, frame: &Frame, now_us: u64) -> bool {
+        if self.core.time_frame(frame, now_us) {
+            return false;
+        }
+        self.on_can_frame(frame, now_us / 1000)
+    }
+
+    /// The robot's (time master's) clock, µs, at bridge time `bridge_us` (the clock given
+    /// to [`Bridge::on_can_frame_at`]), while a time sync holds (SPEC 9.3).
+    pub fn to_master(&self, bridge_us: u64) -> Option<u64> {
+        self.core.time_sync.to_master(bridge_us)
+    }
+
+    /// The time sync state (mapping quality, counters).
+    pub fn time_sync(&self) -> &crate::timesync::TimeSync {
+        &self.core.time_sync
+    }
+
+    /// Follows the time master on identifier `raw` (in the format of the bridge's window),
+    /// or none (`None`). The default is 0x0FF ([`can_wire::timesync::DEFAULT_TIME_ID`]),
+    /// none when the window contains it. Fails, changing nothing, for an identifier
+    /// inside the window or beyond the format. The mapping starts over.
+    pub fn set_time_id(&mut self, raw: Option<u32>) -> Result<(), can_wire::Error> {
+        let window = self.core.config.ids.window();
+        self.core.time_id = match raw {
+            Some(raw) => Some(can_wire::timesync::time_id(raw, &window)?),
+            None => None,
+        };
+        self.core.time_sync.reset();
+        Ok(())
     }
 
     /// The board saw a CAN bus error.
@@ -632,6 +679,30 @@ impl<const Q: usize> Core<Q> {
         } else {
             self.health.tx_overflows = self.health.tx_overflows.saturating_add(1);
         }
+    }
+
+    /// A frame on the time identifier (SPEC 9): taken by the time sync, and page 7 sent
+    /// after a FOLLOW-UP. Returns whether it was one (malformed ones are counted).
+    #[inline(never)]
+    fn time_frame(&mut self, frame: &Frame, now_us: u64) -> bool {
+        if self.time_id != Some(frame.id()) {
+            return false;
+        }
+        match can_wire::TimeFrame::parse(frame.data()) {
+            Ok(can_wire::TimeFrame::Sync { seq }) => self.time_sync.on_sync(seq, now_us),
+            Ok(can_wire::TimeFrame::FollowUp { seq, master_us }) => {
+                self.time_sync.on_follow_up(seq, master_us);
+                let master = self.time_sync.to_master(now_us);
+                self.push_status(can_wire::Status::TimeSync {
+                    synced: master.is_some(),
+                    error_us: u16::try_from(self.time_sync.mean_error_us()).unwrap_or(u16::MAX),
+                    // Modulo 2^32 (SPEC 5, page 7).
+                    master_time: master.map_or(0, |m| m as u32),
+                });
+            }
+            Err(_) => self.time_sync.on_malformed(),
+        }
+        true
     }
 
     fn push_status(&mut self, status: can_wire::Status) {

@@ -25,6 +25,7 @@
 //! - [`session`]: the sensor session state machine (SCIP 1.1 detection, identification,
 //!   bit rate, streaming, silence/fault/reboot detection, recovery with back-off, time
 //!   sync).
+//! - [`timesync`]: following a time master over CAN (the robot's clock).
 
 pub mod control;
 pub mod engine;
@@ -33,3 +34,4 @@ pub mod pipeline;
 pub mod queue;
 pub mod session;
 pub mod status;
+pub mod timesync;

@@ -29,6 +29,7 @@ pub mod id;
 pub mod lossless;
 pub mod reassembly;
 pub mod status;
+pub mod timesync;
 pub mod trailer;
 
 pub use abort::{Abort, AbortReason};
@@ -41,4 +42,5 @@ pub use header::{Grouping, ScanHeader, MAX_POINTS};
 pub use id::{IdWindow, Kind, NodeIds};
 pub use reassembly::{Completeness, Decoder, Event, LossStats, Point, Scan};
 pub use status::{BridgeState, BusState, SensorModel, Status};
+pub use timesync::TimeFrame;
 pub use trailer::{Trailer, TrailerFlags};

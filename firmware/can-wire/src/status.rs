@@ -184,6 +184,16 @@ pub enum Status {
         /// Scanner speed, rpm.
         scan_rpm: u16,
     },
+    /// Page 7: the time sync (SPEC 9), sent after each FOLLOW-UP.
+    TimeSync {
+        /// The bridge follows a time master (a mapping holds).
+        synced: bool,
+        /// Mean prediction error of the accepted samples, µs (saturating).
+        error_us: u16,
+        /// The FOLLOW-UP's reception time in the master's clock, µs modulo 2^32 (0 when
+        /// not synced).
+        master_time: u32,
+    },
 }
 
 fn le24(data: &[u8], r: core::ops::Range<usize>) -> u32 {
@@ -265,6 +275,19 @@ impl Status {
                     scan_rpm: w2,
                 }
             }
+            7 => Status::TimeSync {
+                synced: match byte(data, field::STATE) {
+                    0 => false,
+                    1 => true,
+                    _ => {
+                        return Err(Error::OutOfRange {
+                            offset: field::STATE as u8,
+                        })
+                    }
+                },
+                error_us: le16(data, 2..4),
+                master_time: le32(data, field::UPTIME),
+            },
             page => return Err(Error::UnknownPage(page)),
         })
     }
@@ -279,6 +302,7 @@ impl Status {
             Status::SensorRange { .. } => 4,
             Status::SensorSteps { .. } => 5,
             Status::SensorTiming { .. } => 6,
+            Status::TimeSync { .. } => 7,
         }
     }
 
@@ -368,6 +392,15 @@ impl Status {
                 put(&mut b, field::W1, &afrt.to_le_bytes());
                 put(&mut b, field::W2, &scan_rpm.to_le_bytes());
             }
+            Status::TimeSync {
+                synced,
+                error_us,
+                master_time,
+            } => {
+                b[field::STATE] = u8::from(synced);
+                put(&mut b, 2..4, &error_us.to_le_bytes());
+                put(&mut b, field::UPTIME, &master_time.to_le_bytes());
+            }
         }
         Ok(b)
     }
@@ -439,6 +472,15 @@ mod tests {
                 },
                 [6, 0x1C, 0x02, 0x60, 0x09, 0, 0, 0],
             ),
+            (
+                // SPEC 9 / 5 page 7: synced, 300 µs, master time 0xDEAD_BEEF.
+                Status::TimeSync {
+                    synced: true,
+                    error_us: 300,
+                    master_time: 0xDEAD_BEEF,
+                },
+                [7, 1, 0x2C, 0x01, 0xEF, 0xBE, 0xAD, 0xDE],
+            ),
         ]
     }
 
@@ -470,8 +512,12 @@ mod tests {
     #[test]
     fn rejects() {
         assert_eq!(
-            Status::parse(&[7, 0, 0, 0, 0, 0, 0, 0]),
-            Err(Error::UnknownPage(7))
+            Status::parse(&[8, 0, 0, 0, 0, 0, 0, 0]),
+            Err(Error::UnknownPage(8))
+        );
+        assert_eq!(
+            Status::parse(&[7, 2, 0, 0, 0, 0, 0, 0]),
+            Err(Error::OutOfRange { offset: 1 })
         );
         assert_eq!(
             Status::parse(&[0, 3, 201, 0, 0, 0, 0, 0]),

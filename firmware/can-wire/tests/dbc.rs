@@ -37,6 +37,21 @@ fn sig(pairs: &[(&str, i64)]) -> Signals {
 
 /// Expected (message name, raw signals) from the Rust decoders.
 fn rust_decode(frame: &Frame) -> (String, Signals) {
+    let time_id = can_wire::timesync::time_id(0x0FF, &IdWindow::DEFAULT).unwrap();
+    if frame.id() == time_id {
+        let t = TimeFrame::parse(frame.data()).unwrap();
+        let mut s = sig(&[("seq", t.seq().into())]);
+        match t {
+            TimeFrame::Sync { .. } => {
+                s.insert("type".into(), 1);
+            }
+            TimeFrame::FollowUp { master_us, .. } => {
+                s.insert("type".into(), 2);
+                s.insert("master_time".into(), master_us as i64);
+            }
+        }
+        return ("TimeSync".into(), s);
+    }
     let (node, kind) = IdWindow::DEFAULT.classify(frame.id()).expect("our id");
     assert_eq!(node, 0);
     let d = frame.data();
@@ -170,6 +185,15 @@ fn rust_decode(frame: &Frame) -> (String, Signals) {
                 Status::SensorTiming { afrt, scan_rpm } => {
                     vec![("afrt", afrt.into()), ("scan_rpm", scan_rpm.into())]
                 }
+                Status::TimeSync {
+                    synced,
+                    error_us,
+                    master_time,
+                } => vec![
+                    ("time_synced", synced.into()),
+                    ("time_error", error_us.into()),
+                    ("master_time_low", master_time.into()),
+                ],
             };
             s.extend(fields.into_iter().map(|(k, v)| (k.to_string(), v)));
             ("Status".into(), s)
@@ -429,9 +453,29 @@ fn all_frames() -> Vec<Frame> {
             afrt: 380,
             scan_rpm: 1200,
         },
+        Status::TimeSync {
+            synced: true,
+            error_us: 65535,
+            master_time: 0x8765_4321,
+        },
     ];
     for s in statuses {
         frames.push(Frame::new(ids.id(Kind::Status), &s.emit().unwrap(), false).unwrap());
+    }
+    let time_id = can_wire::timesync::time_id(0x0FF, &IdWindow::DEFAULT).unwrap();
+    for t in [
+        TimeFrame::Sync { seq: 0 },
+        TimeFrame::FollowUp {
+            seq: 0,
+            master_us: 1_767_225_600_123_456,
+        },
+        TimeFrame::Sync { seq: 15 },
+        TimeFrame::FollowUp {
+            seq: 15,
+            master_us: (1 << 56) - 1,
+        },
+    ] {
+        frames.push(t.to_frame(time_id).unwrap());
     }
     frames
 }
@@ -488,5 +532,5 @@ fn cantools_agrees_with_rust_decoders() {
         kinds.insert(name);
     }
     // Every message of the DBC was exercised.
-    assert_eq!(kinds.len(), 8, "{kinds:?}");
+    assert_eq!(kinds.len(), 9, "{kinds:?}");
 }

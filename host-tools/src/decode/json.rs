@@ -200,6 +200,12 @@ pub fn status(status: &Status) -> Value {
         Status::SensorTiming { afrt, scan_rpm } => {
             json!({"page": "sensor_timing", "afrt": afrt, "scan_rpm": scan_rpm})
         }
+        Status::TimeSync {
+            synced,
+            error_us,
+            master_time,
+        } => json!({"page": "time_sync", "synced": synced, "error_us": error_us,
+            "master_time_low_us": master_time}),
     }
 }
 

@@ -5,8 +5,9 @@
 //!   QEMU's UART has no bit rate (and the session sends no `SS` by default).
 //! - **UART1** is the CAN port, speaking SLCAN like a USB-CAN adapter (`can_port`):
 //!   closed until `O`; the bridge's frames go out as `t`/`d`/`b` lines while it is open;
-//!   frames written to it go to [`bridge::engine::Bridge::on_can_frame`] (control
-//!   frames); `F` answers the status flags.
+//!   frames written to it go to [`bridge::engine::Bridge::on_can_frame_at`] (control
+//!   frames, and a time master's SYNC / FOLLOW-UP, stamped in µs); `F` answers the
+//!   status flags.
 //! - Time is SysTick's millisecond count. The session starts at boot. The CMSDK watchdog
 //!   is fed every millisecond; a stalled loop raises the NMI, which reports and resets.
 //!
@@ -135,7 +136,10 @@ fn main() -> ! {
         // Control frames from the bus (the SLCAN host).
         match port.receive(&mut can) {
             Some(Input::Frame(frame)) => {
-                bridge.on_can_frame(&frame, now);
+                // Stamped in µs of the SysTick clock: a time master's SYNC (SPEC 9)
+                // is taken at that resolution.
+                let now_us = hw::ticks() / u64::from(hw::TICKS_PER_MS / 1000);
+                bridge.on_can_frame_at(&frame, now_us);
             }
             Some(Input::Diagnostics) => diagnostics(&mut port, &mut can, &bridge, &meter),
             None => {}

@@ -22,7 +22,6 @@
 //! through `embassy_stm32::pac` (the `unstable-pac` feature).
 
 use board_common::config::CanBus;
-use board_common::sensor::now_ms;
 use board_common::Shared;
 use can_wire::BusState;
 use embassy_stm32::can::filter::ListEntry32;
@@ -113,8 +112,10 @@ pub async fn rx_task(shared: &'static Shared, mut rx: CanRx<'static>) {
         match rx.read().await {
             Ok(envelope) => {
                 if let Some(frame) = from_bxcan(&envelope.frame) {
-                    let now = now_ms();
-                    if shared.with(|b| b.on_can_frame(&frame, now)) {
+                    // µs when the task took it (a software stamp: the controller's RX timestamp
+                    // would be exact): a time master's SYNC (SPEC 9) is taken at that resolution.
+                    let now_us = embassy_time::Instant::now().as_micros();
+                    if shared.with(|b| b.on_can_frame_at(&frame, now_us)) {
                         shared.notify_frames();
                     }
                 }
