@@ -245,7 +245,7 @@ fn parse_time(s: &str) -> Result<u64, LineError> {
 
 fn parse_hex(s: &str) -> Result<Vec<u8>, LineError> {
     let digits: Vec<u8> = s.bytes().filter(|&b| b != b'.').collect();
-    if digits.len() % 2 != 0 {
+    if !digits.len().is_multiple_of(2) {
         return Err(LineError::Data);
     }
     digits

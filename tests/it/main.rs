@@ -7,6 +7,7 @@ mod emulate_e2e;
 mod host_streaming;
 mod icount;
 mod live_bridge;
+mod live_view;
 mod lossless_replay;
 mod noise;
 mod pp_faults;

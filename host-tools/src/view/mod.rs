@@ -1,0 +1,3 @@
+//! Scans in the formats of visualisation tools.
+
+pub mod foxglove;
