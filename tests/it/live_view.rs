@@ -329,7 +329,20 @@ fn decode_follows_an_slcan_adapter_on_tcp() {
     let addr = listener.local_addr().unwrap();
     let mut child = spawn(&["decode", "--stats", &format!("slcan:tcp://{addr}")]);
     let lines = line_reader(&mut child);
-    let (mut sock, _) = listener.accept().unwrap();
+    // Accepted within a limit: a decoder that never connects fails the test.
+    listener.set_nonblocking(true).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut sock = loop {
+        match listener.accept() {
+            Ok((sock, _)) => break sock,
+            Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(10)),
+            Err(e) => {
+                let _ = child.kill();
+                panic!("the decoder did not connect: {e}");
+            }
+        }
+    };
+    sock.set_nonblocking(false).unwrap();
     // The decoder opens the channel (C, S8, O); an adapter answers each with CR.
     sock.set_read_timeout(Some(Duration::from_secs(10)))
         .unwrap();
