@@ -475,3 +475,135 @@ fn frames_of_another_protocol_on_the_same_ids_are_counted_and_reported_not_decod
     assert_eq!(summary["bridges"][0]["scans_intact"], 2);
     assert_eq!(summary["bridges"][0]["frames_orphaned"], 1);
 }
+
+/// An SLCAN adapter on a TCP socket for a bridge: answers its commands, keeps what it
+/// transmits, and once `trigger` frames went by puts `inject` on the bus. Returns the
+/// frames transmitted after the injection.
+fn adapter(listener: TcpListener, trigger: usize, inject: Vec<(u16, Vec<u8>)>) -> Vec<Frame> {
+    listener.set_nonblocking(true).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut sock = loop {
+        match listener.accept() {
+            Ok((s, _)) => break s,
+            Err(_) if Instant::now() < deadline => std::thread::sleep(Duration::from_millis(10)),
+            Err(e) => panic!("the bridge did not connect: {e}"),
+        }
+    };
+    sock.set_nonblocking(false).unwrap();
+    sock.set_read_timeout(Some(Duration::from_millis(20)))
+        .unwrap();
+    let mut adapter = slcan::Adapter::new(*b"0100", *b"TEST", true);
+    let mut lines = slcan::LineBuffer::new();
+    let (mut sent, mut after) = (0usize, Vec::new());
+    let mut injected = false;
+    let mut buf = [0u8; 4096];
+    'run: while Instant::now() < deadline {
+        let n = match sock.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(_) => 0,
+        };
+        let mut input = &buf[..n];
+        while !input.is_empty() {
+            let (used, line) = lines.feed(input);
+            input = &input[used..];
+            if let Some(line) = line {
+                let outcome = adapter.line(line);
+                if let slcan::Outcome::Transmit(f, _) = outcome {
+                    sent += 1;
+                    if injected {
+                        let fd = f.kind() != slcan::FrameKind::Data;
+                        after.push(Frame::new(f.id(), f.data(), fd).unwrap());
+                    }
+                }
+                let mut out = [0u8; slcan::LINE_MAX];
+                let m = outcome.reply().emit(&mut out).unwrap();
+                if sock.write_all(&out[..m]).is_err() {
+                    break 'run;
+                }
+            }
+        }
+        if !injected && sent >= trigger {
+            injected = true;
+            for (id, data) in &inject {
+                let f = slcan::Frame::new(
+                    embedded_can::Id::Standard(embedded_can::StandardId::new(*id).unwrap()),
+                    slcan::FrameKind::Data,
+                    data,
+                )
+                .unwrap();
+                let mut out = [0u8; slcan::LINE_MAX];
+                let m = adapter.received(&f, 0, &mut out).expect("channel open");
+                if sock.write_all(&out[..m]).is_err() {
+                    break 'run;
+                }
+            }
+        }
+    }
+    after
+}
+
+use can_wire::Frame;
+
+#[test]
+fn another_protocol_on_the_bridge_ids_is_counted_and_the_bridge_keeps_streaming() {
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let can = format!("slcan:tcp://{}", listener.local_addr().unwrap());
+    // Another device on node 0's identifiers (SPEC 3, 5: a 1-byte header A, a 4-byte
+    // trailer, a status page that does not exist): each is rejected by a receiver.
+    let inject = vec![
+        (0x130, vec![0x01]),
+        (0x160, vec![0xDE, 0xAD, 0xBE, 0xEF]),
+        (0x120, vec![0x7F, 0, 0, 0, 0, 0, 0, 0]),
+    ];
+    let server = std::thread::spawn(move || adapter(listener, 500, inject));
+    let mut child = spawn(&[
+        "bridge",
+        "sim:model=urg04lx,speed=4",
+        "--encoding",
+        "d12",
+        "--can",
+        &can,
+        "--foxglove",
+        "127.0.0.1:0",
+        "--seconds",
+        "8",
+    ]);
+    let errs = stderr_lines(&mut child);
+    let addr = loop {
+        let line = errs
+            .recv_timeout(Duration::from_secs(60))
+            .expect("the server's address");
+        if let Some(a) = line.split("ws://").nth(1) {
+            break a.trim().to_owned();
+        }
+    };
+    let mut ws = connect(&addr);
+    let status = advertised(&mut ws, "/scip2can/bridge");
+    subscribe(&mut ws, 1, &status);
+    let deadline = Instant::now() + Duration::from_secs(7);
+    let mut rejected = 0;
+    while Instant::now() < deadline && rejected < 3 {
+        let v: Value = serde_json::from_slice(&message_data(&mut ws, 1)).expect("JSON");
+        rejected = v["bus_frames_rejected"].as_u64().unwrap();
+    }
+    assert_eq!(rejected, 3);
+    drop(ws);
+    let after = server.join().expect("adapter");
+    assert!(child.wait().expect("bridge ends").success());
+    // The bridge went on streaming whole scans after the foreign frames.
+    let mut dec: Box<can_wire::reassembly::Decoder<1440, 1>> = Box::new(
+        can_wire::reassembly::Decoder::new(can_wire::IdWindow::DEFAULT),
+    );
+    let mut intact = 0;
+    for f in &after {
+        if let Ok(Some(can_wire::reassembly::Event::Scan { scan, .. })) = dec.push_frame(f) {
+            assert_eq!(scan.header().point_count, 682);
+            intact += usize::from(scan.is_intact());
+        }
+    }
+    assert!(
+        intact >= 20,
+        "{intact} intact scans after the foreign frames"
+    );
+}

@@ -282,3 +282,26 @@ impl LoadMeter {
         out
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn the_load_meter_follows_spec_8() {
+        // SPEC 8: a classic 8-byte frame with an 11-bit ID is 34 + 64 + 13 +
+        // floor(97 / 4) = 135 bits: 135 µs at 1 Mbit/s. 1000 of them in 1 s: 13.5 %.
+        let mut m = LoadMeter::new(can_wire::bandwidth::BitRates::CLASSIC_1M);
+        let id = embedded_can::Id::Standard(embedded_can::StandardId::new(0x130).unwrap());
+        let f = can_wire::Frame::new(id, &[0; 8], false).unwrap();
+        for _ in 0..1000 {
+            m.add(&f);
+        }
+        let (fps, load) = m.take(Duration::from_secs(1));
+        assert_eq!(fps, 1000.0);
+        assert!((load - 13.5).abs() < 1e-9, "{load}");
+        // A new period starts empty.
+        assert_eq!(m.take(Duration::from_secs(2)), (0.0, 0.0));
+    }
+}
