@@ -607,3 +607,70 @@ fn another_protocol_on_the_bridge_ids_is_counted_and_the_bridge_keeps_streaming(
         "{intact} intact scans after the foreign frames"
     );
 }
+
+#[test]
+fn decode_serves_a_live_log_to_a_foxglove_client() {
+    let mut child = spawn(&["decode", "--foxglove", "127.0.0.1:0", "-"]);
+    let errs = stderr_lines(&mut child);
+    let addr = loop {
+        let line = errs
+            .recv_timeout(Duration::from_secs(60))
+            .expect("the server's address");
+        if let Some(a) = line.split("ws://").nth(1) {
+            break a.trim().to_owned();
+        }
+    };
+    let mut stdin = child.stdin.take().expect("stdin");
+    let mut ws = connect(&addr);
+    let mut t = 1.0;
+    let mut write = |scan: &[(u16, &str)], stdin: &mut std::process::ChildStdin| {
+        for &f in scan {
+            stdin.write_all(candump(t, f).as_bytes()).unwrap();
+            t += 0.001;
+        }
+        stdin.flush().unwrap();
+    };
+    // The first scan makes the node's topic; the second is the one received.
+    write(&INTACT, &mut stdin);
+    let c = advertised(&mut ws, "/scip2can/node0/scan");
+    subscribe(&mut ws, 2, &c);
+    // Subscriptions take effect asynchronously: scans are written until one arrives
+    // (0x0108 and 0x0107 in turn, each a new scan).
+    ws.get_mut()
+        .set_read_timeout(Some(Duration::from_millis(300)))
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut next = [&TRUNCATED[..], &INTACT[..]].into_iter().cycle();
+    let s = loop {
+        assert!(Instant::now() < deadline, "no scan arrived");
+        write(next.next().unwrap(), &mut stdin);
+        match ws.read() {
+            Ok(Message::Binary(b)) if b.first() == Some(&1) => break laser_scan(&b[13..]),
+            Ok(_) => {}
+            Err(tungstenite::Error::Io(e))
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) => {}
+            Err(e) => panic!("{e}"),
+        }
+    };
+    // The golden scans (SPEC 3): points 1 step apart from step -2 of 1024; 0x0107 has
+    // 5 (2748 mm, invalid, out of range, 291 mm, out of range), the truncated 0x0108
+    // the first 4 of them.
+    let step = std::f64::consts::TAU / 1024.0;
+    let n = s.ranges.len();
+    assert!(n == 4 || n == 5, "{n} points");
+    assert!((s.start + 2.0 * step).abs() < 1e-6, "{}", s.start);
+    assert!((s.end - (n as f64 - 3.0) * step).abs() < 1e-6, "{}", s.end);
+    assert_eq!(s.ranges[0], 2.748);
+    assert!(s.ranges[1].is_nan());
+    assert_eq!(s.ranges[2], f64::INFINITY);
+    assert_eq!(s.ranges[3], 0.291);
+    if n == 5 {
+        assert_eq!(s.ranges[4], f64::INFINITY);
+    }
+    drop(stdin);
+    drop(ws);
+    assert!(child.wait().expect("decode ends").success());
+}
