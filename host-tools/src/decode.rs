@@ -8,9 +8,17 @@
 //! (then as incomplete). Each item is written (and standard output flushed) as soon as
 //! it is complete, so `candump -L can0 | scip2can decode -` shows scans live.
 //!
+//! Live inputs: a CAN port with the `bridge`'s syntax and code ([`crate::live::port`];
+//! frames stamped with the host's time since start), read until Ctrl-C or until the port
+//! closes or fails (the reason is printed; the input then ends as a log does), and a
+//! growing file with `--follow` ([`Follow`]). `--foxglove` also serves what is decoded
+//! on a Foxglove WebSocket ([`crate::live::ws`]).
+//!
 //! A malformed log line (or one longer than [`crate::candump::MAX_LINE`]) is reported on
 //! standard error with its line number and reason, counted in the summary, and skipped;
-//! decoding goes on with the next line. See [`json`] for the output formats.
+//! decoding goes on with the next line. A frame of the window that is not a valid
+//! scip2can frame (another protocol on the same identifiers) is reported the same way
+//! (its time and bytes) and counted as rejected. See [`json`] for the output formats.
 
 pub mod json;
 

@@ -6,7 +6,9 @@
 //! back to the sensor (and a bit-rate change to the serial port); frames leave through
 //! the CAN port in queue order; frames received on the port (control frames addressed to
 //! this bridge) go to `Bridge::on_can_frame`, which answers them. Once a second a
-//! summary line goes to standard error (`--quiet` turns it off).
+//! summary line goes to standard error (`--quiet` turns it off). With `--foxglove`, every
+//! frame on the bus is also decoded and the scans, status frames and the bridge's own
+//! state go to a Foxglove WebSocket server ([`ws`]), which can never hold the loop up.
 
 pub mod port;
 pub mod ws;
