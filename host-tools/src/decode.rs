@@ -8,20 +8,33 @@
 //! (then as incomplete). Each item is written (and standard output flushed) as soon as
 //! it is complete, so `candump -L can0 | scip2can decode -` shows scans live.
 //!
+//! Live inputs: a CAN port with the `bridge`'s syntax and code ([`crate::live::port`];
+//! frames stamped with the host's time since start), read until Ctrl-C or until the port
+//! closes or fails (the reason is printed; the input then ends as a log does), and a
+//! growing file with `--follow` ([`Follow`]). `--foxglove` also serves what is decoded
+//! on a Foxglove WebSocket ([`crate::live::ws`]).
+//!
 //! A malformed log line (or one longer than [`crate::candump::MAX_LINE`]) is reported on
 //! standard error with its line number and reason, counted in the summary, and skipped;
-//! decoding goes on with the next line. See [`json`] for the output formats.
+//! decoding goes on with the next line. A frame of the window that is not a valid
+//! scip2can frame (another protocol on the same identifiers) is reported the same way
+//! (its time and bytes) and counted as rejected. See [`json`] for the output formats.
 
 pub mod json;
 
 use std::collections::BTreeMap;
-use std::io::{self, BufRead, BufReader, Write};
+use std::io::{self, BufRead, BufReader, Read, Write};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
-use anyhow::{anyhow, Context};
+use anyhow::{anyhow, bail, Context};
+use can_wire::bandwidth::BitRates;
 use can_wire::reassembly::{Completeness, Decoder, Event, LossStats, Point, Scan};
 use can_wire::{Answer, Control, IdWindow, ScanHeader, Status, TrailerFlags, MAX_POINTS};
 
 use crate::candump::{CandumpError, Reader, Record};
+use crate::live::ws::{LiveView, LoadMeter};
 
 /// Points per scan the decoder holds (every point a header can announce).
 pub const POINTS: usize = MAX_POINTS as usize;
@@ -158,6 +171,7 @@ pub struct LogDecoder {
     nodes: BTreeMap<u8, ()>,
     counts: FrameCounts,
     last_us: u64,
+    warn: bool,
 }
 
 impl std::fmt::Debug for LogDecoder {
@@ -187,7 +201,14 @@ impl LogDecoder {
             nodes: BTreeMap::new(),
             counts: FrameCounts::default(),
             last_us: 0,
+            warn: false,
         }
+    }
+
+    /// Report rejected frames on standard error (the first [`LINE_WARNINGS`] of them;
+    /// off by default: they are counted either way).
+    pub fn set_warnings(&mut self, on: bool) {
+        self.warn = on;
     }
 
     /// One log record; returns what it completed.
@@ -196,15 +217,33 @@ impl LogDecoder {
             self.counts.skipped += 1;
             return None;
         };
+        self.push_frame(record.time_us, &frame)
+    }
+
+    /// One data frame received at `t` µs (a CAN port's); returns what it completed.
+    pub fn push_frame(&mut self, t: u64, frame: &can_wire::Frame) -> Option<Item> {
         self.counts.frames += 1;
         let (node, _) = self.window.classify(frame.id())?;
         self.counts.ours += 1;
         self.nodes.insert(node, ());
-        self.last_us = record.time_us;
-        let t = record.time_us;
-        match self.decoder.push_frame(&frame) {
-            Err(_) => {
+        self.last_us = t;
+        match self.decoder.push_frame(frame) {
+            Err(e) => {
+                // E.g. another protocol's frames on the window's identifiers.
                 self.counts.rejected += 1;
+                let n = self.counts.rejected;
+                if self.warn && n <= LINE_WARNINGS {
+                    let rec = Record::from_frame(t, "", frame, false);
+                    let text = rec.to_string();
+                    let text = text.rsplit(' ').next().unwrap_or_default();
+                    eprintln!(
+                        "warning: frame {text} at {:.6} s is not a valid scip2can frame ({e}); counted as corrupt, skipped",
+                        t as f64 / 1e6
+                    );
+                    if n == LINE_WARNINGS {
+                        eprintln!("warning: further rejected frames are counted, not listed");
+                    }
+                }
                 None
             }
             Ok(None) => None,
@@ -295,8 +334,14 @@ pub fn decode_log(
 /// `scip2can decode` flags.
 #[derive(Debug, Clone, clap::Args)]
 pub struct DecodeArgs {
-    /// The candump log, or `-` for standard input.
+    /// The input: a candump log FILE, `-` for standard input, or a CAN port as `bridge`
+    /// names it: `slcan:DEVICE[@BAUD]`, `slcan:tcp://HOST:PORT`, `socketcan:IFACE`
+    /// (Linux, built with `--features socketcan`). `candump:FILE` is FILE.
     pub log: String,
+    /// Follow FILE as it grows (like `tail -f`): at its end, wait for more; stop at
+    /// Ctrl-C, or when the file is truncated, removed or replaced by another.
+    #[arg(long)]
+    pub follow: bool,
     /// One CSV row per point (seq,index,angle_rad,distance_mm,intensity,valid) instead of
     /// JSON lines; status and control frames are left out.
     #[arg(long)]
@@ -304,6 +349,20 @@ pub struct DecodeArgs {
     /// The summary as one JSON object on standard error.
     #[arg(long)]
     pub stats: bool,
+    /// Also serve the scans, the bridges' status frames and the decoder's counters to
+    /// Foxglove on a WebSocket at HOST:PORT (e.g. 127.0.0.1:8765; port 0 picks one).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub foxglove: Option<String>,
+    /// Nominal bit rate of the bus, bit/s: the SLCAN `S` command of a port, and the bus
+    /// load shown in Foxglove.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub bitrate: u32,
+    /// CAN FD data phase bit rate, bit/s (SLCAN `Y` command with --fd).
+    #[arg(long, default_value_t = 5_000_000)]
+    pub data_bitrate: u32,
+    /// Open an SLCAN port for CAN FD frames with bit rate switch.
+    #[arg(long)]
+    pub fd: bool,
     /// Identifier window.
     #[command(flatten)]
     pub window: WindowArgs,
@@ -321,53 +380,244 @@ pub fn open_log(path: &str) -> anyhow::Result<Box<dyn BufRead>> {
     Ok(Box::new(BufReader::new(f)))
 }
 
+/// A growing file read like `tail -f`: at its end, waits for more until stopped, or until
+/// the file is truncated, removed or replaced (then it ends, with a note on standard
+/// error).
+pub struct Follow {
+    file: std::fs::File,
+    path: std::path::PathBuf,
+    pos: u64,
+    identity: Option<(u64, u64)>,
+    stop: Arc<AtomicBool>,
+}
+
+impl std::fmt::Debug for Follow {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Follow")
+            .field("path", &self.path)
+            .field("pos", &self.pos)
+            .finish_non_exhaustive()
+    }
+}
+
+/// How often a followed file is looked at when nothing new is in it.
+pub const FOLLOW_POLL: Duration = Duration::from_millis(50);
+
+#[cfg(unix)]
+fn identity(m: &std::fs::Metadata) -> Option<(u64, u64)> {
+    use std::os::unix::fs::MetadataExt;
+    Some((m.dev(), m.ino()))
+}
+
+#[cfg(not(unix))]
+fn identity(_: &std::fs::Metadata) -> Option<(u64, u64)> {
+    None
+}
+
+impl Follow {
+    /// Opens `path` to follow it from its start; `stop` ends it at its current end.
+    pub fn open(path: &str, stop: Arc<AtomicBool>) -> anyhow::Result<Self> {
+        let file = std::fs::File::open(path).with_context(|| format!("opening {path}"))?;
+        let identity = file.metadata().ok().as_ref().and_then(identity);
+        Ok(Self {
+            file,
+            path: path.into(),
+            pos: 0,
+            identity,
+            stop,
+        })
+    }
+
+    /// Why following must end, if it must.
+    fn ended(&self) -> Option<&'static str> {
+        match std::fs::metadata(&self.path) {
+            Err(_) => Some("was removed"),
+            Ok(m) if self.identity.is_some() && identity(&m) != self.identity => {
+                Some("was replaced by another file")
+            }
+            Ok(m) if m.len() < self.pos => Some("was truncated"),
+            Ok(_) => None,
+        }
+    }
+}
+
+impl Read for Follow {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        loop {
+            let n = self.file.read(buf)?;
+            if n > 0 {
+                self.pos = self.pos.saturating_add(n as u64);
+                return Ok(n);
+            }
+            if self.stop.load(Ordering::SeqCst) {
+                return Ok(0);
+            }
+            if let Some(why) = self.ended() {
+                eprintln!("decode: {} {why}; stopping", self.path.display());
+                return Ok(0);
+            }
+            std::thread::sleep(FOLLOW_POLL);
+        }
+    }
+}
+
+/// The items' way out: standard output, the MCAP file and the Foxglove view, those
+/// there are.
+struct Output<'a> {
+    out: &'a mut dyn Write,
+    csv: bool,
+    mcap: Option<crate::view::mcap::McapSink>,
+    view: Option<LiveView>,
+    load: LoadMeter,
+    start: Instant,
+    next_status: Duration,
+}
+
+impl Output<'_> {
+    fn emit(&mut self, item: &Item) -> anyhow::Result<()> {
+        if let Some(v) = &self.view {
+            v.item(item);
+        }
+        if let Some(m) = &mut self.mcap {
+            m.push(item)?;
+        }
+        if self.csv {
+            match item {
+                Item::Scan(s) => json::write_csv(self.out, s)?,
+                _ => return Ok(()),
+            }
+        } else {
+            serde_json::to_writer(&mut *self.out, &json::item(item))?;
+            self.out.write_all(b"\n")?;
+        }
+        // Each item goes out as soon as it is complete (a live log shows scans as they
+        // arrive).
+        Ok(self.out.flush()?)
+    }
+
+    /// The decoder's counters to the view, once a second.
+    fn tick(&mut self, dec: &LogDecoder) {
+        let Some(view) = &self.view else { return };
+        let t = self.start.elapsed();
+        if t < self.next_status {
+            return;
+        }
+        self.next_status = t + Duration::from_secs(1);
+        let (frames, load) = self.load.take(t);
+        let mut v = json::summary(dec);
+        if let Some(o) = v.as_object_mut() {
+            o.insert("time".into(), t.as_secs_f64().into());
+            o.insert("frames_per_s".into(), frames.into());
+            o.insert("bus_load_percent".into(), load.into());
+            o.insert("foxglove_dropped".into(), view.dropped().into());
+            o.insert("foxglove_clients".into(), view.clients().into());
+        }
+        view.status(v);
+    }
+}
+
 /// `scip2can decode`.
 pub fn run(args: DecodeArgs) -> anyhow::Result<()> {
     let window = args.window.window()?;
     // The MCAP file is created first: a bad path fails before any input is read.
-    let mut mcap = crate::view::mcap::McapSink::from_args(&args.mcap)?;
-    let input = open_log(&args.log)?;
-    let mut out = io::BufWriter::new(io::stdout().lock());
-    let mut dec = LogDecoder::new(window);
-    if args.csv {
-        json::write_csv_header(&mut out)?;
+    let mcap = crate::view::mcap::McapSink::from_args(&args.mcap)?;
+    let source = args.log.strip_prefix("candump:").unwrap_or(&args.log);
+    let is_port = source.starts_with("slcan:") || source.starts_with("socketcan:");
+    if args.follow && (is_port || source == "-") {
+        bail!("--follow takes a FILE (standard input and CAN ports are followed anyway)");
     }
-    // Each item goes out as soon as it is complete (a live log shows scans as they
-    // arrive).
-    let emit = |item: &Item, out: &mut dyn Write| -> io::Result<()> {
-        if args.csv {
-            match item {
-                Item::Scan(s) => json::write_csv(out, s)?,
-                _ => return Ok(()),
-            }
-        } else {
-            serde_json::to_writer(&mut *out, &json::item(item))?;
-            out.write_all(b"\n")?;
+    let stop = Arc::new(AtomicBool::new(false));
+    if args.follow || is_port {
+        // Ctrl-C ends the input; what is decoded so far and the summary are printed.
+        let stop = stop.clone();
+        let _ = ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst));
+    }
+    let view = match &args.foxglove {
+        Some(addr) => {
+            let v = LiveView::start(addr, "decode")?;
+            eprintln!(
+                "decode: Foxglove WebSocket server on ws://{}",
+                v.local_addr()
+            );
+            Some(v)
         }
-        out.flush()
+        None => None,
     };
+    let mut stdout = io::BufWriter::new(io::stdout().lock());
     if args.csv {
-        out.flush()?;
+        json::write_csv_header(&mut stdout)?;
+        stdout.flush()?;
     }
-    for read in Reader::new(input) {
-        let item = dec
-            .push_read(read)
-            .with_context(|| format!("reading {}", args.log))?;
-        if let Some(item) = item {
-            emit(&item, &mut out)?;
-            if let Some(m) = &mut mcap {
-                m.push(&item)?;
+    let rates = BitRates {
+        nominal: args.bitrate,
+        data: args.data_bitrate,
+    };
+    let mut out = Output {
+        out: &mut stdout,
+        csv: args.csv,
+        mcap,
+        view,
+        load: LoadMeter::new(rates),
+        start: Instant::now(),
+        next_status: Duration::ZERO,
+    };
+    let mut dec = LogDecoder::new(window);
+    dec.set_warnings(true);
+    if is_port {
+        let mut port = crate::live::port::open(source, args.bitrate, args.data_bitrate, args.fd)?;
+        eprintln!("decode: reading {}", port.describe());
+        while !stop.load(Ordering::SeqCst) {
+            match port.recv() {
+                Ok(Some(frame)) => {
+                    let t = out.start.elapsed();
+                    out.load.add(&frame);
+                    let t_us = u64::try_from(t.as_micros()).unwrap_or(u64::MAX);
+                    if let Some(item) = dec.push_frame(t_us, &frame) {
+                        out.emit(&item)?;
+                    }
+                }
+                Ok(None) => std::thread::sleep(Duration::from_millis(1)),
+                Err(e) => {
+                    // The port closing ends the input (as the end of a log does).
+                    eprintln!("decode: {e:#}; end of input");
+                    break;
+                }
             }
+            out.tick(&dec);
+        }
+    } else {
+        let input: Box<dyn BufRead> = if args.follow {
+            Box::new(BufReader::new(Follow::open(source, stop.clone())?))
+        } else {
+            open_log(source)?
+        };
+        for read in Reader::new(input) {
+            let item = match read {
+                Ok(record) => match record.to_frame() {
+                    Some(frame) => {
+                        out.load.add(&frame);
+                        dec.push_frame(record.time_us, &frame)
+                    }
+                    None => dec.push(&record),
+                },
+                Err(e) => dec
+                    .push_read(Err(e))
+                    .with_context(|| format!("reading {}", args.log))?,
+            };
+            if let Some(item) = item {
+                out.emit(&item)?;
+            }
+            out.tick(&dec);
         }
     }
     for item in dec.finish() {
-        emit(&item, &mut out)?;
-        if let Some(m) = &mut mcap {
-            m.push(&item)?;
-        }
+        out.emit(&item)?;
     }
-    out.flush()?;
-    let mcap = mcap.map(|m| m.finish()).transpose()?;
+    out.next_status = Duration::ZERO;
+    out.tick(&dec);
+    let mcap = out.mcap.take().map(|m| m.finish()).transpose()?;
+    drop(out);
+    stdout.flush()?;
     if args.stats {
         let mut summary = json::summary(&dec);
         if let (Some(c), Some(o)) = (mcap, summary.as_object_mut()) {

@@ -8,9 +8,12 @@
 //! this bridge) go to `Bridge::on_can_frame_at`, which answers them, and a time master's
 //! SYNC / FOLLOW-UP frames on the bus (`scip2can timesync`, SPEC 9) map the bridge's
 //! clock to the robot's ([`bridge::engine::Bridge::to_master`]). Once a second a
-//! summary line goes to standard error (`--quiet` turns it off).
+//! summary line goes to standard error (`--quiet` turns it off). With `--foxglove`, every
+//! frame on the bus is also decoded and the scans, status frames and the bridge's own
+//! state go to a Foxglove WebSocket server ([`ws`]), which can never hold the loop up.
 
 pub mod port;
+pub mod ws;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -63,6 +66,58 @@ pub struct BridgeArgs {
     /// No summary lines on standard error.
     #[arg(long)]
     pub quiet: bool,
+    /// Serve the scans on the bus, the status frames and the bridge's own state,
+    /// counters and bus load to Foxglove on a WebSocket at HOST:PORT (e.g.
+    /// 127.0.0.1:8765; port 0 picks one). A slow or closed client never holds the
+    /// bridge up.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub foxglove: Option<String>,
+}
+
+/// The Foxglove side of the bridge: every frame on the bus (sent and received) is
+/// decoded as `decode` would, and the scans and status go to the server.
+struct Viewer {
+    view: ws::LiveView,
+    dec: crate::decode::LogDecoder,
+    load: ws::LoadMeter,
+    start: Instant,
+}
+
+impl Viewer {
+    fn frame(&mut self, frame: &can_wire::Frame) {
+        self.load.add(frame);
+        let t = u64::try_from(self.start.elapsed().as_micros()).unwrap_or(u64::MAX);
+        if let Some(item) = self.dec.push_frame(t, frame) {
+            self.view.item(&item);
+        }
+    }
+
+    fn status(&mut self, bridge: &Bridge<QUEUE>, state: &str) {
+        let t = self.start.elapsed();
+        let (frames_per_s, load) = self.load.take(t);
+        let s = bridge.stats();
+        let c = self.dec.counts();
+        let plan = bridge.plan().map(|p| {
+            serde_json::json!({"points": p.points, "decimation": p.factor,
+                "every_nth": p.every_nth, "worst_case_load_percent": p.load_ppm as f64 / 10_000.0})
+        });
+        self.view.status(serde_json::json!({
+            "time": t.as_secs_f64(),
+            "state": state,
+            "plan": plan,
+            "scans_sent": s.scans_sent,
+            "scans_aborted": s.scans_aborted,
+            "scans_dropped": s.scans_dropped + s.scans_skipped,
+            "frames": s.frames,
+            "frames_per_s": frames_per_s,
+            "bus_load_percent": load,
+            "queued": bridge.queued(),
+            "decoder_errors": bridge.decoder().stats().errors,
+            "bus_frames_rejected": c.rejected,
+            "foxglove_dropped": self.view.dropped(),
+            "foxglove_clients": self.view.clients(),
+        }));
+    }
 }
 
 /// Runs the bridge until Ctrl-C or `--seconds`.
@@ -99,6 +154,24 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         eprintln!("scip2can bridge: {} → {}", link.describe(), can.describe());
     }
     let start = Instant::now();
+    let mut viewer = match &args.foxglove {
+        Some(addr) => {
+            let view = ws::LiveView::start(addr, "bridge")?;
+            // Printed even with --quiet: the address is how one connects.
+            eprintln!(
+                "scip2can bridge: Foxglove WebSocket server on ws://{}",
+                view.local_addr()
+            );
+            Some(Viewer {
+                view,
+                dec: crate::decode::LogDecoder::new(config.ids.window()),
+                load: ws::LoadMeter::new(config.budget.rates),
+                start,
+            })
+        }
+        None => None,
+    };
+    let mut state = String::from("Starting");
     let deadline = args
         .seconds
         .map(|s| start + Duration::from_secs_f64(s.max(0.0)));
@@ -116,6 +189,9 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
             bridge.on_uart(piece, now_ms());
             while let Some(frame) = bridge.pop_frame() {
                 can.send(&frame).context("writing to the CAN port")?;
+                if let Some(v) = &mut viewer {
+                    v.frame(&frame);
+                }
             }
         }
         while let Some(action) = bridge.poll(now_ms()) {
@@ -127,6 +203,7 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
             }
         }
         if let Some(notice) = bridge.take_notice() {
+            state = format!("{notice:?}");
             if !args.quiet {
                 eprintln!("[{:8.3} s] {notice:?}", start.elapsed().as_secs_f64());
                 if notice == bridge::session::Notice::Streaming {
@@ -144,16 +221,27 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         }
         while let Some(frame) = bridge.pop_frame() {
             can.send(&frame).context("writing to the CAN port")?;
+            if let Some(v) = &mut viewer {
+                v.frame(&frame);
+            }
         }
         while let Some(frame) = can.recv().context("reading the CAN port")? {
             // µs of the same clock: time frames (SPEC 9) are stamped at that resolution.
             bridge.on_can_frame_at(&frame, start.elapsed().as_micros() as u64);
+            if let Some(v) = &mut viewer {
+                v.frame(&frame);
+            }
         }
-        if !args.quiet && start.elapsed() >= next_report {
+        if start.elapsed() >= next_report {
             next_report += Duration::from_secs(1);
-            let now = Summary::of(&bridge);
-            eprintln!("{}", now.line(&last, start.elapsed().as_secs_f64()));
-            last = now;
+            if let Some(v) = &mut viewer {
+                v.status(&bridge, &state);
+            }
+            if !args.quiet {
+                let now = Summary::of(&bridge);
+                eprintln!("{}", now.line(&last, start.elapsed().as_secs_f64()));
+                last = now;
+            }
         }
     }
     // Leave the sensor quiet: stop the stream and give the QT a moment to go out.

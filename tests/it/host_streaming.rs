@@ -20,7 +20,7 @@ use scip2can_tests::recordings_or_skip;
 use serde_json::Value;
 
 /// The `scip2can` binary of this build (built once, into this test's target folder).
-fn scip2can() -> &'static Path {
+pub(crate) fn scip2can() -> &'static Path {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
     BIN.get_or_init(|| {
         // This test runs from <target>/<profile>/deps/.
@@ -222,7 +222,7 @@ fn decode_skips_malformed_lines_and_follows_the_receiver_rules() {
 }
 
 /// Reads lines of `child`'s standard output on a thread.
-fn line_reader(child: &mut Child) -> mpsc::Receiver<String> {
+pub(crate) fn line_reader(child: &mut Child) -> mpsc::Receiver<String> {
     let stdout = child.stdout.take().expect("stdout");
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || {

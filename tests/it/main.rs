@@ -8,6 +8,7 @@ mod host_streaming;
 mod host_time_master;
 mod icount;
 mod live_bridge;
+mod live_view;
 mod lossless_replay;
 mod mcap_view;
 mod noise;
