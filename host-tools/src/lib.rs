@@ -14,5 +14,5 @@ pub mod plot;
 pub mod replay;
 pub mod sensor;
 pub mod sim;
-pub mod view;
 pub mod timesync;
+pub mod view;

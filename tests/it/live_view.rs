@@ -648,6 +648,12 @@ fn decode_serves_a_live_log_to_a_foxglove_client() {
         write(next.next().unwrap(), &mut stdin);
         match ws.read() {
             Ok(Message::Binary(b)) if b.first() == Some(&1) => break laser_scan(&b[13..]),
+            // The server can take a subscription before it knows the channel it just
+            // advertised (seen about one run in five): subscribe again.
+            Ok(Message::Text(t)) if t.as_str().contains("Unknown channel") => {
+                std::thread::sleep(Duration::from_millis(50));
+                subscribe(&mut ws, 2, &c);
+            }
             Ok(_) => {}
             Err(tungstenite::Error::Io(e))
                 if matches!(
@@ -665,10 +671,12 @@ fn decode_serves_a_live_log_to_a_foxglove_client() {
     assert!(n == 4 || n == 5, "{n} points");
     assert!((s.start + 2.0 * step).abs() < 1e-6, "{}", s.start);
     assert!((s.end - (n as f64 - 3.0) * step).abs() < 1e-6, "{}", s.end);
-    assert_eq!(s.ranges[0], 2.748);
+    // Ranges are f32 metres (as in sensor_msgs/LaserScan), widened to the f64 of
+    // foxglove.LaserScan.
+    assert!((s.ranges[0] - 2.748).abs() < 1e-6, "{}", s.ranges[0]);
     assert!(s.ranges[1].is_nan());
     assert_eq!(s.ranges[2], f64::INFINITY);
-    assert_eq!(s.ranges[3], 0.291);
+    assert!((s.ranges[3] - 0.291).abs() < 1e-6, "{}", s.ranges[3]);
     if n == 5 {
         assert_eq!(s.ranges[4], f64::INFINITY);
     }
