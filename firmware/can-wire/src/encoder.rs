@@ -868,16 +868,32 @@ impl ScanEncoder {
         } else {
             0
         };
+        // The common case in one test: the distances from `min` up to (not including)
+        // the first of the rule's error codes, its band and the first distance too long
+        // for a code are ranges, coded without any further check. An error code or band
+        // below `min` leaves the span empty: every distance takes the full test.
+        let too_long = (u64::from(MAX_RANGE_UNITS) + 1) << e;
+        let too_long = too_long
+            .saturating_sub(u64::from(half))
+            .min(u64::from(u32::MAX.wrapping_sub(half))) as u32; // half <= 2^14
+        let first_other = a.min(b).min(if has_band { band } else { u32::MAX });
+        let span = first_other.min(too_long).saturating_sub(min);
         let code = |p: &T| {
             let (d, i) = point(p);
-            let range = d >= min && d != a && d != b && !(has_band && d.wrapping_sub(band) <= 2);
-            let q = d.saturating_add(half) >> e;
-            let dc = if !range {
-                code::error_code(d)
-            } else if q <= MAX_RANGE_UNITS {
-                q.wrapping_add(code::RANGE_BASE) // q <= MAX_RANGE_UNITS: no wrap
+            let dc = if d.wrapping_sub(min) < span {
+                // d < too_long: d + half stays below 2^32 and the code below MAX_VALUE.
+                (d.wrapping_add(half) >> e).wrapping_add(code::RANGE_BASE)
             } else {
-                code::OUT_OF_RANGE
+                let range =
+                    d >= min && d != a && d != b && !(has_band && d.wrapping_sub(band) <= 2);
+                let q = d.saturating_add(half) >> e;
+                if !range {
+                    code::error_code(d)
+                } else if q <= MAX_RANGE_UNITS {
+                    q.wrapping_add(code::RANGE_BASE) // q <= MAX_RANGE_UNITS: no wrap
+                } else {
+                    code::OUT_OF_RANGE
+                }
             };
             (dc, ((u32::from(i) >> ishift) & imask) as u16)
         };
