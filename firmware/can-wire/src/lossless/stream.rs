@@ -52,7 +52,7 @@ where
     let mut valid = 0usize;
     for ((p, d), i) in points.iter().zip(d.iter_mut()).zip(i.iter_mut()) {
         let (dc, ic) = code(p);
-        *d = dc.min(MAX_VALUE);
+        *d = dc;
         if INTENSITY {
             *i = u32::from(ic);
         }
@@ -136,12 +136,12 @@ impl ScanStream {
         if self.pushed >= self.point_count {
             return Err(Error::TooManyPoints);
         }
-        self.push_run(&[(distance, intensity)], |p| *p, out);
+        self.push_run(&[(distance.min(MAX_VALUE), intensity)], |p| *p, out);
         Ok(())
     }
 
     /// Take `points` in order, each turned by `code` into its distance code (at most
-    /// [`MAX_VALUE`]) and intensity code, like [`ScanStream::push`] for each but a block
+    /// [`MAX_VALUE`]: the caller's guarantee, not checked per point) and intensity code, like [`ScanStream::push`] for each but a block
     /// at a time. Stops when the scan is full or after a frame the sink had no slot for.
     /// Returns the points taken and how many of them were no range.
     #[inline(always)]
