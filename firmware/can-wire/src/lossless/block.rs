@@ -106,25 +106,45 @@ pub fn put_block<S: FrameSink + ?Sized>(
     let values = values.get(..values.len().min(BLOCK_POINTS)).unwrap_or(&[]);
     let n = values.len();
     let Scratch { u1, u2 } = scratch;
-    let (mut s1, mut s2, mut or1, mut or2) = (0u32, 0u32, 0u32, 0u32);
+    // `or` gathers both predictors' residuals: a quotient of either may escape.
+    let (mut s1, mut s2, mut or) = (0u32, 0u32, 0u32);
     // The last value and the last order-1 residual (the order-2 prediction is `a + p`).
     // Values and residuals stay far inside i32 (values below 2^20; larger ones would only
     // make wrong codes, and the stream never gives any).
     let mut a = h.h1 as i32;
     let mut p = a.wrapping_sub(h.h2 as i32);
-    for ((&v, x1), x2) in values.iter().zip(u1.iter_mut()).zip(u2.iter_mut()) {
+    // One value: its residuals under both predictors into `x1` and `x2`, their sums and
+    // OR. At most 16 residuals below 2^22 are summed: no wrap.
+    let mut step = |v: u32, x1: &mut u32, x2: &mut u32| {
         let e1 = (v as i32).wrapping_sub(a);
         let z1 = zigzag(e1);
         let z2 = zigzag(e1.wrapping_sub(p));
         *x1 = z1;
         *x2 = z2;
-        // At most 16 residuals below 2^22: no wrap.
         s1 = s1.wrapping_add(z1);
         s2 = s2.wrapping_add(z2);
-        or1 |= z1;
-        or2 |= z2;
+        or |= z1 | z2;
         p = e1;
         a = v as i32;
+    };
+    // Two values per turn (no register shuffling between turns), then an odd last one.
+    let pairs = values
+        .chunks_exact(2)
+        .zip(u1.chunks_exact_mut(2))
+        .zip(u2.chunks_exact_mut(2));
+    for ((v, x1), x2) in pairs {
+        if let ([v0, v1], [a0, a1], [b0, b1]) = (v, x1, x2) {
+            step(*v0, a0, b0);
+            step(*v1, a1, b1);
+        }
+    }
+    if n % 2 == 1 {
+        let last = n.wrapping_sub(1); // n is odd here
+        if let (Some(&v), Some(x1), Some(x2)) =
+            (values.get(last), u1.get_mut(last), u2.get_mut(last))
+        {
+            step(v, x1, x2);
+        }
     }
     // The history after the block, whatever its mode.
     h.h1 = a as u32;
@@ -134,13 +154,15 @@ pub fn put_block<S: FrameSink + ?Sized>(
         w.put(Mode::Constant as u32, MODE_BITS, out);
         return Mode::Constant;
     }
-    let (mode, u, sum, or) = if s2 < s1 {
-        (Mode::Order2, &*u2, s2, or2)
+    let (mode, u, sum) = if s2 < s1 {
+        (Mode::Order2, &*u2, s2)
     } else {
-        (Mode::Order1, &*u1, s1, or1)
+        (Mode::Order1, &*u1, s1)
     };
     let u = u.get(..n).unwrap_or(&[]);
     let k = rice_k(sum, n32);
+    // Whether a quotient of the chosen residuals may reach an escape (`or` bounds both
+    // predictors' residuals: a few blocks take the exact path without need).
     let escapes = (or >> k) >= ESCAPE_ONES;
     // Sum of the quotients is at most sum >> k; at most 16 values below 2^22.
     let rice = if escapes {
