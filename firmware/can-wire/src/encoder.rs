@@ -1076,8 +1076,28 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
     let max = s.coder.max_code();
     let (min, [a, b]) = (rule.min, rule.except);
     let (mut invalid, mut over, mut n) = (0u32, 0u32, 0u32);
+    // The distances from `min` below the first error code (or band) and below `max` are
+    // ranges coded as they are, found by one test; the others (below `min`, an error
+    // code, the band, at or past `max`) take the full one. An empty span sends every
+    // distance that way.
+    let first = match EXC {
+        0 => max,
+        2 => a.min(b).min(max),
+        _ => a.min(max),
+    };
+    let plain = first.saturating_sub(min);
     for (code, p) in codes.iter_mut().zip(points) {
         let (d, intensity) = point(p);
+        if d.wrapping_sub(min) < plain {
+            n = n.wrapping_add(1);
+            *code = if IB > 0 {
+                // IB is an intensity code width, 8..=16 here.
+                d | (u32::from(intensity) >> 16u32.wrapping_sub(IB)) << 16
+            } else {
+                d
+            };
+            continue;
+        }
         let is_range = match EXC {
             0 => d >= min,
             1 => d >= min && d != a,
