@@ -1,5 +1,6 @@
-//! One block of values of one channel: the sender chooses the cheapest of the four
-//! modes and writes it; the receiver reads it back.
+//! One block of values of one channel: the sender chooses one of the four modes (the
+//! constant block, or the better predictor's Rice code unless its verbatim form costs no
+//! more) and writes it; the receiver reads it back.
 //!
 //! Every block is preceded by the history of its channel in the segment: the previous
 //! value `h1` and the one before it `h2` (both the anchor at the segment's start).
