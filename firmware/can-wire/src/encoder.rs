@@ -245,6 +245,24 @@ impl RangeRule {
     }
 }
 
+/// The lossless distance code of raw distance `d` as `rule` classifies it, ranges in
+/// units of `2^e` mm: the full test, for the distances outside the span a run codes
+/// without one (error codes, the band, too long ones).
+#[cold]
+#[inline(never)]
+fn lossless_code(rule: &RangeRule, d: u32, e: u32) -> u32 {
+    let e = e & 0xF;
+    if !rule.is_range(d) {
+        return code::error_code(d);
+    }
+    let q = d.saturating_add((1u32 << e) >> 1) >> e;
+    if q <= MAX_RANGE_UNITS {
+        q.wrapping_add(code::RANGE_BASE) // q <= MAX_RANGE_UNITS: no wrap
+    } else {
+        code::OUT_OF_RANGE
+    }
+}
+
 /// What [`ScanEncoder::push_run`] did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -859,7 +877,6 @@ impl ScanEncoder {
         // The per-point work with every constant worked out once: the rule's band, the
         // unit's rounding, the intensity code as a shift and a mask (none: mask 0).
         let (min, [a, b]) = (rule.min, rule.except);
-        let (has_band, band) = (rule.band.is_some(), rule.band.unwrap_or(0));
         let e = u32::from(enc.unit_exp & 0xF);
         let half = (1u32 << e) >> 1;
         let ishift = 16u32.wrapping_sub(enc.intensity.bits().min(16));
@@ -868,16 +885,25 @@ impl ScanEncoder {
         } else {
             0
         };
+        // The common case in one test: the distances from `min` up to (not including)
+        // the first of the rule's error codes, its band and the first distance too long
+        // for a code are ranges, coded `(d + half + 128·2^e) >> e` (the rounded units
+        // plus the range base) without any further check. An error code or band below
+        // `min` leaves the span empty: every distance takes the full test.
+        let bias = half.wrapping_add(code::RANGE_BASE << e); // at most 2^14 + 2^22
+        let too_long = (u64::from(MAX_RANGE_UNITS) + 1) << e;
+        let too_long = too_long
+            .saturating_sub(u64::from(half))
+            .min(u64::from(u32::MAX.wrapping_sub(bias))) as u32; // bias < 2^23
+        let first_other = a.min(b).min(rule.band.unwrap_or(u32::MAX));
+        let span = first_other.min(too_long).saturating_sub(min);
         let code = |p: &T| {
             let (d, i) = point(p);
-            let range = d >= min && d != a && d != b && !(has_band && d.wrapping_sub(band) <= 2);
-            let q = d.saturating_add(half) >> e;
-            let dc = if !range {
-                code::error_code(d)
-            } else if q <= MAX_RANGE_UNITS {
-                q.wrapping_add(code::RANGE_BASE) // q <= MAX_RANGE_UNITS: no wrap
+            let dc = if d.wrapping_sub(min) < span {
+                // d < too_long: d + bias stays below 2^32 and the code below MAX_VALUE.
+                d.wrapping_add(bias) >> e
             } else {
-                code::OUT_OF_RANGE
+                lossless_code(&rule, d, e)
             };
             (dc, ((u32::from(i) >> ishift) & imask) as u16)
         };
@@ -1050,8 +1076,28 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
     let max = s.coder.max_code();
     let (min, [a, b]) = (rule.min, rule.except);
     let (mut invalid, mut over, mut n) = (0u32, 0u32, 0u32);
+    // The distances from `min` below the first error code (or band) and below `max` are
+    // ranges coded as they are, found by one test; the others (below `min`, an error
+    // code, the band, at or past `max`) take the full one. An empty span sends every
+    // distance that way.
+    let first = match EXC {
+        0 => max,
+        2 => a.min(b).min(max),
+        _ => a.min(max),
+    };
+    let plain = first.saturating_sub(min);
     for (code, p) in codes.iter_mut().zip(points) {
         let (d, intensity) = point(p);
+        if d.wrapping_sub(min) < plain {
+            n = n.wrapping_add(1);
+            *code = if IB > 0 {
+                // IB is an intensity code width, 8..=16 here.
+                d | (u32::from(intensity) >> 16u32.wrapping_sub(IB)) << 16
+            } else {
+                d
+            };
+            continue;
+        }
         let is_range = match EXC {
             0 => d >= min,
             1 => d >= min && d != a,

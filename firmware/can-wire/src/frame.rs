@@ -86,8 +86,10 @@ impl Frame {
         }
         // The bytes past `len` are zero in every frame: only the old payload's bytes
         // past the new one are cleared (none when the slot is fresh).
-        if let Some(stale) = self.data.get_mut(len..usize::from(self.len)) {
-            stale.fill(0);
+        if usize::from(self.len) > len {
+            if let Some(stale) = self.data.get_mut(len..usize::from(self.len)) {
+                stale.fill(0);
+            }
         }
         // Word by word: `copy_from_slice` of a run-time length is a `memcpy` call that
         // copies short payloads byte by byte (every FD length is whole words).

@@ -322,3 +322,66 @@ proptest! {
         prop_assert_eq!(invalid as usize, raw.len() - ranges);
     }
 }
+
+/// A run classifies and codes raw distances at every edge of the range rule and of the
+/// code space as the SPEC says (values worked out by hand): below DMIN an error code, the
+/// rule's error code and band as themselves, ranges rounded half up in units of 2 mm up
+/// to the largest code (1 048 447 units: 2 096 894 mm), longer ones out of range. The
+/// first run has an error code and the band, the second a rule with neither (its ranges
+/// reach the longest code).
+#[test]
+fn a_run_codes_the_edges_of_the_rule() {
+    let ethernet = RangeRule {
+        min: 20,
+        except: [4095, u32::MAX],
+        band: Some(65533),
+    };
+    let first: [(u32, Distance); 11] = [
+        (0, Distance::SensorError(0)),
+        (19, Distance::SensorError(19)),
+        (20, Distance::Mm(20)),
+        (21, Distance::Mm(22)),
+        (4094, Distance::Mm(4094)),
+        (4095, Distance::OutOfRange),
+        (4096, Distance::Mm(4096)),
+        (65532, Distance::Mm(65532)),
+        (65533, Distance::SensorError(65533)),
+        (65535, Distance::SensorError(65535)),
+        (65536, Distance::Mm(65536)),
+    ];
+    let second: [(u32, Distance); 6] = [
+        (19, Distance::SensorError(19)),
+        (65533, Distance::Mm(65534)),
+        (2_096_893, Distance::Mm(2_096_894)),
+        (2_096_894, Distance::Mm(2_096_894)),
+        (2_096_895, Distance::OutOfRange),
+        (u32::MAX - 1, Distance::OutOfRange),
+    ];
+    let n = first.len() + second.len();
+    let h = header(n, IntensityEncoding::None, 1, 9);
+    let ids = IdWindow::DEFAULT.node(1).unwrap();
+    let mut enc = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+    let mut sink = Sink(enc.begin(&h).unwrap().to_vec());
+    let raw = |c: &[(u32, Distance)]| c.iter().map(|&(d, _)| (d, 0)).collect::<Vec<(u32, u16)>>();
+    let run = enc
+        .push_run(&raw(&first), ethernet, |p: &(u32, u16)| *p, &mut sink)
+        .unwrap();
+    // Ranges: 20, 21, 4094, 4096, 65532, 65536.
+    assert_eq!((run.points, run.invalid), (11, 5));
+    let run = enc
+        .push_run(
+            &raw(&second),
+            RangeRule::at_least(20),
+            |p: &(u32, u16)| *p,
+            &mut sink,
+        )
+        .unwrap();
+    // No range: 19 and the two too long.
+    assert_eq!((run.points, run.invalid), (6, 3));
+    sink.0.extend(enc.finish(TrailerFlags::default()).unwrap());
+    let (completeness, got) = decode(&sink.0);
+    assert_eq!(completeness, Completeness::Intact);
+    let got: Vec<Distance> = got.iter().map(|p| p.unwrap().distance).collect();
+    let want: Vec<Distance> = first.iter().chain(&second).map(|&(_, d)| d).collect();
+    assert_eq!(got, want);
+}

@@ -51,8 +51,9 @@ pub struct Writer {
     /// Bits not yet in the frame (`nbits` of them, fewer than 32 between calls).
     acc: u32,
     nbits: u32,
-    /// The frame being filled: the framing byte, then `len - 1` stream bytes.
-    buf: [u8; MAX_LEN],
+    /// The frame being filled: the framing byte, then `len - 1` stream bytes (and room
+    /// for a word past the longest frame).
+    buf: [u8; MAX_LEN + 4],
     len: usize,
     /// Bytes of `buf` from `crc_from` on are not in the segment's CRC yet.
     crc_from: usize,
@@ -73,7 +74,7 @@ impl Writer {
         Writer {
             acc: 0,
             nbits: 0,
-            buf: [0; MAX_LEN],
+            buf: [0; MAX_LEN + 4],
             len: 1,
             crc_from: 1,
             full: full.clamp(2, MAX_LEN),
@@ -128,40 +129,38 @@ impl Writer {
     /// that reaches the frame's end fills it, sends it, and begins the next frame.
     #[inline(never)]
     fn word<S: FrameSink + ?Sized>(&mut self, word: u32, out: &mut Out<'_, S>) {
-        let bytes = word.to_le_bytes();
-        let room = self.full.saturating_sub(self.len);
-        if room > 4 {
-            // `len + 4` is below `full` here: no wrap.
-            let end = self.len.wrapping_add(4);
-            if let Some(dst) = self.buf.get_mut(self.len..end) {
-                dst.copy_from_slice(&bytes);
-            }
-            self.len = end;
-            return;
+        // `len < full <= MAX_LEN` between calls, and the buffer has 4 bytes of room
+        // past `MAX_LEN`: the word always fits (bytes past `full` go to the next frame).
+        let at = self.len;
+        let end = at.wrapping_add(4);
+        if let Some(dst) = self.buf.get_mut(at..end) {
+            dst.copy_from_slice(&word.to_le_bytes());
         }
-        if room >= 2 && self.full >= 6 {
-            // The frame's last `room` bytes (at most 4), then the rest in the next one,
-            // which has room for them (a frame holds at least 5 stream bytes).
-            // Byte by byte: a copy of a length known only at run time is a call.
-            let (now, next) = bytes.split_at(room.min(4));
-            for &b in now {
-                if let Some(d) = self.buf.get_mut(self.len) {
-                    *d = b;
-                }
-                self.len = self.len.wrapping_add(1); // within the frame buffer
+        self.len = end;
+        if end >= self.full {
+            self.cut(out);
+        }
+    }
+
+    /// Sends full frames while the buffer holds at least one (the bytes past a full
+    /// frame, at most 3, begin the next one).
+    #[inline(never)]
+    fn cut<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+        while self.len >= self.full {
+            let full = self.full;
+            // At most 3 bytes past `full`, all within the buffer's room.
+            let rest = self.len.wrapping_sub(full);
+            let mut next = [0u8; 4];
+            if let Some(src) = self.buf.get(full..full.wrapping_add(4)) {
+                next.copy_from_slice(src);
             }
+            self.len = full;
             self.crc_pending();
             self.emit(out);
-            for &b in next {
-                if let Some(d) = self.buf.get_mut(self.len) {
-                    *d = b;
-                }
-                self.len = self.len.wrapping_add(1); // within the frame buffer
+            if let Some(dst) = self.buf.get_mut(1..5) {
+                dst.copy_from_slice(&next);
             }
-            return;
-        }
-        for b in bytes {
-            self.byte(b, out);
+            self.len = rest.wrapping_add(1);
         }
     }
 
@@ -188,6 +187,36 @@ impl Writer {
             self.put((1u32 << ESCAPE_ONES) - 1, ESCAPE_ONES, out);
             self.put(value, value_bits, out);
         }
+    }
+
+    /// Put the Rice codes of `u` with parameter `k` (at most 15), none of whose
+    /// quotients `x >> k` may reach [`ESCAPE_ONES`] (the caller checked): like
+    /// [`Writer::put_rice`] for each, with the gathering word kept in registers.
+    #[inline(always)]
+    pub fn put_rices<S: FrameSink + ?Sized>(&mut self, u: &[u32], k: u32, out: &mut Out<'_, S>) {
+        let k = k.min(ESCAPE_ONES - 1);
+        let mask = (1u32 << k).wrapping_sub(1);
+        let (mut acc, mut nbits) = (self.acc, self.nbits);
+        for &x in u {
+            // q < 16 (checked by the caller) and k <= 15: the code has q + 1 + k <= 31
+            // bits; `(2·low + 1) << q` less 1 is the low bits after q ones and a zero.
+            let q = x >> k;
+            let low = x & mask;
+            let code = (low.wrapping_mul(2) | 1).wrapping_shl(q).wrapping_sub(1);
+            let bits = q.wrapping_add(1).wrapping_add(k);
+            acc |= code.wrapping_shl(nbits);
+            let total = nbits.wrapping_add(bits);
+            if total >= 32 {
+                self.word(acc, out);
+                // Here `nbits` >= 1 (a code has at most 31 bits): the bits that did not fit.
+                acc = code.wrapping_shr(32u32.wrapping_sub(nbits));
+                nbits = total.wrapping_sub(32);
+            } else {
+                nbits = total;
+            }
+        }
+        self.acc = acc;
+        self.nbits = nbits;
     }
 
     /// End the segment: zero bits to a byte boundary, the segment's CRC (2 bytes, little
@@ -243,8 +272,10 @@ impl Writer {
         } else {
             self.len
         };
-        if let Some(pad) = self.buf.get_mut(self.len..len) {
-            pad.fill(0);
+        if len > self.len {
+            if let Some(pad) = self.buf.get_mut(self.len..len) {
+                pad.fill(0);
+            }
         }
         match out.sink.data_slot() {
             Some(frame) => {

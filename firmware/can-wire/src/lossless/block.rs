@@ -1,5 +1,6 @@
-//! One block of values of one channel: the sender chooses the cheapest of the four
-//! modes and writes it; the receiver reads it back.
+//! One block of values of one channel: the sender chooses one of the four modes (the
+//! constant block, or the better predictor's Rice code unless its verbatim form costs no
+//! more) and writes it; the receiver reads it back.
 //!
 //! Every block is preceded by the history of its channel in the segment: the previous
 //! value `h1` and the one before it `h2` (both the anchor at the segment's start).
@@ -51,7 +52,8 @@ pub const fn width(v: u32) -> u32 {
 }
 
 /// The Rice parameter for `n` residuals summing to `sum`: one less than the width of
-/// their mean.
+/// their mean (the integer part of its base-2 logarithm, as lossless audio coders
+/// choose it), at most 15.
 #[inline(always)]
 fn rice_k(sum: u32, n: u32) -> u32 {
     let mean = sum.checked_div(n).unwrap_or(sum); // no residual: their sum
@@ -62,6 +64,7 @@ fn rice_k(sum: u32, n: u32) -> u32 {
 
 /// Bits of the residuals `u` Rice-coded with parameter `k`, escapes counted.
 #[cold]
+#[inline(never)]
 fn rice_bits_exact(u: &[u32], k: u32) -> u32 {
     // At most BLOCK_POINTS (16) codes of at most 36 bits: no wrap.
     let mut bits = 0u32;
@@ -76,30 +79,23 @@ fn rice_bits_exact(u: &[u32], k: u32) -> u32 {
     bits
 }
 
-/// Bits of the residuals `u` Rice-coded with parameters `k` and `k + 1`; `any` is the
-/// OR of all of them (when no quotient can reach an escape, the sum of the quotients
-/// is the cost).
-#[inline(always)]
-fn rice_bits(u: &[u32], any: u32, k: u32) -> (u32, u32) {
-    let n = u.len() as u32;
-    if (any >> k) >= ESCAPE_ONES {
-        return (rice_bits_exact(u, k), rice_bits_exact(u, k.wrapping_add(1)));
-    }
-    let (mut q0, mut q1) = (0u32, 0u32);
-    for &x in u {
-        q0 = q0.wrapping_add(x >> k);
-        q1 = q1.wrapping_add(x >> k.wrapping_add(1));
-    }
-    // At most 16 values below 2^20 and k at most 15: far from a wrap.
-    (
-        q0.wrapping_add(n.wrapping_mul(k.wrapping_add(1))),
-        q1.wrapping_add(n.wrapping_mul(k.wrapping_add(2))),
-    )
+/// The OR of `values` (its width is a verbatim block's width).
+#[cold]
+#[inline(never)]
+fn or_all(values: &[u32]) -> u32 {
+    values.iter().fold(0, |a, &v| a | v)
 }
 
 /// Write the block `values` (at most [`BLOCK_POINTS`], each at most [`MAX_VALUE`]) of a
-/// channel whose history is `h`, in its cheapest mode; returns the mode. Not inlined:
-/// one copy serves both channels (flash is the boards' tight budget).
+/// channel whose history is `h`, in the cheaper of a Rice-coded prediction and its
+/// verbatim form (or constant); returns the mode. Not inlined: one copy serves both
+/// channels (flash is the boards' tight budget).
+///
+/// One pass computes both predictors' residuals and their sums; the predictor with the
+/// smaller sum is taken, its Rice parameter follows from the mean residual, and its cost
+/// is bounded in closed form (`n·(k + 1) + sum >> k`, never below the exact cost, so a
+/// block never costs more than its verbatim form); only a block where a quotient could
+/// reach an escape has its cost counted value by value.
 #[inline(never)]
 pub fn put_block<S: FrameSink + ?Sized>(
     values: &[u32],
@@ -111,74 +107,96 @@ pub fn put_block<S: FrameSink + ?Sized>(
     let values = values.get(..values.len().min(BLOCK_POINTS)).unwrap_or(&[]);
     let n = values.len();
     let Scratch { u1, u2 } = scratch;
-    let (mut s1, mut s2, mut or1, mut or2, mut any) = (0u32, 0u32, 0u32, 0u32, 0u32);
-    let (mut a, mut b) = (h.h1 as i32, h.h2 as i32);
-    for ((&v, x1), x2) in values.iter().zip(u1.iter_mut()).zip(u2.iter_mut()) {
-        // Values and residuals stay far inside i32 (values below 2^20; larger ones would
-        // only make wrong codes, and the stream never gives any).
-        let v = v as i32;
-        let e1 = v.wrapping_sub(a);
-        let e2 = e1.wrapping_sub(a.wrapping_sub(b));
-        *x1 = zigzag(e1);
-        *x2 = zigzag(e2);
-        s1 = s1.wrapping_add(*x1);
-        s2 = s2.wrapping_add(*x2);
-        or1 |= *x1;
-        or2 |= *x2;
-        any |= v as u32;
-        b = a;
-        a = v;
+    // `or` gathers both predictors' residuals: a quotient of either may escape.
+    let (mut s1, mut s2, mut or) = (0u32, 0u32, 0u32);
+    // The last value and the last order-1 residual (the order-2 prediction is `a + p`).
+    // Values and residuals stay far inside i32 (values below 2^20; larger ones would only
+    // make wrong codes, and the stream never gives any).
+    let mut a = h.h1 as i32;
+    let mut p = a.wrapping_sub(h.h2 as i32);
+    // One value: its residuals under both predictors into `x1` and `x2`, their sums and
+    // OR. At most 16 residuals below 2^22 are summed: no wrap.
+    let mut step = |v: u32, x1: &mut u32, x2: &mut u32| {
+        let e1 = (v as i32).wrapping_sub(a);
+        let z1 = zigzag(e1);
+        let z2 = zigzag(e1.wrapping_sub(p));
+        *x1 = z1;
+        *x2 = z2;
+        s1 = s1.wrapping_add(z1);
+        s2 = s2.wrapping_add(z2);
+        or |= z1 | z2;
+        p = e1;
+        a = v as i32;
+    };
+    // Two values per turn (no register shuffling between turns), then an odd last one.
+    let pairs = values
+        .chunks_exact(2)
+        .zip(u1.chunks_exact_mut(2))
+        .zip(u2.chunks_exact_mut(2));
+    for ((v, x1), x2) in pairs {
+        if let ([v0, v1], [a0, a1], [b0, b1]) = (v, x1, x2) {
+            step(*v0, a0, b0);
+            step(*v1, a1, b1);
+        }
+    }
+    if n % 2 == 1 {
+        let last = n.wrapping_sub(1); // n is odd here
+        if let (Some(&v), Some(x1), Some(x2)) =
+            (values.get(last), u1.get_mut(last), u2.get_mut(last))
+        {
+            step(v, x1, x2);
+        }
     }
     // The history after the block, whatever its mode.
     h.h1 = a as u32;
-    h.h2 = b as u32;
+    h.h2 = a.wrapping_sub(p) as u32;
     let n32 = n as u32;
     if s1 == 0 {
         w.put(Mode::Constant as u32, MODE_BITS, out);
         return Mode::Constant;
     }
-    let (mode, u, sum, or) = if s2 < s1 {
-        (Mode::Order2, &*u2, s2, or2)
+    let (mode, u, sum) = if s2 < s1 {
+        (Mode::Order2, &*u2, s2)
     } else {
-        (Mode::Order1, &*u1, s1, or1)
+        (Mode::Order1, &*u1, s1)
     };
     let u = u.get(..n).unwrap_or(&[]);
-    let k0 = rice_k(sum, n32);
-    let (c0, c1) = rice_bits(u, or, k0);
-    let (k, rice) = if c1 < c0 && k0 < (1 << K_BITS) - 1 {
-        (k0.wrapping_add(1), c1)
+    let k = rice_k(sum, n32);
+    // Whether a quotient of the chosen residuals may reach an escape (`or` bounds both
+    // predictors' residuals: a few blocks take the exact path without need).
+    let escapes = (or >> k) >= ESCAPE_ONES;
+    // Sum of the quotients is at most sum >> k; at most 16 values below 2^22.
+    let rice = if escapes {
+        rice_bits_exact(u, k)
     } else {
-        (k0, c0)
+        n32.wrapping_mul(k.wrapping_add(1)).wrapping_add(sum >> k)
     };
-    let wv = width(any);
-    // At most 16 values of at most 32 bits; `rice` is at most 16 * 36.
-    let verbatim = WIDTH_BITS.wrapping_add(n32.wrapping_mul(wv));
-    if verbatim <= K_BITS.wrapping_add(rice) {
-        w.put(
-            Mode::Verbatim as u32 | wv << MODE_BITS,
-            MODE_BITS + WIDTH_BITS,
-            out,
-        );
-        for &v in values {
-            w.put(v & MAX_VALUE, wv, out);
+    let rice = K_BITS.wrapping_add(rice);
+    // A verbatim block is at least as wide as its last value: only a Rice code that
+    // may not be cheaper looks at every value's width.
+    if rice >= WIDTH_BITS.wrapping_add(n32.wrapping_mul(width(a as u32))) {
+        let wv = width(or_all(values));
+        // At most 16 values of at most 32 bits.
+        let verbatim = WIDTH_BITS.wrapping_add(n32.wrapping_mul(wv));
+        if verbatim <= rice {
+            w.put(
+                Mode::Verbatim as u32 | wv << MODE_BITS,
+                MODE_BITS + WIDTH_BITS,
+                out,
+            );
+            for &v in values {
+                w.put(v & MAX_VALUE, wv, out);
+            }
+            return Mode::Verbatim;
         }
-        return Mode::Verbatim;
     }
     w.put(mode as u32 | k << MODE_BITS, MODE_BITS + K_BITS, out);
-    if (or >> k) < ESCAPE_ONES {
-        // No escape: each code is one field of at most 31 bits.
-        // q < 16 and k <= 15: the shifts and the width stay below 32.
-        let mask = (1u32 << k).wrapping_sub(1);
-        for &x in u {
-            let q = x >> k;
-            let q1 = q.wrapping_add(1);
-            let code = (1u32 << q).wrapping_sub(1) | (x & mask) << q1;
-            w.put(code, q1.wrapping_add(k), out);
-        }
-    } else {
+    if escapes {
         for (&v, &x) in values.iter().zip(u) {
             w.put_rice(x, k, v & MAX_VALUE, VALUE_BITS, out);
         }
+    } else {
+        w.put_rices(u, k, out);
     }
     mode
 }

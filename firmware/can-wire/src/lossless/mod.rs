@@ -3,9 +3,9 @@
 //! A scan is cut into *segments* of [`SEGMENT_POINTS`] points. Each segment is one
 //! continuous LSB-first bit stream that begins in a fresh data frame: the segment's
 //! first point verbatim (the *anchor*), then blocks of [`BLOCK_POINTS`] values per
-//! channel, each coded by the cheapest of four modes (verbatim, constant, first- or
-//! second-order prediction with a Rice code of the residuals, as lossless audio coders
-//! do), then zero bits to a byte boundary and a CRC-16 over the segment's bytes. A data
+//! channel, each coded in one of four modes chosen by the sender (verbatim, constant,
+//! first- or second-order prediction with a Rice code of the residuals, as lossless
+//! audio coders do), then zero bits to a byte boundary and a CRC-16 over the segment's bytes. A data
 //! frame spends one byte on framing: a segment-start flag and a frame counter.
 //!
 //! - [`code`]: what a distance value becomes (sensor error codes keep their identity).

@@ -38,6 +38,30 @@ pub struct ScanStream {
     crc: ScanCrc,
 }
 
+/// The codes of `points` into `d` (and `i` if `INTENSITY`); returns how many are ranges.
+#[inline(always)]
+fn gather<const INTENSITY: bool, T, F>(
+    points: &[T],
+    code: &F,
+    d: &mut [u32],
+    i: &mut [u32],
+) -> usize
+where
+    F: Fn(&T) -> (u32, u16),
+{
+    let mut valid = 0usize;
+    for ((p, d), i) in points.iter().zip(d.iter_mut()).zip(i.iter_mut()) {
+        let (dc, ic) = code(p);
+        *d = dc;
+        if INTENSITY {
+            *i = u32::from(ic);
+        }
+        // At most the run's length: no wrap.
+        valid = valid.wrapping_add(usize::from(dc >= code::RANGE_BASE));
+    }
+    valid
+}
+
 impl ScanStream {
     /// A scan of `point_count` points with sequence `seq`, whose header frames were
     /// `a` and `b`, sent in data frames of `full_len` bytes.
@@ -112,12 +136,12 @@ impl ScanStream {
         if self.pushed >= self.point_count {
             return Err(Error::TooManyPoints);
         }
-        self.push_run(&[(distance, intensity)], |p| *p, out);
+        self.push_run(&[(distance.min(MAX_VALUE), intensity)], |p| *p, out);
         Ok(())
     }
 
     /// Take `points` in order, each turned by `code` into its distance code (at most
-    /// [`MAX_VALUE`]) and intensity code, like [`ScanStream::push`] for each but a block
+    /// [`MAX_VALUE`]: the caller's guarantee, not checked per point) and intensity code, like [`ScanStream::push`] for each but a block
     /// at a time. Stops when the scan is full or after a frame the sink had no slot for.
     /// Returns the points taken and how many of them were no range.
     #[inline(always)]
@@ -166,13 +190,12 @@ impl ScanStream {
             let (Some(dd), Some(ii)) = (self.d.get_mut(at..end), self.i.get_mut(at..end)) else {
                 break;
             };
-            let mut valid = 0usize;
-            for ((p, d), i) in now.iter().zip(dd.iter_mut()).zip(ii.iter_mut()) {
-                let (dc, ic) = code(p);
-                *d = dc.min(MAX_VALUE);
-                *i = u32::from(ic);
-                valid = valid.wrapping_add(usize::from(dc >= code::RANGE_BASE));
-            }
+            // Without the intensity channel the loop neither computes nor stores any.
+            let valid = if self.intensity {
+                gather::<true, _, _>(now, &code, dd, ii)
+            } else {
+                gather::<false, _, _>(now, &code, dd, ii)
+            };
             ranges = ranges.wrapping_add(valid);
             self.valid = self.valid.wrapping_add(valid as u16);
             self.pushed = self.pushed.wrapping_add(room as u16);
