@@ -155,7 +155,7 @@ struct Core<const Q: usize> {
     plan: Option<crate::governor::Plan>,
     /// The cost the scan being published was admitted with.
     admitted: Option<can_wire::bandwidth::ScanCost>,
-    /// A data line's points out of [`Pipeline::decimate_run`], as readings.
+    /// A data line's points out of [`Pipeline::filter_run`], as readings.
     decimated: [scip::Reading; scip::MAX_READINGS],
     /// The sensor's 24-bit ms clock, extended (SPEC 3.1); reset when the sensor restarts.
     clock: scip::TimestampUnwrapper,
@@ -526,7 +526,9 @@ impl<const Q: usize> Core<Q> {
 
     /// One data line of the scan being published. With every pipeline stage off, the
     /// line's readings go straight to the encoder in one run (the pipeline only counts
-    /// them); otherwise they go through the pipeline point by point.
+    /// them); otherwise they go through every stage in one loop
+    /// ([`Pipeline::filter_run`]) and the line's output points into the encoder in one
+    /// run. Only multi-echo lines and lines out of sequence go point by point.
     fn data_line(&mut self, line: &DataLine<'_>, s: &ScanRequest) {
         let cluster = u32::from(s.cluster.max(1));
         let start = u32::from(s.start);
@@ -551,7 +553,7 @@ impl<const Q: usize> Core<Q> {
                 self.publish_run(line, width);
                 return;
             }
-            // Decimation the only stage: the line's output points, then one encoder run.
+            // Any other stages: the line's output points, then one encoder run.
             // Written as readings (a range, or 0 for none; the intensity as aux), so that
             // the encoder runs the same code as for a line's readings.
             // A point without a range: 0 for the fixed-width encodings (invalid to the
@@ -570,7 +572,7 @@ impl<const Q: usize> Core<Q> {
             };
             let (pipeline, decimated, mut out) = self.split();
             let mut k = 0;
-            let n = pipeline.decimate_run(first, line.readings, raw, |p| {
+            let n = pipeline.filter_run(first, line.readings, raw, |p| {
                 if let Some(slot) = decimated.get_mut(k) {
                     // A range of 0 mm is coded 1 either way.
                     slot.distance = p.range_mm.map_or(none, |mm| mm.max(1));

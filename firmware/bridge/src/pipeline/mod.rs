@@ -258,8 +258,7 @@ impl Pipeline {
                 return;
             }
         }
-        let p = self.classify(point);
-        self.feed_speckle(p, sink);
+        self.run_stages(core::iter::once(point), |p| sink.point(p));
     }
 
     /// Feeds several consecutive points (e.g. one data line's worth); the same as pushing
@@ -343,50 +342,111 @@ impl Pipeline {
         true
     }
 
-    /// The direct path when angular decimation is the only stage on: `n` consecutive
-    /// points from `first_step` (as for [`Pipeline::pass_run`]), turned into raw points
-    /// by `raw`, go straight through the decimator; the output points go to `out` (at
-    /// most one per point) and their number is returned, with every counter as
-    /// pushing them one by one would leave it. `None`, nothing changed, when the stages
-    /// are otherwise or the run does not continue the open scan in sequence: push them.
-    pub fn decimate_run<T>(
+    /// The block path for every stage but the direct one: `n` consecutive points from
+    /// `first_step` (as for [`Pipeline::pass_run`], e.g. one data line's readings),
+    /// turned into raw points by `raw`, go through every stage in one loop, without a
+    /// sink call per point; the output points go to `out` (at most one per point) and
+    /// their number is returned, with every counter and the `filtered` flag as pushing
+    /// them one by one would leave them. The region of interest is a slice of the run.
+    /// `None`, nothing changed, when every stage is off (use [`Pipeline::pass_run`]) or
+    /// the run does not continue the open scan in sequence: push the points instead.
+    pub fn filter_run<T>(
         &mut self,
         first_step: u16,
         points: &[T],
         raw: impl Fn(&T) -> RawPoint,
-        mut out: impl FnMut(Point),
+        out: impl FnMut(Point),
     ) -> Option<usize> {
-        let n = points.len();
-        if !self.config.is_decimation_only() {
+        if self.config.is_passthrough() {
             return None;
         }
-        self.take_run(first_step, n)?;
-        // Each count is at most `n`: a plain add cannot wrap.
-        let mut invalid_in = 0usize;
-        let points = points.iter().map(|p| {
-            let r = raw(p);
-            invalid_in = invalid_in.wrapping_add(usize::from(!r.valid));
-            Point {
-                step: r.step,
-                range_mm: r.valid.then_some(r.distance),
-                intensity: r.intensity,
+        let n = points.len();
+        let cluster = self.take_run(first_step, n)?.cluster;
+        let inner = match self.config.roi {
+            None => points,
+            Some(roi) => {
+                // Points of the run with a step below `step`: steps rise by `cluster`
+                // (at least 1) from `first_step`.
+                let below = |step: u32| {
+                    let d = step.saturating_sub(u32::from(first_step));
+                    usize::try_from(d.div_ceil(cluster)).map_or(n, |k| k.min(n))
+                };
+                let lo = below(u32::from(roi.first));
+                let hi = below(u32::from(roi.last).saturating_add(1));
+                points.get(lo..hi.max(lo)).unwrap_or(&[])
             }
+        };
+        // The slice is at most the run.
+        let outside = n.wrapping_sub(inner.len());
+        add(&mut self.stats.points_in, n);
+        add(&mut self.stats.points_outside_roi, outside);
+        Some(self.run_stages(inner.iter().map(raw), out))
+    }
+
+    /// Every stage from the error codes on, for points in sequence inside the region
+    /// of interest (counted in `points_in` by the caller); returns the number of output
+    /// points. One loop: the counters are kept in locals and added once.
+    #[inline]
+    fn run_stages(
+        &mut self,
+        points: impl Iterator<Item = RawPoint>,
+        mut out: impl FnMut(Point),
+    ) -> usize {
+        let cfg = self.config;
+        let mut c = Counts::default();
+        let mut e = Counts::default();
+        let Self {
+            speckle,
+            median,
+            decimator,
+            ..
+        } = self;
+        let filtered = points.filter_map(|r| {
+            // Error codes, range window and intensity threshold.
+            let mut p = Point {
+                step: r.step,
+                range_mm: None,
+                intensity: r.intensity,
+            };
+            if !r.valid {
+                c.error_code = c.error_code.wrapping_add(1);
+            } else if cfg.range_window.is_some_and(|w| !w.contains(r.distance)) {
+                c.out_of_range = c.out_of_range.wrapping_add(1);
+            } else if matches!((cfg.min_intensity, r.intensity), (Some(min), Some(i)) if i < min) {
+                c.low_intensity = c.low_intensity.wrapping_add(1);
+            } else {
+                p.range_mm = Some(r.distance);
+            }
+            if let Some(f) = cfg.speckle {
+                let (centre, nb) = speckle.push(p)?;
+                p = c.speckle(centre, &nb, f);
+            }
+            if cfg.median.is_some() {
+                let (centre, nb) = median.push(p)?;
+                p = c.median(centre, &nb);
+            }
+            Some(p)
         });
-        let (mut emitted, mut invalid_out) = (0usize, 0usize);
-        self.decimator.push_run(points, |d| {
-            emitted = emitted.wrapping_add(1);
-            invalid_out = invalid_out.wrapping_add(usize::from(!d.is_valid()));
-            out(d);
-        });
-        if let Open::Active(scan) = &mut self.open {
-            scan.emitted = scan.emitted.saturating_add(emitted);
-        }
+        decimator.push_run(filtered, |d| e.emit(d, &mut out));
+        c.emitted = e.emitted;
+        c.invalid_out = e.invalid_out;
+        self.commit(&c)
+    }
+
+    /// Adds a loop's counts to the counters; returns its number of output points.
+    fn commit(&mut self, c: &Counts) -> usize {
         let st = &mut self.stats;
-        add(&mut st.points_in, n);
-        add(&mut st.invalid_error_code, invalid_in);
-        add(&mut st.points_out, emitted);
-        add(&mut st.points_out_invalid, invalid_out);
-        Some(emitted)
+        add(&mut st.invalid_error_code, c.error_code);
+        add(&mut st.invalid_out_of_range, c.out_of_range);
+        add(&mut st.invalid_low_intensity, c.low_intensity);
+        add(&mut st.invalid_speckle, c.speckle);
+        add(&mut st.points_out, c.emitted);
+        add(&mut st.points_out_invalid, c.invalid_out);
+        self.filtered |= c.filtered || c.out_of_range > 0 || c.low_intensity > 0 || c.speckle > 0;
+        if let Open::Active(scan) = &mut self.open {
+            scan.emitted = scan.emitted.saturating_add(c.emitted);
+        }
+        c.emitted
     }
 
     /// The open scan, moved past a run of `n` (at least 1) consecutive points from
@@ -427,23 +487,35 @@ impl Pipeline {
         if !(intact && all_arrived && !scan.broken) {
             return self.abandon();
         }
-        if let Some(f) = self.config.speckle {
-            while let Some(v) = self
-                .speckle
-                .pop_tail()
-                .map(|w| window::speckle(&w, f.max_jump_mm))
-            {
-                let p = self.count_verdict(v);
-                self.feed_median(p, sink);
+        let cfg = self.config;
+        let mut c = Counts::default();
+        let mut out = |p: Point| sink.point(p);
+        if let Some(f) = cfg.speckle {
+            while let Some((centre, nb)) = self.speckle.pop_tail() {
+                let mut p = c.speckle(centre, &nb, f);
+                if cfg.median.is_some() {
+                    match self.median.push(p) {
+                        Some((centre, nb)) => p = c.median(centre, &nb),
+                        None => continue,
+                    }
+                }
+                if let Some(d) = self.decimator.push(p) {
+                    c.emit(d, &mut out);
+                }
             }
         }
-        while let Some((p, changed)) = self.median.pop_tail().map(|w| median_changed(&w)) {
-            self.filtered |= changed;
-            self.feed_decimator(p, sink);
+        if cfg.median.is_some() {
+            while let Some((centre, nb)) = self.median.pop_tail() {
+                let p = c.median(centre, &nb);
+                if let Some(d) = self.decimator.push(p) {
+                    c.emit(d, &mut out);
+                }
+            }
         }
-        if let Some(p) = self.decimator.flush() {
-            self.emit(p, sink);
+        if let Some(d) = self.decimator.flush() {
+            c.emit(d, &mut out);
         }
+        self.commit(&c);
         let points = match self.open {
             Open::Active(s) => s.emitted,
             Open::Idle => 0,
@@ -479,96 +551,50 @@ impl Pipeline {
         self.median.clear();
         self.decimator.clear();
     }
+}
 
-    /// Error codes, range window and intensity threshold.
-    fn classify(&mut self, raw: RawPoint) -> Point {
-        let invalid = Point {
-            step: raw.step,
-            range_mm: None,
-            intensity: raw.intensity,
-        };
-        if !raw.valid {
-            bump(&mut self.stats.invalid_error_code);
-            return invalid;
-        }
-        if let Some(w) = self.config.range_window {
-            if !w.contains(raw.distance) {
-                bump(&mut self.stats.invalid_out_of_range);
-                self.filtered = true;
-                return invalid;
-            }
-        }
-        if let (Some(min), Some(i)) = (self.config.min_intensity, raw.intensity) {
-            if i < min {
-                bump(&mut self.stats.invalid_low_intensity);
-                self.filtered = true;
-                return invalid;
-            }
-        }
-        Point {
-            range_mm: Some(raw.distance),
-            ..invalid
-        }
-    }
+/// What one loop of the stages did, counted in locals (each at most the points the
+/// loop took, so a plain add cannot wrap).
+#[derive(Debug, Default)]
+struct Counts {
+    error_code: usize,
+    out_of_range: usize,
+    low_intensity: usize,
+    speckle: usize,
+    emitted: usize,
+    invalid_out: usize,
+    /// The median changed a range.
+    filtered: bool,
+}
 
-    fn count_verdict(&mut self, v: Verdict) -> Point {
-        match v {
+impl Counts {
+    /// Speckle removal's verdict on `centre`.
+    #[inline]
+    fn speckle(&mut self, centre: Point, nb: &window::Neighbours, f: SpeckleFilter) -> Point {
+        match window::speckle(centre, nb, f.max_jump_mm) {
             Verdict::Keep(p) => p,
             Verdict::Invalidated(p) => {
-                bump(&mut self.stats.invalid_speckle);
-                self.filtered = true;
+                self.speckle = self.speckle.wrapping_add(1);
                 p
             }
         }
     }
 
-    fn feed_speckle<S: PointSink + ?Sized>(&mut self, p: Point, sink: &mut S) {
-        let Some(f) = self.config.speckle else {
-            return self.feed_median(p, sink);
-        };
-        if let Some(v) = self
-            .speckle
-            .push(p)
-            .map(|w| window::speckle(&w, f.max_jump_mm))
-        {
-            let p = self.count_verdict(v);
-            self.feed_median(p, sink);
-        }
+    /// The median of `centre`'s window.
+    #[inline]
+    fn median(&mut self, centre: Point, nb: &window::Neighbours) -> Point {
+        let m = window::median(centre, nb);
+        self.filtered |= m.range_mm != centre.range_mm;
+        m
     }
 
-    fn feed_median<S: PointSink + ?Sized>(&mut self, p: Point, sink: &mut S) {
-        if self.config.median.is_none() {
-            return self.feed_decimator(p, sink);
-        }
-        if let Some((m, changed)) = self.median.push(p).map(|w| median_changed(&w)) {
-            self.filtered |= changed;
-            self.feed_decimator(m, sink);
-        }
+    /// An output point.
+    #[inline]
+    fn emit(&mut self, p: Point, out: &mut impl FnMut(Point)) {
+        self.emitted = self.emitted.wrapping_add(1);
+        self.invalid_out = self.invalid_out.wrapping_add(usize::from(!p.is_valid()));
+        out(p);
     }
-
-    fn feed_decimator<S: PointSink + ?Sized>(&mut self, p: Point, sink: &mut S) {
-        if let Some(d) = self.decimator.push(p) {
-            self.emit(d, sink);
-        }
-    }
-
-    fn emit<S: PointSink + ?Sized>(&mut self, p: Point, sink: &mut S) {
-        bump(&mut self.stats.points_out);
-        if !p.is_valid() {
-            bump(&mut self.stats.points_out_invalid);
-        }
-        if let Open::Active(scan) = &mut self.open {
-            scan.emitted = scan.emitted.saturating_add(1);
-        }
-        sink.point(p);
-    }
-}
-
-/// The median of a window, and whether it changed the centre's range.
-fn median_changed(w: &window::Window<'_>) -> (Point, bool) {
-    let before = w.centre_point().range_mm;
-    let p = window::median(w);
-    (p, p.range_mm != before)
 }
 
 #[cfg(test)]
@@ -1387,7 +1413,7 @@ mod tests {
                     let consecutive = a.windows(2).all(|w| w[1].step == w[0].step + cluster);
                     let mut buf = Vec::new();
                     let done = if fast && consecutive {
-                        p.decimate_run(a[0].step, a, |r| *r, |x| buf.push(x))
+                        p.filter_run(a[0].step, a, |r| *r, |x| buf.push(x))
                     } else {
                         None
                     };
