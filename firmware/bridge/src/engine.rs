@@ -553,9 +553,9 @@ impl<const Q: usize> Core<Q> {
                 self.publish_run(line, width);
                 return;
             }
-            // Any other stages: the line's output points, then one encoder run.
-            // Written as readings (a range, or 0 for none; the intensity as aux), so that
-            // the encoder runs the same code as for a line's readings.
+            // Any other stages: the line's readings, a range or none each, through the
+            // stages in place, then the output points into the encoder in one run, as
+            // readings so that the encoder runs the same code as for a line's readings.
             // A point without a range: 0 for the fixed-width encodings (invalid to the
             // rule "at least 1"), a value no sensor sends for the lossless coding (coded
             // invalid, not as the sensor's error code 0).
@@ -570,20 +570,12 @@ impl<const Q: usize> Core<Q> {
             } else {
                 (0, can_wire::RangeRule::at_least(1))
             };
-            let (pipeline, decimated, mut out) = self.split();
-            let mut k = 0;
-            let n = pipeline.filter_run(first, line.readings, raw, |p| {
-                if let Some(slot) = decimated.get_mut(k) {
-                    // A range of 0 mm is coded 1 either way.
-                    slot.distance = p.range_mm.map_or(none, |mm| mm.max(1));
-                    slot.aux = p.intensity.unwrap_or(0);
-                    // At most the line's readings.
-                    k = k.wrapping_add(1);
-                }
-            });
-            if n.is_some() {
+            let (pipeline, cells, mut out) = self.split();
+            let is_range = |d: u32| test.is_range(d);
+            let k = pipeline.filter_line(first, line.readings, cells, is_range, has_aux, none);
+            if let Some(k) = k {
                 if !*out.overflow {
-                    let points = decimated.get(..k).unwrap_or(&[]);
+                    let points = cells.get(..k).unwrap_or_default();
                     out.encode_run(points, rule, reading_point);
                 }
                 return;

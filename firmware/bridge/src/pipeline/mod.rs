@@ -362,20 +362,8 @@ impl Pipeline {
         }
         let n = points.len();
         let cluster = self.take_run(first_step, n)?.cluster;
-        let inner = match self.config.roi {
-            None => points,
-            Some(roi) => {
-                // Points of the run with a step below `step`: steps rise by `cluster`
-                // (at least 1) from `first_step`.
-                let below = |step: u32| {
-                    let d = step.saturating_sub(u32::from(first_step));
-                    usize::try_from(d.div_ceil(cluster)).map_or(n, |k| k.min(n))
-                };
-                let lo = below(u32::from(roi.first));
-                let hi = below(u32::from(roi.last).saturating_add(1));
-                points.get(lo..hi.max(lo)).unwrap_or(&[])
-            }
-        };
+        let (lo, hi) = self.roi_slice(first_step, n, cluster);
+        let inner = points.get(lo..hi).unwrap_or(&[]);
         // The slice is at most the run.
         let outside = n.wrapping_sub(inner.len());
         add(&mut self.stats.points_in, n);
@@ -383,10 +371,153 @@ impl Pipeline {
         Some(self.run_stages(inner.iter().map(raw), out))
     }
 
+    /// The block path of a data line, for the bridge engine: `input` holds `n`
+    /// consecutive points from `first_step` (as for [`Pipeline::pass_run`]) as the
+    /// sensor's readings: a `distance` is a range when `is_range` says so (and is not
+    /// `u32::MAX`), an error code otherwise; `aux` is the intensity when `intensity`
+    /// (the `index` and `echo` fields are not used). Every stage runs in place in
+    /// `cells` (at least `n` long), one pass over the line each: the region of interest
+    /// as a slice, error codes, range window and intensity threshold as one
+    /// classification pass, speckle and median as sliding windows carried from line to
+    /// line, decimation as a block reduction. The output points are left at the front
+    /// of `cells` as readings for the CAN encoder: `out_none` for no range, a range of
+    /// 0 mm as 1 (the encodings code it so), `aux` the intensity (0 for none); their
+    /// number is returned. Counters, the `filtered` flag and what
+    /// [`Pipeline::end_scan`] emits are those of pushing the points one by one. `None`,
+    /// nothing changed, when every stage is off (use [`Pipeline::pass_run`]), `cells`
+    /// is too short, or the run does not continue the open scan in sequence.
+    pub fn filter_line(
+        &mut self,
+        first_step: u16,
+        input: &[scip::Reading],
+        cells: &mut [scip::Reading],
+        is_range: impl Fn(u32) -> bool,
+        intensity: bool,
+        out_none: u32,
+    ) -> Option<usize> {
+        // No range, inside the line.
+        const NONE: u32 = u32::MAX;
+        let none = NONE;
+        let n = input.len();
+        if self.config.is_passthrough() || cells.len() < n {
+            return None;
+        }
+        let cluster = self.take_run(first_step, n)?.cluster;
+        let (lo, hi) = self.roi_slice(first_step, n, cluster);
+        let input = input.get(lo..hi).unwrap_or_default();
+        let buf = cells.get_mut(..input.len()).unwrap_or_default();
+        // The slice is at most the run.
+        add(&mut self.stats.points_in, n);
+        add(
+            &mut self.stats.points_outside_roi,
+            n.wrapping_sub(buf.len()),
+        );
+        let Some(last) = buf.len().checked_sub(1) else {
+            return Some(0);
+        };
+        // Step of the slice's last point (the run fits the scan's u16 steps).
+        let last_step = u32::from(first_step).saturating_add(
+            u32::try_from(lo.saturating_add(last))
+                .unwrap_or(u32::MAX)
+                .saturating_mul(cluster),
+        );
+        let cfg = self.config;
+        let mut c = Counts::default();
+        // Error codes, range window and intensity threshold: one pass.
+        let (min, max) = cfg
+            .range_window
+            .map_or((0, u32::MAX), |w| (w.min_mm, w.max_mm));
+        let min_intensity = cfg.min_intensity.filter(|_| intensity).unwrap_or(0);
+        for (cell, r) in buf.iter_mut().zip(input) {
+            let d = r.distance;
+            cell.aux = r.aux;
+            cell.distance = if !is_range(d) || d == NONE {
+                c.error_code = c.error_code.wrapping_add(1);
+                NONE
+            } else if d < min || d > max {
+                c.out_of_range = c.out_of_range.wrapping_add(1);
+                NONE
+            } else if r.aux < min_intensity {
+                c.low_intensity = c.low_intensity.wrapping_add(1);
+                NONE
+            } else {
+                d
+            };
+        }
+        let mut m = buf.len();
+        // Points held back by the windows so far (steps count back from `last_step`).
+        let mut lag = 0u32;
+        if let Some(f) = cfg.speckle {
+            let part = buf.get_mut(..m).unwrap_or_default();
+            let jump = f.max_jump_mm;
+            m = self
+                .speckle
+                .run_line(part, none, intensity, last_step, cluster, |d, nb| {
+                    let (d, removed) = window::speckle_line(d, nb, none, jump);
+                    c.speckle = c.speckle.wrapping_add(usize::from(removed));
+                    d
+                });
+            lag = u32::try_from(self.speckle.pending()).unwrap_or(0);
+        }
+        if cfg.median.is_some() {
+            let part = buf.get_mut(..m).unwrap_or_default();
+            let at = last_step.saturating_sub(lag.saturating_mul(cluster));
+            let mut changed = false;
+            m = self
+                .median
+                .run_line(part, none, intensity, at, cluster, |d, nb| {
+                    let out = window::median_line(d, nb, none);
+                    changed |= out != d;
+                    out
+                });
+            c.filtered |= changed;
+            lag = lag.saturating_add(u32::try_from(self.median.pending()).unwrap_or(0));
+        }
+        let part = buf.get_mut(..m).unwrap_or_default();
+        if self.decimator.is_active() {
+            // Step of the first point the decimator gets.
+            let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
+            let step = last_step.saturating_sub(back.saturating_mul(cluster));
+            m = self
+                .decimator
+                .run_line(part, none, intensity, step, cluster);
+        }
+        let out = part.get_mut(..m).unwrap_or_default();
+        let mut invalid = 0usize;
+        for r in out.iter_mut() {
+            r.distance = if r.distance == NONE {
+                // At most `m`.
+                invalid = invalid.wrapping_add(1);
+                out_none
+            } else {
+                r.distance.max(1)
+            };
+        }
+        c.emitted = m;
+        c.invalid_out = invalid;
+        Some(self.commit(&c))
+    }
+
+    /// The slice of a run of `n` points from `first_step`, `cluster` steps apart, that
+    /// lies in the region of interest (all of it when there is none).
+    fn roi_slice(&self, first_step: u16, n: usize, cluster: u32) -> (usize, usize) {
+        let Some(roi) = self.config.roi else {
+            return (0, n);
+        };
+        // Points of the run with a step below `step` (`cluster` is at least 1).
+        let below = |step: u32| {
+            let d = step.saturating_sub(u32::from(first_step));
+            usize::try_from(d.div_ceil(cluster)).map_or(n, |k| k.min(n))
+        };
+        let lo = below(u32::from(roi.first));
+        let hi = below(u32::from(roi.last).saturating_add(1));
+        (lo, hi.max(lo))
+    }
+
     /// Every stage from the error codes on, for points in sequence inside the region
     /// of interest (counted in `points_in` by the caller); returns the number of output
     /// points. One loop: the counters are kept in locals and added once.
-    #[inline]
+    #[inline(always)]
     fn run_stages(
         &mut self,
         points: impl Iterator<Item = RawPoint>,
@@ -394,14 +525,14 @@ impl Pipeline {
     ) -> usize {
         let cfg = self.config;
         let mut c = Counts::default();
-        let mut e = Counts::default();
-        let Self {
-            speckle,
-            median,
-            decimator,
-            ..
-        } = self;
-        let filtered = points.filter_map(|r| {
+        // The range window and intensity threshold as bounds (every range passes a
+        // window that is off, every intensity a threshold that is off).
+        let (lo, hi) = cfg
+            .range_window
+            .map_or((0, u32::MAX), |w| (w.min_mm, w.max_mm));
+        let min_intensity = cfg.min_intensity.unwrap_or(0);
+        let decimate = self.decimator.is_active();
+        for r in points {
             // Error codes, range window and intensity threshold.
             let mut p = Point {
                 step: r.step,
@@ -410,26 +541,31 @@ impl Pipeline {
             };
             if !r.valid {
                 c.error_code = c.error_code.wrapping_add(1);
-            } else if cfg.range_window.is_some_and(|w| !w.contains(r.distance)) {
+            } else if r.distance < lo || r.distance > hi {
                 c.out_of_range = c.out_of_range.wrapping_add(1);
-            } else if matches!((cfg.min_intensity, r.intensity), (Some(min), Some(i)) if i < min) {
+            } else if r.intensity.is_some_and(|i| i < min_intensity) {
                 c.low_intensity = c.low_intensity.wrapping_add(1);
             } else {
                 p.range_mm = Some(r.distance);
             }
             if let Some(f) = cfg.speckle {
-                let (centre, nb) = speckle.push(p)?;
-                p = c.speckle(centre, &nb, f);
+                match self.speckle.push(p) {
+                    Some((centre, nb)) => p = c.speckle(centre, &nb, f),
+                    None => continue,
+                }
             }
             if cfg.median.is_some() {
-                let (centre, nb) = median.push(p)?;
-                p = c.median(centre, &nb);
+                match self.median.push(p) {
+                    Some((centre, nb)) => p = c.median(centre, &nb),
+                    None => continue,
+                }
             }
-            Some(p)
-        });
-        decimator.push_run(filtered, |d| e.emit(d, &mut out));
-        c.emitted = e.emitted;
-        c.invalid_out = e.invalid_out;
+            if !decimate {
+                c.emit(p, &mut out);
+            } else if let Some(d) = self.decimator.push(p) {
+                c.emit(d, &mut out);
+            }
+        }
         self.commit(&c)
     }
 

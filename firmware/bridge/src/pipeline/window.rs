@@ -110,6 +110,125 @@ impl CentredWindow {
     }
 }
 
+/// The state of a [`CentredWindow`] in the form [`CentredWindow::run_line`] works on:
+/// distances with a "no range" value instead of options.
+impl CentredWindow {
+    /// Runs the window over `buf` in place, as [`CentredWindow::push`] for each point:
+    /// a distance equal to `none` has no range, `aux` is the intensity (when
+    /// `intensity`). `f` gives a centre's new distance from its own and its neighbours'
+    /// (`[second before, before, after, second after]`, `none` where invalid or absent).
+    /// The points that leave the window are written to the front of `buf`; their number
+    /// is returned. The points left pending get steps counted back from `last_step`
+    /// (the step of `buf`'s last point), `cluster` apart.
+    #[inline(always)]
+    pub fn run_line(
+        &mut self,
+        buf: &mut [scip::Reading],
+        none: u32,
+        intensity: bool,
+        last_step: u32,
+        cluster: u32,
+        mut f: impl FnMut(u32, [u32; 4]) -> u32,
+    ) -> usize {
+        let d = |p: &Point| p.range_mm.unwrap_or(none);
+        let [p0, p1] = self.pending;
+        let mut pend = [
+            (d(&p0), p0.intensity.unwrap_or(0)),
+            (d(&p1), p1.intensity.unwrap_or(0)),
+        ];
+        let mut np = usize::from(self.n);
+        let [b1, b2] = self.before;
+        let (mut b1, mut b2) = (b1.unwrap_or(none), b2.unwrap_or(none));
+        let two = self.half >= 2;
+        let half = if two { 2 } else { 1 };
+        let mut w = 0usize;
+        for i in 0..buf.len() {
+            let Some(x) = buf.get(i).map(|r| (r.distance, r.aux)) else {
+                break;
+            };
+            if np < half {
+                if let Some(slot) = pend.get_mut(np) {
+                    *slot = x;
+                }
+                np = np.wrapping_add(1);
+                continue;
+            }
+            let c = pend[0];
+            let nb = if two {
+                [b2, b1, pend[1].0, x.0]
+            } else {
+                [none, b1, x.0, none]
+            };
+            let out = f(c.0, nb);
+            if let Some(slot) = buf.get_mut(w) {
+                slot.distance = out;
+                slot.aux = c.1;
+            }
+            // At most `i`.
+            w = w.wrapping_add(1);
+            b2 = b1;
+            b1 = c.0;
+            if two {
+                pend = [pend[1], x];
+            } else {
+                pend[0] = x;
+            }
+        }
+        let point = |(dist, aux): (u32, u32), back: usize| Point {
+            step: u16::try_from(
+                last_step.saturating_sub(u32::try_from(back).unwrap_or(0).saturating_mul(cluster)),
+            )
+            .unwrap_or(u16::MAX),
+            range_mm: (dist != none).then_some(dist),
+            intensity: intensity.then_some(aux),
+        };
+        // The pending points are the last `np` of the stream.
+        let last = np.saturating_sub(1);
+        self.pending = [point(pend[0], last), point(pend[1], last.saturating_sub(1))];
+        self.n = u8::try_from(np).unwrap_or(0);
+        self.before = [(b1 != none).then_some(b1), (b2 != none).then_some(b2)];
+        w
+    }
+}
+
+/// Speckle removal on distances with a "no range" value `none` (as [`speckle`]): the
+/// centre's new distance and whether it was removed.
+#[inline(always)]
+pub(crate) fn speckle_line(c: u32, nb: [u32; 4], none: u32, max_jump_mm: u32) -> (u32, bool) {
+    if c == none {
+        return (c, false);
+    }
+    let supports = |n: u32| n != none && n.abs_diff(c) <= max_jump_mm;
+    if supports(nb[1]) || supports(nb[2]) {
+        (c, false)
+    } else {
+        (none, true)
+    }
+}
+
+/// The median on distances with a "no range" value `none` (as [`median`]).
+#[inline(always)]
+pub(crate) fn median_line(c: u32, nb: [u32; 4], none: u32) -> u32 {
+    if c == none {
+        return c;
+    }
+    if nb[0] == none && nb[3] == none {
+        let (b, a) = (nb[1], nb[2]);
+        return if b != none && a != none {
+            c.min(b).max(c.max(b).min(a))
+        } else {
+            c
+        };
+    }
+    let opt = |v: u32| (v != none).then_some(v);
+    let centre = Point {
+        step: 0,
+        range_mm: Some(c),
+        intensity: None,
+    };
+    median(centre, &nb.map(opt)).range_mm.unwrap_or(c)
+}
+
 /// What a filter did to one point.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Verdict {
