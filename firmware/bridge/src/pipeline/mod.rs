@@ -1569,4 +1569,275 @@ mod tests {
             proptest::prop_assert_eq!(run(true), run(false));
         }
     }
+
+    /// What a scan should give, computed for the whole scan at once from the stage
+    /// definitions (module docs, [`SpeckleFilter`], [`MedianWidth`], [`DecimationMode`]),
+    /// independently of the pipeline's windows: the output points, the counters
+    /// `(outside_roi, error_code, out_of_range, low_intensity, speckle, out, out_invalid)`
+    /// and the `filtered` flag.
+    fn reference(cfg: &PipelineConfig, points: &[RawPoint]) -> (Vec<Point>, [usize; 7], bool) {
+        let mut k = [0usize; 7];
+        let mut filtered = false;
+        let inside: Vec<&RawPoint> = points
+            .iter()
+            .filter(|p| {
+                cfg.roi
+                    .is_none_or(|r| r.first <= p.step && p.step <= r.last)
+            })
+            .collect();
+        k[0] = points.len() - inside.len();
+        let mut v: Vec<Point> = inside
+            .iter()
+            .map(|p| {
+                let mut range = None;
+                if !p.valid {
+                    k[1] += 1;
+                } else if cfg
+                    .range_window
+                    .is_some_and(|w| p.distance < w.min_mm || p.distance > w.max_mm)
+                {
+                    k[2] += 1;
+                    filtered = true;
+                } else if let (Some(min), Some(i)) = (cfg.min_intensity, p.intensity) {
+                    if i < min {
+                        k[3] += 1;
+                        filtered = true;
+                    } else {
+                        range = Some(p.distance);
+                    }
+                } else {
+                    range = Some(p.distance);
+                }
+                Point {
+                    step: p.step,
+                    range_mm: range,
+                    intensity: p.intensity,
+                }
+            })
+            .collect();
+        if let Some(f) = cfg.speckle {
+            let before = v.clone();
+            for (i, p) in v.iter_mut().enumerate() {
+                let Some(r) = p.range_mm else { continue };
+                let near = |j: Option<usize>| {
+                    j.and_then(|j| before.get(j))
+                        .and_then(|q| q.range_mm)
+                        .is_some_and(|q| q.abs_diff(r) <= f.max_jump_mm)
+                };
+                if !near(i.checked_sub(1)) && !near(Some(i + 1)) {
+                    p.range_mm = None;
+                    k[4] += 1;
+                    filtered = true;
+                }
+            }
+        }
+        if let Some(m) = cfg.median {
+            let h = match m {
+                MedianWidth::Three => 1,
+                MedianWidth::Five => 2,
+            };
+            let before = v.clone();
+            for (i, p) in v.iter_mut().enumerate() {
+                let Some(own) = p.range_mm else { continue };
+                let lo_i = i.saturating_sub(h);
+                let hi_i = (i + h).min(before.len() - 1);
+                let mut vals: Vec<u32> = before[lo_i..=hi_i]
+                    .iter()
+                    .filter_map(|q| q.range_mm)
+                    .collect();
+                vals.sort();
+                let n = vals.len();
+                let (lo, hi) = (vals[(n - 1) / 2], vals[n / 2]);
+                let new = own.clamp(lo, hi);
+                if new != own {
+                    filtered = true;
+                }
+                p.range_mm = Some(new);
+            }
+        }
+        if let Some(d) = cfg.decimation.filter(|d| d.factor > 1) {
+            v = v
+                .chunks(usize::from(d.factor))
+                .map(|g| match d.mode {
+                    DecimationMode::First => g[0],
+                    DecimationMode::Min => {
+                        let mut best: Option<&Point> = None;
+                        for q in g.iter().filter(|q| q.range_mm.is_some()) {
+                            if best.is_none_or(|b| q.range_mm < b.range_mm) {
+                                best = Some(q);
+                            }
+                        }
+                        Point {
+                            step: g[0].step,
+                            range_mm: best.and_then(|b| b.range_mm),
+                            intensity: best.and_then(|b| b.intensity),
+                        }
+                    }
+                    DecimationMode::Mean => {
+                        let valid: Vec<&Point> =
+                            g.iter().filter(|q| q.range_mm.is_some()).collect();
+                        let mean = |xs: Vec<u64>| {
+                            let n = xs.len() as u64;
+                            (n > 0).then(|| ((xs.iter().sum::<u64>() + n / 2) / n) as u32)
+                        };
+                        let range = mean(
+                            valid
+                                .iter()
+                                .map(|q| u64::from(q.range_mm.unwrap()))
+                                .collect(),
+                        );
+                        let intensity = mean(
+                            valid
+                                .iter()
+                                .filter_map(|q| q.intensity.map(u64::from))
+                                .collect(),
+                        );
+                        Point {
+                            step: g[0].step,
+                            range_mm: range,
+                            intensity: range.and(intensity),
+                        }
+                    }
+                })
+                .collect();
+        }
+        k[5] = v.len();
+        k[6] = v.iter().filter(|p| p.range_mm.is_none()).count();
+        (v, k, filtered)
+    }
+
+    fn counters(s: &Stats) -> [usize; 7] {
+        [
+            s.points_outside_roi,
+            s.invalid_error_code,
+            s.invalid_out_of_range,
+            s.invalid_low_intensity,
+            s.invalid_speckle,
+            s.points_out,
+            s.points_out_invalid,
+        ]
+        .map(|x| x as usize)
+    }
+
+    proptest::proptest! {
+        /// Any configuration: pushing points one by one, `filter_run` and `filter_line`
+        /// (in runs of any size, each continuing the scan) give the points, counters and
+        /// `filtered` flag of the whole-scan reference above. `filter_line` gives
+        /// readings: no range as the caller's value, a range of 0 as 1.
+        #[test]
+        fn every_path_matches_the_reference(
+            inputs in proptest::collection::vec(
+                (0u32..2500, 0u32..100, 0u8..8),
+                1..70,
+            ),
+            with_intensity in proptest::bool::ANY,
+            cluster in 1u16..3,
+            roi in proptest::option::of((0u16..80, 0u16..80)),
+            window in proptest::option::of((0u32..1500, 0u32..2500)),
+            min_intensity in proptest::option::of(0u32..100),
+            speckle in proptest::option::of(0u32..400),
+            median in 0u8..3,
+            decimation in proptest::option::of((1u16..5, 0usize..3)),
+            sizes in proptest::collection::vec(1usize..25, 1..5),
+        ) {
+            let config = PipelineConfig {
+                roi: roi.map(|(a, b)| StepWindow { first: a.min(b), last: a.max(b) }),
+                range_window: window.map(|(a, b)| RangeWindow { min_mm: a.min(b), max_mm: a.max(b) }),
+                min_intensity,
+                speckle: speckle.map(|max_jump_mm| SpeckleFilter { max_jump_mm }),
+                median: [None, Some(MedianWidth::Three), Some(MedianWidth::Five)][usize::from(median)],
+                decimation: decimation.map(|(factor, m)| Decimation {
+                    factor,
+                    mode: [DecimationMode::First, DecimationMode::Min, DecimationMode::Mean][m],
+                }),
+                temporal: TemporalDecimation::All,
+            };
+            let n = inputs.len() as u16;
+            let info = ScanInfo { seq: 0, timestamp_ms: 0, first_step: 10, last_step: 10 + (n - 1) * cluster, cluster };
+            // An error code one time in eight (distance 0, as the sensors send).
+            let points: Vec<RawPoint> = inputs
+                .iter()
+                .enumerate()
+                .map(|(i, &(d, i_val, e))| RawPoint {
+                    step: 10 + i as u16 * cluster,
+                    distance: if e == 0 { 0 } else { d + 1 },
+                    intensity: with_intensity.then_some(i_val),
+                    valid: e != 0,
+                })
+                .collect();
+            let (want, want_k, want_filtered) = reference(&config, &points);
+            // 0: one by one; 1: filter_run; 2: filter_line.
+            for mode in 0..3 {
+                let mut p = Pipeline::new(config).unwrap();
+                let ScanStart::Publish { points: announced } = p.begin_scan(info) else {
+                    panic!("not published");
+                };
+                let mut out = Vec::new();
+                let mut rest = &points[..];
+                let mut i = 0;
+                while !rest.is_empty() {
+                    let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
+                    match mode {
+                        0 => p.push_batch(a, &mut |x| out.push(x)),
+                        1 => {
+                            let mut buf = Vec::new();
+                            let k = p.filter_run(a[0].step, a, |r| *r, |x| buf.push(x));
+                            match k {
+                                Some(k) => {
+                                    proptest::prop_assert_eq!(k, buf.len());
+                                    out.extend(buf);
+                                }
+                                None => {
+                                    proptest::prop_assert!(config.is_passthrough());
+                                    p.push_batch(a, &mut |x| out.push(x));
+                                }
+                            }
+                        }
+                        _ => {
+                            let input: Vec<scip::Reading> = a
+                                .iter()
+                                .map(|r| scip::Reading { index: 0, echo: 0, distance: r.distance, aux: r.intensity.unwrap_or(0) })
+                                .collect();
+                            let mut cells = input.clone();
+                            let k = p.filter_line(a[0].step, &input, &mut cells, |d| d != 0, with_intensity, 7_777_777);
+                            match k {
+                                Some(k) => {
+                                    let base = out.len();
+                                    out.extend(cells[..k].iter().enumerate().map(|(j, c)| Point {
+                                    // The line path gives no steps: the reference's are used.
+                                    step: want.get(base + j).map_or(0, |w| w.step),
+                                    range_mm: (c.distance != 7_777_777).then_some(c.distance),
+                                    intensity: with_intensity.then_some(c.aux),
+                                }));
+                                }
+                                None => {
+                                    proptest::prop_assert!(config.is_passthrough());
+                                    p.push_batch(a, &mut |x| out.push(x));
+                                }
+                            }
+                        }
+                    }
+                    rest = b;
+                    i += 1;
+                }
+                let end = p.end_scan(true, &mut |x| out.push(x));
+                proptest::prop_assert_eq!(end, ScanEnd::Complete { points: want.len() });
+                proptest::prop_assert_eq!(announced, want.len());
+                let mut want = want.clone();
+                if mode == 2 {
+                    // Readings: a range of 0 mm is given as 1, and an invalid point has
+                    // no intensity to compare.
+                    let norm = |p: &mut Point| {
+                        p.range_mm = p.range_mm.map(|r| r.max(1));
+                        p.intensity = p.range_mm.and(p.intensity);
+                    };
+                    want.iter_mut().for_each(norm);
+                    out.iter_mut().for_each(norm);
+                }
+                proptest::prop_assert_eq!(&out, &want, "mode {}", mode);
+                proptest::prop_assert_eq!(counters(p.stats()), want_k, "mode {}", mode);
+                proptest::prop_assert_eq!(p.filtered(), want_filtered, "mode {}", mode);
+            }
+        }
+    }
 }
