@@ -107,8 +107,7 @@ impl Decimator {
     /// [`super::Pipeline::filter_line`]: a distance equal to `none` has no range, `aux`
     /// is the intensity when `intensity`); the output points are written to the front
     /// of `buf` and their number returned. `step` is the step of `buf`'s first point,
-    /// the next ones `cluster` apart. `First` and `Min` run with the group's state in
-    /// locals.
+    /// the next ones `cluster` apart.
     pub fn run_line(
         &mut self,
         buf: &mut [scip::Reading],
@@ -122,78 +121,20 @@ impl Decimator {
             let back = u32::try_from(i).unwrap_or(u32::MAX).saturating_mul(cluster);
             u16::try_from(step.saturating_add(back)).unwrap_or(u16::MAX)
         };
-        match self.mode {
-            DecimationMode::First => {
-                let mut count = self.count;
-                for i in 0..buf.len() {
-                    if count == 0 {
-                        if let (Some(r), true) = (buf.get(i).copied(), w < i) {
-                            if let Some(slot) = buf.get_mut(w) {
-                                *slot = r;
-                            }
-                        }
-                        // At most `i + 1`.
-                        w = w.wrapping_add(1);
-                    }
-                    // Below `factor` before, so at most `factor` after.
-                    count = count.wrapping_add(1);
-                    if count >= self.factor {
-                        count = 0;
-                    }
+        for i in 0..buf.len() {
+            let Some(r) = buf.get(i).copied() else { break };
+            let p = Point {
+                step: step_of(i),
+                range_mm: (r.distance != none).then_some(r.distance),
+                intensity: intensity.then_some(r.aux),
+            };
+            if let Some(d) = self.push(p) {
+                if let Some(slot) = buf.get_mut(w) {
+                    slot.distance = d.range_mm.unwrap_or(none);
+                    slot.aux = d.intensity.unwrap_or(0);
                 }
-                // A group's state is its count alone (its first point is out already).
-                self.clear();
-                self.count = count;
-            }
-            DecimationMode::Min => {
-                let (mut count, mut first_step) = (self.count, self.first_step);
-                let (mut best, mut best_aux) = match self.best {
-                    Some((r, i)) => (r, i.unwrap_or(0)),
-                    None => (none, 0),
-                };
-                for i in 0..buf.len() {
-                    let Some(r) = buf.get(i).copied() else { break };
-                    if count == 0 {
-                        first_step = step_of(i);
-                    }
-                    if r.distance != none && (best == none || r.distance < best) {
-                        (best, best_aux) = (r.distance, r.aux);
-                    }
-                    count = count.wrapping_add(1);
-                    if count >= self.factor {
-                        if let Some(slot) = buf.get_mut(w) {
-                            slot.distance = best;
-                            slot.aux = if best == none { 0 } else { best_aux };
-                        }
-                        // At most `i + 1`.
-                        w = w.wrapping_add(1);
-                        (count, best) = (0, none);
-                    }
-                }
-                self.clear();
-                if count > 0 {
-                    self.count = count;
-                    self.first_step = first_step;
-                    self.best = (best != none).then_some((best, intensity.then_some(best_aux)));
-                }
-            }
-            DecimationMode::Mean => {
-                for i in 0..buf.len() {
-                    let Some(r) = buf.get(i).copied() else { break };
-                    let p = Point {
-                        step: step_of(i),
-                        range_mm: (r.distance != none).then_some(r.distance),
-                        intensity: intensity.then_some(r.aux),
-                    };
-                    if let Some(d) = self.push(p) {
-                        if let Some(slot) = buf.get_mut(w) {
-                            slot.distance = d.range_mm.unwrap_or(none);
-                            slot.aux = d.intensity.unwrap_or(0);
-                        }
-                        // At most `i + 1`.
-                        w = w.wrapping_add(1);
-                    }
-                }
+                // At most `i + 1`.
+                w = w.wrapping_add(1);
             }
         }
         w

@@ -449,28 +449,28 @@ impl Pipeline {
         let mut lag = 0u32;
         if let Some(f) = cfg.speckle {
             let part = buf.get_mut(..m).unwrap_or_default();
-            let jump = f.max_jump_mm;
-            m = self
-                .speckle
-                .run_line(part, none, intensity, last_step, cluster, |d, nb| {
-                    let (d, removed) = window::speckle_line(d, nb, none, jump);
-                    c.speckle = c.speckle.wrapping_add(usize::from(removed));
-                    d
-                });
+            let filter = window::LineFilter::Speckle {
+                max_jump_mm: f.max_jump_mm,
+            };
+            m = self.speckle.run_line(
+                part,
+                none,
+                intensity,
+                (last_step, cluster),
+                filter,
+                &mut c.speckle,
+            );
             lag = u32::try_from(self.speckle.pending()).unwrap_or(0);
         }
         if cfg.median.is_some() {
             let part = buf.get_mut(..m).unwrap_or_default();
             let at = last_step.saturating_sub(lag.saturating_mul(cluster));
-            let mut changed = false;
+            let mut changed = 0usize;
+            let filter = window::LineFilter::Median;
             m = self
                 .median
-                .run_line(part, none, intensity, at, cluster, |d, nb| {
-                    let out = window::median_line(d, nb, none);
-                    changed |= out != d;
-                    out
-                });
-            c.filtered |= changed;
+                .run_line(part, none, intensity, (at, cluster), filter, &mut changed);
+            c.filtered |= changed > 0;
             lag = lag.saturating_add(u32::try_from(self.median.pending()).unwrap_or(0));
         }
         let part = buf.get_mut(..m).unwrap_or_default();

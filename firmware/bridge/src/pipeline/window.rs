@@ -62,8 +62,9 @@ impl CentredWindow {
     }
 
     /// Adds the next point; returns the point that became complete, if any, with its
-    /// neighbours. Constant work.
-    #[inline]
+    /// neighbours. Constant work. (Never inlined: one copy serves both filters and
+    /// the end of a scan, the per-point path being the rare one.)
+    #[inline(never)]
     pub fn push(&mut self, p: Point) -> Option<(Point, Neighbours)> {
         if self.n < self.half {
             if let Some(slot) = self.pending.get_mut(usize::from(self.n)) {
@@ -119,17 +120,29 @@ impl CentredWindow {
     /// (`[second before, before, after, second after]`, `none` where invalid or absent).
     /// The points that leave the window are written to the front of `buf`; their number
     /// is returned. The points left pending get steps counted back from `last_step`
-    /// (the step of `buf`'s last point), `cluster` apart.
-    #[inline(always)]
+    /// (the step of `buf`'s last point), `cluster` apart. `changed` counts the centres
+    /// whose distance the filter changed.
+    /// One function for both filters (`filter` says which), so that the firmware holds
+    /// one copy of the loop.
+    #[inline(never)]
     pub fn run_line(
         &mut self,
         buf: &mut [scip::Reading],
         none: u32,
         intensity: bool,
-        last_step: u32,
-        cluster: u32,
-        mut f: impl FnMut(u32, [u32; 4]) -> u32,
+        (last_step, cluster): (u32, u32),
+        filter: LineFilter,
+        changed: &mut usize,
     ) -> usize {
+        let mut f = |c: u32, nb: [u32; 4]| {
+            let out = match filter {
+                LineFilter::Speckle { max_jump_mm } => speckle_line(c, nb, none, max_jump_mm).0,
+                LineFilter::Median => median_line(c, nb, none),
+            };
+            // At most the line's points.
+            *changed = changed.wrapping_add(usize::from(out != c));
+            out
+        };
         let d = |p: &Point| p.range_mm.unwrap_or(none);
         let [p0, p1] = self.pending;
         let mut pend = [
@@ -189,6 +202,18 @@ impl CentredWindow {
         self.before = [(b1 != none).then_some(b1), (b2 != none).then_some(b2)];
         w
     }
+}
+
+/// The filter a [`CentredWindow::run_line`] applies.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum LineFilter {
+    /// Speckle removal with this threshold.
+    Speckle {
+        /// See [`super::SpeckleFilter`].
+        max_jump_mm: u32,
+    },
+    /// The median.
+    Median,
 }
 
 /// Speckle removal on distances with a "no range" value `none` (as [`speckle`]): the
@@ -266,7 +291,7 @@ pub(crate) fn speckle(c: Point, nb: &Neighbours, max_jump_mm: u32) -> Verdict {
 /// window is cut at the scan's end) the result is whichever middle value is nearest the
 /// centre's own range, which is the centre's range when it is one of them. The result is
 /// always one of the measured ranges, never an average. The centre keeps its intensity.
-#[inline]
+#[inline(never)]
 pub(crate) fn median(c: Point, nb: &Neighbours) -> Point {
     let Some(own) = c.range_mm else {
         return c;
