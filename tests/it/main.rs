@@ -9,6 +9,7 @@ mod icount;
 mod live_bridge;
 mod lossless_replay;
 mod noise;
+mod pipeline_blocks;
 mod pp_faults;
 mod qemu;
 mod recordings;
