@@ -269,3 +269,65 @@ fn every_stage_on_the_recordings_matches_the_reference() {
     }
     assert!(checked >= 33, "{checked} scans checked");
 }
+
+/// Control frames (SPEC 6) received one after the other before a scan all apply: the
+/// second one keeps what the first one set (each used to start from the settings of the
+/// scan in progress, so only the last one took effect).
+#[test]
+fn successive_control_frames_all_apply() {
+    let Some(dir) = recordings_or_skip("pipeline control frames") else {
+        return;
+    };
+    let bytes = std::fs::read(dir.join("hokuyoaist_example_urg_04lx.rx.scip")).expect("read");
+    let encoding = Encoding {
+        distance: DistanceEncoding::D16,
+        intensity: IntensityEncoding::None,
+        unit_exp: 0,
+    };
+    let c = config(FrameFormat::Classic, encoding);
+    let ids = c.ids;
+    let mut bridge: bridge::engine::Bridge<512> = bridge::engine::Bridge::new(c).expect("config");
+    // Range window 300..=3000 mm (opcode 0x10, token, two 24-bit limits), then median
+    // of 3 (opcode 0x12, token, 3), as SPEC 6 lays them out.
+    let controls: [&[u8]; 2] = [&[0x10, 1, 0x2C, 0x01, 0, 0xB8, 0x0B, 0], &[0x12, 2, 3]];
+    for data in controls {
+        let f = can_wire::Frame::new(ids.id(can_wire::Kind::Control), data, false).expect("frame");
+        assert!(bridge.on_can_frame(&f, 0));
+    }
+    while bridge.pop_frame().is_some() {}
+    let mut frames = Vec::new();
+    for (t, chunk) in bytes.chunks(100).enumerate() {
+        bridge.on_uart(chunk, t as u64);
+        while let Some(f) = bridge.pop_frame() {
+            frames.push(f);
+        }
+    }
+    let got = reassemble(&frames);
+    let cfg = PipelineConfig {
+        range_window: Some(RangeWindow {
+            min_mm: 300,
+            max_mm: 3000,
+        }),
+        median: Some(MedianWidth::Three),
+        ..PipelineConfig::default()
+    };
+    assert_eq!(bridge.pipeline().config(), &cfg);
+    let dmin = oracle::dmin(&bytes);
+    let s = &oracle::scans(&bytes)[0];
+    let points: Vec<(u16, u32, bool, Option<u32>)> = s
+        .distances
+        .iter()
+        .enumerate()
+        .map(|(i, &d)| (44 + i as u16, d, oracle::is_range(d, s.width, dmin), None))
+        .collect();
+    let want: Vec<Distance> = reference(&cfg, &points)
+        .iter()
+        .map(|p| p.1.map_or(Distance::Invalid, Distance::Mm))
+        .collect();
+    let got: Vec<Distance> = got[0]
+        .1
+        .iter()
+        .map(|p| p.expect("received").distance)
+        .collect();
+    assert_eq!(got, want);
+}

@@ -691,7 +691,7 @@ impl<const Q: usize> Core<Q> {
         let answer = match can_wire::Control::parse(data) {
             Err(e) => can_wire::Answer::reject(data, &e),
             Ok(control) => {
-                match crate::control::plan(&control, self.pipeline.config(), self.config.fd_capable)
+                match crate::control::plan(&control, &self.config.pipeline, self.config.fd_capable)
                 {
                     Err((outcome, detail)) => crate::control::rejection(&control, outcome, detail),
                     Ok(apply) => {
