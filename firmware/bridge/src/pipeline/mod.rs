@@ -68,17 +68,21 @@
 //!
 //! # Work and memory
 //! The pipeline is a fixed-size value (under 768 bytes, asserted by a test; no heap). Each
-//! `push` does constant work: a sequence check and a few comparisons, two writes into
-//! each window (a mirrored ring, no shifting), an insertion sort of at most 5 ranges (at
+//! `push` does constant work: a sequence check and a few comparisons, a few moves in
+//! each window (its pending points and the ranges before them), an insertion sort of at most 5 ranges (at
 //! most 10 comparisons), an accumulator update, and at most one call to the sink.
 //! `end_scan` makes at most 4 sink calls. An intact scan gives exactly [`output_len`]
 //! points, announced by `begin_scan`; any scan gives at most that many. Measured with
-//! callgrind (x86-64, release, a 1081-point scan fed 21 points at a time): about 84
-//! instructions per point with every stage off and about 450 with every stage on
-//! (median of 5, mean of 3); `benches/pipeline.rs` times the same cases. With every
+//! callgrind (x86-64, release, a 1081-point scan fed 21 points at a time), before the
+//! line paths below: about 84 instructions per point with every stage off and about 450
+//! with every stage on; BENCHMARKS.md has the M4 counts of every configuration. With every
 //! stage off, `push_batch` and `push_iter` skip the stages altogether (a sequence check
-//! and the sink call per point, the counters added once per call); the bridge engine
-//! feeds each data line that way (BENCHMARKS.md, "Bridge core").
+//! and the sink call per point, the counters added once per call), and
+//! [`Pipeline::pass_run`] lets the bridge engine publish a data line directly. With any
+//! stage on, [`Pipeline::filter_line`] runs the engine's data line through every stage
+//! in place, one pass per stage (the windows' state carried from line to line), and
+//! [`Pipeline::filter_run`] does the same for a run of points in one loop without a
+//! sink call per point; both give exactly what pushing the points one by one gives.
 
 // No panics on any input: the input paths may not index, unwrap or overflow.
 #![cfg_attr(
