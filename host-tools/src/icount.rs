@@ -826,6 +826,32 @@ mod tests {
     use super::*;
 
     #[test]
+    fn pipeline_specs_become_the_control_frames_of_spec_6() {
+        // Bytes written from SPEC 6: opcode, token, then the fields (little endian).
+        let p = parse_pipeline_spec(
+            "window=100:30000,speckle,median=5,decimate=2:min,roi=100:900,intensity=500",
+        )
+        .unwrap();
+        let want: Vec<Vec<u8>> = vec![
+            vec![0x10, 1, 100, 0, 0, 0x30, 0x75, 0],
+            vec![0x11, 2, 1],
+            vec![0x12, 3, 5],
+            vec![0x14, 4, 2, 1],
+            vec![0x15, 5, 100, 0, 0x84, 0x03],
+            vec![0x13, 6, 0xF4, 0x01],
+        ];
+        assert_eq!(p.frames, want);
+        assert_eq!(
+            control_header(&p.frames[1..2]),
+            [SOH, 3, 0x11, 2, 1],
+            "SOH, length, data"
+        );
+        for bad in ["median=4", "decimate=2:max", "window=5", "blur"] {
+            assert!(parse_pipeline_spec(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
     fn the_bench_line_parses() {
         let text = "scip2can-qemu-bench 0.1.0 mps2-an386: ...\r\n\
                     bench bytes=7814 chunks=123 ticks=14647 max_chunk_ticks=299 scans_in=1 \
