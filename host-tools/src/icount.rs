@@ -35,6 +35,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
 use bridge::engine::{Bridge, BridgeStats};
+use can_wire::IdWindow;
 use scip::{Command, Event, Request, ScanMode, ScanRequest, Summary};
 use serde_json::json;
 
@@ -85,6 +86,9 @@ pub const CHUNK: usize = 64;
 
 /// The byte that ends the stream for the firmware (never part of SCIP).
 pub const EOT: u8 = 0x04;
+
+/// The byte that begins a control frame ahead of the stream (see `bench.rs`).
+pub const SOH: u8 = 0x01;
 
 /// Instructions per SysTick tick under `-icount shift=0` (1 ns per instruction, a
 /// 25 MHz SysTick).
@@ -238,10 +242,38 @@ pub struct HostRun {
 /// [`CHUNK`]-byte calls at the time the chunk's last byte arrives at the board's bit
 /// rate (10 bits per byte), every frame popped after each call.
 pub fn host_run(stream: &[u8], encoding: BenchEncoding) -> anyhow::Result<HostRun> {
+    host_run_with(stream, encoding, &[])
+}
+
+/// [`host_run`] after the control frames `controls` (their data), each of which the
+/// core must accept; their answers are not counted.
+pub fn host_run_with(
+    stream: &[u8],
+    encoding: BenchEncoding,
+    controls: &[Vec<u8>],
+) -> anyhow::Result<HostRun> {
     let config = qemu_config::bridge_with(encoding.encoding())
         .ok_or_else(|| anyhow!("the board's configuration is invalid"))?;
     let mut bridge = Bridge::<{ qemu_config::QUEUE }>::new(config)
         .map_err(|e| anyhow!("the board's configuration: {e}"))?;
+    let ids = IdWindow::DEFAULT
+        .node(qemu_config::NODE)
+        .map_err(|e| anyhow!("the board's node: {e:?}"))?;
+    for data in controls {
+        let frame = can_wire::Frame::new(ids.id(can_wire::Kind::Control), data, data.len() > 8)
+            .map_err(|e| anyhow!("control frame {data:02x?}: {e:?}"))?;
+        bridge.on_can_frame(&frame, 0);
+        while let Some(answer) = bridge.pop_frame() {
+            let a = can_wire::Answer::parse(answer.data())
+                .map_err(|e| anyhow!("the answer to {data:02x?}: {e:?}"))?;
+            if a.outcome != can_wire::Outcome::Accepted {
+                bail!(
+                    "the bridge refused control frame {data:02x?}: {:?}",
+                    a.outcome
+                );
+            }
+        }
+    }
     let mut run = HostRun {
         chunks: 0,
         frames: 0,
@@ -348,6 +380,29 @@ pub fn run_firmware(
     stream: &[u8],
     timeout: Duration,
 ) -> anyhow::Result<BenchLine> {
+    run_firmware_with(qemu, firmware, &[], stream, timeout)
+}
+
+/// The bytes ahead of the stream that give the firmware the control frames `controls`
+/// (their data): per frame, 0x01 (SOH), its length and its data.
+pub fn control_header(controls: &[Vec<u8>]) -> Vec<u8> {
+    let mut out = Vec::new();
+    for data in controls {
+        out.push(SOH);
+        out.push(data.len() as u8);
+        out.extend_from_slice(data);
+    }
+    out
+}
+
+/// [`run_firmware`] with `header` (see [`control_header`]) ahead of the stream.
+pub fn run_firmware_with(
+    qemu: &str,
+    firmware: &Path,
+    header: &[u8],
+    stream: &[u8],
+    timeout: Duration,
+) -> anyhow::Result<BenchLine> {
     if let Some(at) = stream.iter().position(|&b| b == EOT) {
         bail!("the stream holds an EOT byte (0x04) at offset {at}: the firmware would stop there");
     }
@@ -365,7 +420,8 @@ pub fn run_firmware(
         .spawn()
         .with_context(|| format!("starting {qemu} (apt-get install qemu-system-arm)"))?;
     let mut input = child.stdin.take().context("QEMU's standard input")?;
-    let mut bytes = Vec::with_capacity(stream.len() + 1);
+    let mut bytes = Vec::with_capacity(header.len() + stream.len() + 1);
+    bytes.extend_from_slice(header);
     bytes.extend_from_slice(stream);
     bytes.push(EOT);
     // QEMU takes the bytes as the guest reads them; a QEMU that died early makes the
@@ -478,8 +534,21 @@ pub fn measure(
     stream: &[u8],
     encoding: BenchEncoding,
 ) -> anyhow::Result<Measurement> {
-    let host = host_run(stream, encoding)?;
-    let line = run_firmware(qemu, firmware, stream, timeout_for(stream))?;
+    measure_with(qemu, firmware, stream, encoding, &[])
+}
+
+/// [`measure`] with the pipeline set up by the control frames `controls` (their data)
+/// first, on both the firmware and the host core.
+pub fn measure_with(
+    qemu: &str,
+    firmware: &Path,
+    stream: &[u8],
+    encoding: BenchEncoding,
+    controls: &[Vec<u8>],
+) -> anyhow::Result<Measurement> {
+    let host = host_run_with(stream, encoding, controls)?;
+    let header = control_header(controls);
+    let line = run_firmware_with(qemu, firmware, &header, stream, timeout_for(stream))?;
     if line.bytes != stream.len() as u64 || line.overruns != 0 {
         bail!(
             "the firmware's core got {} of {} stream bytes ({} UART overruns)",
@@ -530,6 +599,12 @@ pub struct IcountArgs {
     /// board's default) or d16.
     #[arg(long, value_enum, default_value = "dl")]
     pub encoding: BenchEncoding,
+    /// Pipeline stages, set up by control frames (SPEC 6) before the stream, e.g.
+    /// `window=100:30000,speckle,median=3,decimate=2:min,roi=100:900,intensity=500`
+    /// (window MIN:MAX mm; speckle; median 3 or 5; decimate K[:first|min|mean]; roi
+    /// FIRST:LAST steps; intensity threshold on the 16-bit scale). Default: none.
+    #[arg(long, value_parser = parse_pipeline_spec)]
+    pub pipeline: Option<PipelineSpec>,
     /// The QEMU binary.
     #[arg(long, default_value = "qemu-system-arm")]
     pub qemu: String,
@@ -577,7 +652,11 @@ pub fn run(args: IcountArgs) -> anyhow::Result<()> {
         }
     };
     let firmware = bench_firmware(args.firmware.as_deref(), args.encoding)?;
-    let m = measure(&args.qemu, &firmware, &stream, args.encoding)?;
+    let (spec, controls) = match &args.pipeline {
+        Some(p) => (p.text.clone(), p.frames.clone()),
+        None => ("none".to_string(), Vec::new()),
+    };
+    let m = measure_with(&args.qemu, &firmware, &stream, args.encoding, &controls)?;
     let f = &m.firmware;
     let mut out = std::io::stdout().lock();
     if args.json {
@@ -585,6 +664,7 @@ pub fn run(args: IcountArgs) -> anyhow::Result<()> {
             "source": source,
             "model": model,
             "encoding": format!("{:?}", args.encoding.encoding().distance),
+            "pipeline": spec,
             "stream_file": args.stream.as_ref().map(|p| p.display().to_string()),
             "seed": args.stream.is_none().then_some(args.seed),
             "bytes": m.bytes,
@@ -617,6 +697,7 @@ pub fn run(args: IcountArgs) -> anyhow::Result<()> {
         firmware.display(),
         args.qemu
     )?;
+    writeln!(out, "pipeline           {spec}")?;
     writeln!(
         out,
         "stream             {} bytes, {} scans, {} chunks of {CHUNK} bytes",
@@ -655,9 +736,120 @@ pub fn run(args: IcountArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A pipeline given to `--pipeline`: its text and the control frames (data) that set
+/// it up.
+#[derive(Debug, Clone)]
+pub struct PipelineSpec {
+    /// As given.
+    pub text: String,
+    /// One control frame per stage.
+    pub frames: Vec<Vec<u8>>,
+}
+
+/// Parses a `--pipeline` text into control frames (tokens 1, 2, ... in order).
+pub fn parse_pipeline_spec(text: &str) -> Result<PipelineSpec, String> {
+    use can_wire::control::{Command as C, DecimationMode as M, MedianWindow};
+    fn num<T: std::str::FromStr>(v: &str) -> Result<T, String> {
+        v.trim()
+            .parse()
+            .map_err(|_| format!("{v:?} is not a number"))
+    }
+    fn pair<T: std::str::FromStr>(v: &str) -> Result<(T, T), String> {
+        let (a, b) = v.split_once(':').ok_or(format!("{v:?} is not A:B"))?;
+        Ok((num(a)?, num(b)?))
+    }
+    let mut frames = Vec::new();
+    for (i, item) in text
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .enumerate()
+    {
+        let (key, value) = item.split_once('=').unwrap_or((item, ""));
+        let command = match key {
+            "window" => {
+                let (min_mm, max_mm) = pair(value)?;
+                C::RangeWindow { min_mm, max_mm }
+            }
+            "speckle" => C::Speckle { enabled: true },
+            "median" => C::Median {
+                window: match value {
+                    "3" => MedianWindow::Three,
+                    "5" => MedianWindow::Five,
+                    _ => return Err(format!("median={value:?}: 3 or 5")),
+                },
+            },
+            "decimate" => {
+                let (k, mode) = value.split_once(':').unwrap_or((value, "first"));
+                let mode = match mode {
+                    "first" => M::Every,
+                    "min" => M::Min,
+                    "mean" => M::Mean,
+                    m => return Err(format!("decimate mode {m:?}: first, min or mean")),
+                };
+                C::AngularDecimation { k: num(k)?, mode }
+            }
+            "roi" => {
+                let (start_step, end_step) = pair(value)?;
+                C::RegionOfInterest {
+                    start_step,
+                    end_step,
+                }
+            }
+            "intensity" => C::IntensityThreshold {
+                threshold: num(value)?,
+            },
+            _ => {
+                return Err(format!(
+                    "{key:?}: one of window, speckle, median, decimate, roi, intensity"
+                ))
+            }
+        };
+        let control = can_wire::Control {
+            token: (i + 1) as u8,
+            command,
+        };
+        let mut buf = [0u8; can_wire::control::MAX_CONTROL_LEN];
+        let len = control
+            .emit(&mut buf)
+            .map_err(|e| format!("{item:?}: {e:?}"))?;
+        frames.push(buf[..len].to_vec());
+    }
+    Ok(PipelineSpec {
+        text: text.to_string(),
+        frames,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn pipeline_specs_become_the_control_frames_of_spec_6() {
+        // Bytes written from SPEC 6: opcode, token, then the fields (little endian).
+        let p = parse_pipeline_spec(
+            "window=100:30000,speckle,median=5,decimate=2:min,roi=100:900,intensity=500",
+        )
+        .unwrap();
+        let want: Vec<Vec<u8>> = vec![
+            vec![0x10, 1, 100, 0, 0, 0x30, 0x75, 0],
+            vec![0x11, 2, 1],
+            vec![0x12, 3, 5],
+            vec![0x14, 4, 2, 1],
+            vec![0x15, 5, 100, 0, 0x84, 0x03],
+            vec![0x13, 6, 0xF4, 0x01],
+        ];
+        assert_eq!(p.frames, want);
+        assert_eq!(
+            control_header(&p.frames[1..2]),
+            [SOH, 3, 0x11, 2, 1],
+            "SOH, length, data"
+        );
+        for bad in ["median=4", "decimate=2:max", "window=5", "blur"] {
+            assert!(parse_pipeline_spec(bad).is_err(), "{bad}");
+        }
+    }
 
     #[test]
     fn the_bench_line_parses() {

@@ -12,6 +12,7 @@ mod live_view;
 mod lossless_replay;
 mod mcap_view;
 mod noise;
+mod pipeline_blocks;
 mod pp_faults;
 mod qemu;
 mod recordings;

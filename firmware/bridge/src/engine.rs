@@ -155,7 +155,7 @@ struct Core<const Q: usize> {
     plan: Option<crate::governor::Plan>,
     /// The cost the scan being published was admitted with.
     admitted: Option<can_wire::bandwidth::ScanCost>,
-    /// A data line's points out of [`Pipeline::decimate_run`], as readings.
+    /// A data line's points out of [`Pipeline::filter_run`], as readings.
     decimated: [scip::Reading; scip::MAX_READINGS],
     /// The sensor's 24-bit ms clock, extended (SPEC 3.1); reset when the sensor restarts.
     clock: scip::TimestampUnwrapper,
@@ -573,7 +573,9 @@ impl<const Q: usize> Core<Q> {
 
     /// One data line of the scan being published. With every pipeline stage off, the
     /// line's readings go straight to the encoder in one run (the pipeline only counts
-    /// them); otherwise they go through the pipeline point by point.
+    /// them); otherwise they go through every stage in one loop
+    /// ([`Pipeline::filter_run`]) and the line's output points into the encoder in one
+    /// run. Only multi-echo lines and lines out of sequence go point by point.
     fn data_line(&mut self, line: &DataLine<'_>, s: &ScanRequest) {
         let cluster = u32::from(s.cluster.max(1));
         let start = u32::from(s.start);
@@ -598,9 +600,9 @@ impl<const Q: usize> Core<Q> {
                 self.publish_run(line, width);
                 return;
             }
-            // Decimation the only stage: the line's output points, then one encoder run.
-            // Written as readings (a range, or 0 for none; the intensity as aux), so that
-            // the encoder runs the same code as for a line's readings.
+            // Any other stages: the line's readings, a range or none each, through the
+            // stages in place, then the output points into the encoder in one run, as
+            // readings so that the encoder runs the same code as for a line's readings.
             // A point without a range: 0 for the fixed-width encodings (invalid to the
             // rule "at least 1"), a value no sensor sends for the lossless coding (coded
             // invalid, not as the sensor's error code 0).
@@ -615,20 +617,12 @@ impl<const Q: usize> Core<Q> {
             } else {
                 (0, can_wire::RangeRule::at_least(1))
             };
-            let (pipeline, decimated, mut out) = self.split();
-            let mut k = 0;
-            let n = pipeline.decimate_run(first, line.readings, raw, |p| {
-                if let Some(slot) = decimated.get_mut(k) {
-                    // A range of 0 mm is coded 1 either way.
-                    slot.distance = p.range_mm.map_or(none, |mm| mm.max(1));
-                    slot.aux = p.intensity.unwrap_or(0);
-                    // At most the line's readings.
-                    k = k.wrapping_add(1);
-                }
-            });
-            if n.is_some() {
+            let (pipeline, cells, mut out) = self.split();
+            let is_range = |d: u32| test.is_range(d);
+            let k = pipeline.filter_line(first, line.readings, cells, is_range, has_aux, none);
+            if let Some(k) = k {
                 if !*out.overflow {
-                    let points = decimated.get(..k).unwrap_or(&[]);
+                    let points = cells.get(..k).unwrap_or_default();
                     out.encode_run(points, rule, reading_point);
                 }
                 return;
@@ -768,7 +762,7 @@ impl<const Q: usize> Core<Q> {
         let answer = match can_wire::Control::parse(data) {
             Err(e) => can_wire::Answer::reject(data, &e),
             Ok(control) => {
-                match crate::control::plan(&control, self.pipeline.config(), self.config.fd_capable)
+                match crate::control::plan(&control, &self.config.pipeline, self.config.fd_capable)
                 {
                     Err((outcome, detail)) => crate::control::rejection(&control, outcome, detail),
                     Ok(apply) => {

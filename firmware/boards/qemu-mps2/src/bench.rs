@@ -11,8 +11,12 @@
 //! one stream give the same counts, and the host can run the same core the same way and
 //! must get the same frames.
 //!
-//! A byte 0x04 (EOT, never part of SCIP) on UART0 ends the stream; the result is one line
-//! on UART1:
+//! The stream may begin with control frames (SPEC 6) that set the pipeline up, each as
+//! a byte 0x01 (SOH, never part of SCIP), its length (at most 64) and its data: the core
+//! takes each one as a control frame received from the bus (`Bridge::on_can_frame`),
+//! and its answer is popped and dropped, before the measurement starts (the settings
+//! apply from the stream's first scan). A byte 0x04 (EOT, never part of SCIP) on UART0
+//! ends the stream; the result is one line on UART1:
 //!
 //! ```text
 //! bench bytes=212453 chunks=3320 ticks=… max_chunk_ticks=… scans_in=100 scans_sent=100 \
@@ -34,6 +38,51 @@ const CHUNK: usize = 64;
 
 /// The byte that ends the stream.
 const EOT: u8 = 0x04;
+
+/// The byte that begins a control frame ahead of the stream.
+const SOH: u8 = 0x01;
+
+/// The next byte of UART0 (receive overruns are counted in `overruns`).
+fn read_byte(sensor: &mut hw::Uart, overruns: &mut u32) -> u8 {
+    let mut b = [0u8; 1];
+    loop {
+        match sensor.read(&mut b) {
+            Ok(1) => return b[0],
+            Ok(_) => {}
+            Err(hw::UartError::Overrun) => *overruns = overruns.wrapping_add(1),
+        }
+    }
+}
+
+/// Takes the control frames ahead of the stream (SOH, length, data; see the module
+/// docs) and drops their answers; returns the stream's first byte.
+fn control_frames(
+    bridge: &mut Bridge<{ config::QUEUE }>,
+    sensor: &mut hw::Uart,
+    overruns: &mut u32,
+) -> u8 {
+    let id = can_wire::IdWindow::DEFAULT
+        .node(config::NODE)
+        .map(|ids| ids.id(can_wire::Kind::Control));
+    loop {
+        let b = read_byte(sensor, overruns);
+        if b != SOH {
+            return b;
+        }
+        let len = usize::from(read_byte(sensor, overruns)).min(64);
+        let mut data = [0u8; 64];
+        for slot in data.iter_mut().take(len) {
+            *slot = read_byte(sensor, overruns);
+        }
+        let frame = id.ok().and_then(|id| {
+            can_wire::Frame::new(id, data.get(..len).unwrap_or_default(), len > 8).ok()
+        });
+        if let Some(frame) = frame {
+            bridge.on_can_frame(&frame, 0);
+        }
+        while bridge.pop_frame_with(|_| ()).is_some() {}
+    }
+}
 
 /// The bridge, built in a frame of its own (never inlined): `run`'s frame then holds
 /// one bridge, not the temporaries of its construction too (the board has 24 KiB of
@@ -79,8 +128,10 @@ fn measure(
     let (mut frames, mut overruns, mut pop_ticks) = (0u32, 0u32, 0u64);
     let mut chunk = [0u8; CHUNK];
     let mut out = can_wire::Frame::default();
-    let mut filled = 0;
-    let mut eot = false;
+    let first = control_frames(bridge, sensor, &mut overruns);
+    let mut eot = first == EOT;
+    chunk[0] = first;
+    let mut filled = usize::from(!eot);
     while !eot {
         // Exactly CHUNK bytes, or what is left before EOT.
         while filled < CHUNK && !eot {

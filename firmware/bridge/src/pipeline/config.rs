@@ -198,11 +198,6 @@ impl PipelineConfig {
         self.filters_off() && self.decimation.is_none_or(|d| d.factor <= 1)
     }
 
-    /// Whether angular decimation is the only stage on.
-    pub(crate) fn is_decimation_only(&self) -> bool {
-        self.filters_off() && self.decimation.is_some()
-    }
-
     /// No region, range window, intensity threshold, speckle filter nor median.
     fn filters_off(&self) -> bool {
         self.roi.is_none()

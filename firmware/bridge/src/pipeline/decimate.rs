@@ -53,6 +53,13 @@ impl Decimator {
         }
     }
 
+    /// Whether groups of more than one point are merged (otherwise every point passes
+    /// [`Decimator::push`] unchanged).
+    #[inline]
+    pub fn is_active(&self) -> bool {
+        self.factor > 1
+    }
+
     /// Points of the current group received so far.
     pub fn pending(&self) -> usize {
         match self.mode {
@@ -96,72 +103,41 @@ impl Decimator {
         out
     }
 
-    /// [`Decimator::push`] for each of `points`, the output points handed to `put`.
-    /// `First` and `Min` run with the group's state in locals.
-    #[inline]
-    pub fn push_run(&mut self, points: impl Iterator<Item = Point>, mut put: impl FnMut(Point)) {
-        match self.mode {
-            _ if self.factor <= 1 => points.for_each(put),
-            DecimationMode::First => {
-                let mut count = self.count;
-                for p in points {
-                    if count == 0 {
-                        put(p);
-                    }
-                    // Below `factor` before, so at most `factor` after.
-                    count = count.wrapping_add(1);
-                    if count >= self.factor {
-                        count = 0;
-                    }
+    /// [`Decimator::push`] for each point of `buf` in place (see
+    /// [`super::Pipeline::filter_line`]: a distance equal to `none` has no range, `aux`
+    /// is the intensity when `intensity`); the output points are written to the front
+    /// of `buf` and their number returned. `step` is the step of `buf`'s first point,
+    /// the next ones `cluster` apart.
+    pub fn run_line(
+        &mut self,
+        buf: &mut [scip::Reading],
+        none: u32,
+        intensity: bool,
+        step: u32,
+        cluster: u32,
+    ) -> usize {
+        let mut w = 0usize;
+        let step_of = |i: usize| {
+            let back = u32::try_from(i).unwrap_or(u32::MAX).saturating_mul(cluster);
+            u16::try_from(step.saturating_add(back)).unwrap_or(u16::MAX)
+        };
+        for i in 0..buf.len() {
+            let Some(r) = buf.get(i).copied() else { break };
+            let p = Point {
+                step: step_of(i),
+                range_mm: (r.distance != none).then_some(r.distance),
+                intensity: intensity.then_some(r.aux),
+            };
+            if let Some(d) = self.push(p) {
+                if let Some(slot) = buf.get_mut(w) {
+                    slot.distance = d.range_mm.unwrap_or(none);
+                    slot.aux = d.intensity.unwrap_or(0);
                 }
-                // A group's state is its count alone (its first point is out already).
-                if count == 0 {
-                    self.clear();
-                } else {
-                    self.count = count;
-                }
-            }
-            DecimationMode::Min => {
-                let (mut count, mut first_step, mut best) =
-                    (self.count, self.first_step, self.best);
-                for p in points {
-                    if count == 0 {
-                        first_step = p.step;
-                    }
-                    if let Some(r) = p.range_mm {
-                        if best.is_none_or(|(b, _)| r < b) {
-                            best = Some((r, p.intensity));
-                        }
-                    }
-                    // Below `factor` before, so at most `factor` after.
-                    count = count.wrapping_add(1);
-                    if count >= self.factor {
-                        let (range_mm, intensity) = match best {
-                            Some((r, i)) => (Some(r), i),
-                            None => (None, None),
-                        };
-                        put(Point {
-                            step: first_step,
-                            range_mm,
-                            intensity,
-                        });
-                        (count, best) = (0, None);
-                    }
-                }
-                if count == 0 {
-                    self.clear();
-                } else {
-                    (self.count, self.first_step, self.best) = (count, first_step, best);
-                }
-            }
-            DecimationMode::Mean => {
-                for p in points {
-                    if let Some(d) = self.push(p) {
-                        put(d);
-                    }
-                }
+                // At most `i + 1`.
+                w = w.wrapping_add(1);
             }
         }
+        w
     }
 
     /// The end of the scan: the output point of a short last group, if one is open.

@@ -68,17 +68,21 @@
 //!
 //! # Work and memory
 //! The pipeline is a fixed-size value (under 768 bytes, asserted by a test; no heap). Each
-//! `push` does constant work: a sequence check and a few comparisons, two writes into
-//! each window (a mirrored ring, no shifting), an insertion sort of at most 5 ranges (at
+//! `push` does constant work: a sequence check and a few comparisons, a few moves in
+//! each window (its pending points and the ranges before them), an insertion sort of at most 5 ranges (at
 //! most 10 comparisons), an accumulator update, and at most one call to the sink.
 //! `end_scan` makes at most 4 sink calls. An intact scan gives exactly [`output_len`]
 //! points, announced by `begin_scan`; any scan gives at most that many. Measured with
-//! callgrind (x86-64, release, a 1081-point scan fed 21 points at a time): about 84
-//! instructions per point with every stage off and about 450 with every stage on
-//! (median of 5, mean of 3); `benches/pipeline.rs` times the same cases. With every
+//! callgrind (x86-64, release, a 1081-point scan fed 21 points at a time), before the
+//! line paths below: about 84 instructions per point with every stage off and about 450
+//! with every stage on; BENCHMARKS.md has the M4 counts of every configuration. With every
 //! stage off, `push_batch` and `push_iter` skip the stages altogether (a sequence check
-//! and the sink call per point, the counters added once per call); the bridge engine
-//! feeds each data line that way (BENCHMARKS.md, "Bridge core").
+//! and the sink call per point, the counters added once per call), and
+//! [`Pipeline::pass_run`] lets the bridge engine publish a data line directly. With any
+//! stage on, [`Pipeline::filter_line`] runs the engine's data line through every stage
+//! in place, one pass per stage (the windows' state carried from line to line), and
+//! [`Pipeline::filter_run`] does the same for a run of points in one loop without a
+//! sink call per point; both give exactly what pushing the points one by one gives.
 
 // No panics on any input: the input paths may not index, unwrap or overflow.
 #![cfg_attr(
@@ -258,8 +262,7 @@ impl Pipeline {
                 return;
             }
         }
-        let p = self.classify(point);
-        self.feed_speckle(p, sink);
+        self.run_stages(core::iter::once(point), |p| sink.point(p));
     }
 
     /// Feeds several consecutive points (e.g. one data line's worth); the same as pushing
@@ -343,50 +346,247 @@ impl Pipeline {
         true
     }
 
-    /// The direct path when angular decimation is the only stage on: `n` consecutive
-    /// points from `first_step` (as for [`Pipeline::pass_run`]), turned into raw points
-    /// by `raw`, go straight through the decimator; the output points go to `out` (at
-    /// most one per point) and their number is returned, with every counter as
-    /// pushing them one by one would leave it. `None`, nothing changed, when the stages
-    /// are otherwise or the run does not continue the open scan in sequence: push them.
-    pub fn decimate_run<T>(
+    /// The block path for every stage but the direct one: `n` consecutive points from
+    /// `first_step` (as for [`Pipeline::pass_run`], e.g. one data line's readings),
+    /// turned into raw points by `raw`, go through every stage in one loop, without a
+    /// sink call per point; the output points go to `out` (at most one per point) and
+    /// their number is returned, with every counter and the `filtered` flag as pushing
+    /// them one by one would leave them. The region of interest is a slice of the run.
+    /// `None`, nothing changed, when every stage is off (use [`Pipeline::pass_run`]) or
+    /// the run does not continue the open scan in sequence: push the points instead.
+    pub fn filter_run<T>(
         &mut self,
         first_step: u16,
         points: &[T],
         raw: impl Fn(&T) -> RawPoint,
-        mut out: impl FnMut(Point),
+        out: impl FnMut(Point),
     ) -> Option<usize> {
-        let n = points.len();
-        if !self.config.is_decimation_only() {
+        if self.config.is_passthrough() {
             return None;
         }
-        self.take_run(first_step, n)?;
-        // Each count is at most `n`: a plain add cannot wrap.
-        let mut invalid_in = 0usize;
-        let points = points.iter().map(|p| {
-            let r = raw(p);
-            invalid_in = invalid_in.wrapping_add(usize::from(!r.valid));
-            Point {
-                step: r.step,
-                range_mm: r.valid.then_some(r.distance),
-                intensity: r.intensity,
-            }
-        });
-        let (mut emitted, mut invalid_out) = (0usize, 0usize);
-        self.decimator.push_run(points, |d| {
-            emitted = emitted.wrapping_add(1);
-            invalid_out = invalid_out.wrapping_add(usize::from(!d.is_valid()));
-            out(d);
-        });
-        if let Open::Active(scan) = &mut self.open {
-            scan.emitted = scan.emitted.saturating_add(emitted);
+        let n = points.len();
+        let cluster = self.take_run(first_step, n)?.cluster;
+        let (lo, hi) = self.roi_slice(first_step, n, cluster);
+        let inner = points.get(lo..hi).unwrap_or(&[]);
+        // The slice is at most the run.
+        let outside = n.wrapping_sub(inner.len());
+        add(&mut self.stats.points_in, n);
+        add(&mut self.stats.points_outside_roi, outside);
+        Some(self.run_stages(inner.iter().map(raw), out))
+    }
+
+    /// The block path of a data line, for the bridge engine: `input` holds `n`
+    /// consecutive points from `first_step` (as for [`Pipeline::pass_run`]) as the
+    /// sensor's readings: a `distance` is a range when `is_range` says so (and is not
+    /// `u32::MAX`), an error code otherwise; `aux` is the intensity when `intensity`
+    /// (the `index` and `echo` fields are not used). Every stage runs in place in
+    /// `cells` (at least `n` long), one pass over the line each: the region of interest
+    /// as a slice, error codes, range window and intensity threshold as one
+    /// classification pass, speckle and median as sliding windows carried from line to
+    /// line, decimation as a block reduction. The output points are left at the front
+    /// of `cells` as readings for the CAN encoder: `out_none` for no range, a range of
+    /// 0 mm as 1 (the encodings code it so), `aux` the intensity (0 for none); their
+    /// number is returned. Counters, the `filtered` flag and what
+    /// [`Pipeline::end_scan`] emits are those of pushing the points one by one. `None`,
+    /// nothing changed, when every stage is off (use [`Pipeline::pass_run`]), `cells`
+    /// is too short, or the run does not continue the open scan in sequence.
+    pub fn filter_line(
+        &mut self,
+        first_step: u16,
+        input: &[scip::Reading],
+        cells: &mut [scip::Reading],
+        is_range: impl Fn(u32) -> bool,
+        intensity: bool,
+        out_none: u32,
+    ) -> Option<usize> {
+        // No range, inside the line.
+        const NONE: u32 = u32::MAX;
+        let none = NONE;
+        let n = input.len();
+        if self.config.is_passthrough() || cells.len() < n {
+            return None;
         }
+        let cluster = self.take_run(first_step, n)?.cluster;
+        let (lo, hi) = self.roi_slice(first_step, n, cluster);
+        let input = input.get(lo..hi).unwrap_or_default();
+        let buf = cells.get_mut(..input.len()).unwrap_or_default();
+        // The slice is at most the run.
+        add(&mut self.stats.points_in, n);
+        add(
+            &mut self.stats.points_outside_roi,
+            n.wrapping_sub(buf.len()),
+        );
+        let Some(last) = buf.len().checked_sub(1) else {
+            return Some(0);
+        };
+        // Step of the slice's last point (the run fits the scan's u16 steps).
+        let last_step = u32::from(first_step).saturating_add(
+            u32::try_from(lo.saturating_add(last))
+                .unwrap_or(u32::MAX)
+                .saturating_mul(cluster),
+        );
+        let cfg = self.config;
+        let mut c = Counts::default();
+        // Error codes, range window and intensity threshold: one pass.
+        let (min, max) = cfg
+            .range_window
+            .map_or((0, u32::MAX), |w| (w.min_mm, w.max_mm));
+        let min_intensity = cfg.min_intensity.filter(|_| intensity).unwrap_or(0);
+        for (cell, r) in buf.iter_mut().zip(input) {
+            let d = r.distance;
+            cell.aux = r.aux;
+            cell.distance = if !is_range(d) || d == NONE {
+                c.error_code = c.error_code.wrapping_add(1);
+                NONE
+            } else if d < min || d > max {
+                c.out_of_range = c.out_of_range.wrapping_add(1);
+                NONE
+            } else if r.aux < min_intensity {
+                c.low_intensity = c.low_intensity.wrapping_add(1);
+                NONE
+            } else {
+                d
+            };
+        }
+        let mut m = buf.len();
+        // Points held back by the windows so far (steps count back from `last_step`).
+        let mut lag = 0u32;
+        if let Some(f) = cfg.speckle {
+            let part = buf.get_mut(..m).unwrap_or_default();
+            let filter = window::LineFilter::Speckle {
+                max_jump_mm: f.max_jump_mm,
+            };
+            m = self.speckle.run_line(
+                part,
+                none,
+                intensity,
+                (last_step, cluster),
+                filter,
+                &mut c.speckle,
+            );
+            lag = u32::try_from(self.speckle.pending()).unwrap_or(0);
+        }
+        if cfg.median.is_some() {
+            let part = buf.get_mut(..m).unwrap_or_default();
+            let at = last_step.saturating_sub(lag.saturating_mul(cluster));
+            let mut changed = 0usize;
+            let filter = window::LineFilter::Median;
+            m = self
+                .median
+                .run_line(part, none, intensity, (at, cluster), filter, &mut changed);
+            c.filtered |= changed > 0;
+            lag = lag.saturating_add(u32::try_from(self.median.pending()).unwrap_or(0));
+        }
+        let part = buf.get_mut(..m).unwrap_or_default();
+        if self.decimator.is_active() {
+            // Step of the first point the decimator gets.
+            let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
+            let step = last_step.saturating_sub(back.saturating_mul(cluster));
+            m = self
+                .decimator
+                .run_line(part, none, intensity, step, cluster);
+        }
+        let out = part.get_mut(..m).unwrap_or_default();
+        let mut invalid = 0usize;
+        for r in out.iter_mut() {
+            r.distance = if r.distance == NONE {
+                // At most `m`.
+                invalid = invalid.wrapping_add(1);
+                out_none
+            } else {
+                r.distance.max(1)
+            };
+        }
+        c.emitted = m;
+        c.invalid_out = invalid;
+        Some(self.commit(&c))
+    }
+
+    /// The slice of a run of `n` points from `first_step`, `cluster` steps apart, that
+    /// lies in the region of interest (all of it when there is none).
+    fn roi_slice(&self, first_step: u16, n: usize, cluster: u32) -> (usize, usize) {
+        let Some(roi) = self.config.roi else {
+            return (0, n);
+        };
+        // Points of the run with a step below `step` (`cluster` is at least 1).
+        let below = |step: u32| {
+            let d = step.saturating_sub(u32::from(first_step));
+            usize::try_from(d.div_ceil(cluster)).map_or(n, |k| k.min(n))
+        };
+        let lo = below(u32::from(roi.first));
+        let hi = below(u32::from(roi.last).saturating_add(1));
+        (lo, hi.max(lo))
+    }
+
+    /// Every stage from the error codes on, for points in sequence inside the region
+    /// of interest (counted in `points_in` by the caller); returns the number of output
+    /// points. One loop: the counters are kept in locals and added once.
+    #[inline(always)]
+    fn run_stages(
+        &mut self,
+        points: impl Iterator<Item = RawPoint>,
+        mut out: impl FnMut(Point),
+    ) -> usize {
+        let cfg = self.config;
+        let mut c = Counts::default();
+        // The range window and intensity threshold as bounds (every range passes a
+        // window that is off, every intensity a threshold that is off).
+        let (lo, hi) = cfg
+            .range_window
+            .map_or((0, u32::MAX), |w| (w.min_mm, w.max_mm));
+        let min_intensity = cfg.min_intensity.unwrap_or(0);
+        let decimate = self.decimator.is_active();
+        for r in points {
+            // Error codes, range window and intensity threshold.
+            let mut p = Point {
+                step: r.step,
+                range_mm: None,
+                intensity: r.intensity,
+            };
+            if !r.valid {
+                c.error_code = c.error_code.wrapping_add(1);
+            } else if r.distance < lo || r.distance > hi {
+                c.out_of_range = c.out_of_range.wrapping_add(1);
+            } else if r.intensity.is_some_and(|i| i < min_intensity) {
+                c.low_intensity = c.low_intensity.wrapping_add(1);
+            } else {
+                p.range_mm = Some(r.distance);
+            }
+            if let Some(f) = cfg.speckle {
+                match self.speckle.push(p) {
+                    Some((centre, nb)) => p = c.speckle(centre, &nb, f),
+                    None => continue,
+                }
+            }
+            if cfg.median.is_some() {
+                match self.median.push(p) {
+                    Some((centre, nb)) => p = c.median(centre, &nb),
+                    None => continue,
+                }
+            }
+            if !decimate {
+                c.emit(p, &mut out);
+            } else if let Some(d) = self.decimator.push(p) {
+                c.emit(d, &mut out);
+            }
+        }
+        self.commit(&c)
+    }
+
+    /// Adds a loop's counts to the counters; returns its number of output points.
+    fn commit(&mut self, c: &Counts) -> usize {
         let st = &mut self.stats;
-        add(&mut st.points_in, n);
-        add(&mut st.invalid_error_code, invalid_in);
-        add(&mut st.points_out, emitted);
-        add(&mut st.points_out_invalid, invalid_out);
-        Some(emitted)
+        add(&mut st.invalid_error_code, c.error_code);
+        add(&mut st.invalid_out_of_range, c.out_of_range);
+        add(&mut st.invalid_low_intensity, c.low_intensity);
+        add(&mut st.invalid_speckle, c.speckle);
+        add(&mut st.points_out, c.emitted);
+        add(&mut st.points_out_invalid, c.invalid_out);
+        self.filtered |= c.filtered || c.out_of_range > 0 || c.low_intensity > 0 || c.speckle > 0;
+        if let Open::Active(scan) = &mut self.open {
+            scan.emitted = scan.emitted.saturating_add(c.emitted);
+        }
+        c.emitted
     }
 
     /// The open scan, moved past a run of `n` (at least 1) consecutive points from
@@ -427,23 +627,35 @@ impl Pipeline {
         if !(intact && all_arrived && !scan.broken) {
             return self.abandon();
         }
-        if let Some(f) = self.config.speckle {
-            while let Some(v) = self
-                .speckle
-                .pop_tail()
-                .map(|w| window::speckle(&w, f.max_jump_mm))
-            {
-                let p = self.count_verdict(v);
-                self.feed_median(p, sink);
+        let cfg = self.config;
+        let mut c = Counts::default();
+        let mut out = |p: Point| sink.point(p);
+        if let Some(f) = cfg.speckle {
+            while let Some((centre, nb)) = self.speckle.pop_tail() {
+                let mut p = c.speckle(centre, &nb, f);
+                if cfg.median.is_some() {
+                    match self.median.push(p) {
+                        Some((centre, nb)) => p = c.median(centre, &nb),
+                        None => continue,
+                    }
+                }
+                if let Some(d) = self.decimator.push(p) {
+                    c.emit(d, &mut out);
+                }
             }
         }
-        while let Some((p, changed)) = self.median.pop_tail().map(|w| median_changed(&w)) {
-            self.filtered |= changed;
-            self.feed_decimator(p, sink);
+        if cfg.median.is_some() {
+            while let Some((centre, nb)) = self.median.pop_tail() {
+                let p = c.median(centre, &nb);
+                if let Some(d) = self.decimator.push(p) {
+                    c.emit(d, &mut out);
+                }
+            }
         }
-        if let Some(p) = self.decimator.flush() {
-            self.emit(p, sink);
+        if let Some(d) = self.decimator.flush() {
+            c.emit(d, &mut out);
         }
+        self.commit(&c);
         let points = match self.open {
             Open::Active(s) => s.emitted,
             Open::Idle => 0,
@@ -479,96 +691,50 @@ impl Pipeline {
         self.median.clear();
         self.decimator.clear();
     }
+}
 
-    /// Error codes, range window and intensity threshold.
-    fn classify(&mut self, raw: RawPoint) -> Point {
-        let invalid = Point {
-            step: raw.step,
-            range_mm: None,
-            intensity: raw.intensity,
-        };
-        if !raw.valid {
-            bump(&mut self.stats.invalid_error_code);
-            return invalid;
-        }
-        if let Some(w) = self.config.range_window {
-            if !w.contains(raw.distance) {
-                bump(&mut self.stats.invalid_out_of_range);
-                self.filtered = true;
-                return invalid;
-            }
-        }
-        if let (Some(min), Some(i)) = (self.config.min_intensity, raw.intensity) {
-            if i < min {
-                bump(&mut self.stats.invalid_low_intensity);
-                self.filtered = true;
-                return invalid;
-            }
-        }
-        Point {
-            range_mm: Some(raw.distance),
-            ..invalid
-        }
-    }
+/// What one loop of the stages did, counted in locals (each at most the points the
+/// loop took, so a plain add cannot wrap).
+#[derive(Debug, Default)]
+struct Counts {
+    error_code: usize,
+    out_of_range: usize,
+    low_intensity: usize,
+    speckle: usize,
+    emitted: usize,
+    invalid_out: usize,
+    /// The median changed a range.
+    filtered: bool,
+}
 
-    fn count_verdict(&mut self, v: Verdict) -> Point {
-        match v {
+impl Counts {
+    /// Speckle removal's verdict on `centre`.
+    #[inline]
+    fn speckle(&mut self, centre: Point, nb: &window::Neighbours, f: SpeckleFilter) -> Point {
+        match window::speckle(centre, nb, f.max_jump_mm) {
             Verdict::Keep(p) => p,
             Verdict::Invalidated(p) => {
-                bump(&mut self.stats.invalid_speckle);
-                self.filtered = true;
+                self.speckle = self.speckle.wrapping_add(1);
                 p
             }
         }
     }
 
-    fn feed_speckle<S: PointSink + ?Sized>(&mut self, p: Point, sink: &mut S) {
-        let Some(f) = self.config.speckle else {
-            return self.feed_median(p, sink);
-        };
-        if let Some(v) = self
-            .speckle
-            .push(p)
-            .map(|w| window::speckle(&w, f.max_jump_mm))
-        {
-            let p = self.count_verdict(v);
-            self.feed_median(p, sink);
-        }
+    /// The median of `centre`'s window.
+    #[inline]
+    fn median(&mut self, centre: Point, nb: &window::Neighbours) -> Point {
+        let m = window::median(centre, nb);
+        self.filtered |= m.range_mm != centre.range_mm;
+        m
     }
 
-    fn feed_median<S: PointSink + ?Sized>(&mut self, p: Point, sink: &mut S) {
-        if self.config.median.is_none() {
-            return self.feed_decimator(p, sink);
-        }
-        if let Some((m, changed)) = self.median.push(p).map(|w| median_changed(&w)) {
-            self.filtered |= changed;
-            self.feed_decimator(m, sink);
-        }
+    /// An output point.
+    #[inline]
+    fn emit(&mut self, p: Point, out: &mut impl FnMut(Point)) {
+        self.emitted = self.emitted.wrapping_add(1);
+        self.invalid_out = self.invalid_out.wrapping_add(usize::from(!p.is_valid()));
+        out(p);
     }
-
-    fn feed_decimator<S: PointSink + ?Sized>(&mut self, p: Point, sink: &mut S) {
-        if let Some(d) = self.decimator.push(p) {
-            self.emit(d, sink);
-        }
-    }
-
-    fn emit<S: PointSink + ?Sized>(&mut self, p: Point, sink: &mut S) {
-        bump(&mut self.stats.points_out);
-        if !p.is_valid() {
-            bump(&mut self.stats.points_out_invalid);
-        }
-        if let Open::Active(scan) = &mut self.open {
-            scan.emitted = scan.emitted.saturating_add(1);
-        }
-        sink.point(p);
-    }
-}
-
-/// The median of a window, and whether it changed the centre's range.
-fn median_changed(w: &window::Window<'_>) -> (Point, bool) {
-    let before = w.centre_point().range_mm;
-    let p = window::median(w);
-    (p, p.range_mm != before)
 }
 
 #[cfg(test)]
@@ -1387,7 +1553,7 @@ mod tests {
                     let consecutive = a.windows(2).all(|w| w[1].step == w[0].step + cluster);
                     let mut buf = Vec::new();
                     let done = if fast && consecutive {
-                        p.decimate_run(a[0].step, a, |r| *r, |x| buf.push(x))
+                        p.filter_run(a[0].step, a, |r| *r, |x| buf.push(x))
                     } else {
                         None
                     };
@@ -1405,6 +1571,277 @@ mod tests {
                 (out, end, *p.stats())
             };
             proptest::prop_assert_eq!(run(true), run(false));
+        }
+    }
+
+    /// What a scan should give, computed for the whole scan at once from the stage
+    /// definitions (module docs, [`SpeckleFilter`], [`MedianWidth`], [`DecimationMode`]),
+    /// independently of the pipeline's windows: the output points, the counters
+    /// `(outside_roi, error_code, out_of_range, low_intensity, speckle, out, out_invalid)`
+    /// and the `filtered` flag.
+    fn reference(cfg: &PipelineConfig, points: &[RawPoint]) -> (Vec<Point>, [usize; 7], bool) {
+        let mut k = [0usize; 7];
+        let mut filtered = false;
+        let inside: Vec<&RawPoint> = points
+            .iter()
+            .filter(|p| {
+                cfg.roi
+                    .is_none_or(|r| r.first <= p.step && p.step <= r.last)
+            })
+            .collect();
+        k[0] = points.len() - inside.len();
+        let mut v: Vec<Point> = inside
+            .iter()
+            .map(|p| {
+                let mut range = None;
+                if !p.valid {
+                    k[1] += 1;
+                } else if cfg
+                    .range_window
+                    .is_some_and(|w| p.distance < w.min_mm || p.distance > w.max_mm)
+                {
+                    k[2] += 1;
+                    filtered = true;
+                } else if let (Some(min), Some(i)) = (cfg.min_intensity, p.intensity) {
+                    if i < min {
+                        k[3] += 1;
+                        filtered = true;
+                    } else {
+                        range = Some(p.distance);
+                    }
+                } else {
+                    range = Some(p.distance);
+                }
+                Point {
+                    step: p.step,
+                    range_mm: range,
+                    intensity: p.intensity,
+                }
+            })
+            .collect();
+        if let Some(f) = cfg.speckle {
+            let before = v.clone();
+            for (i, p) in v.iter_mut().enumerate() {
+                let Some(r) = p.range_mm else { continue };
+                let near = |j: Option<usize>| {
+                    j.and_then(|j| before.get(j))
+                        .and_then(|q| q.range_mm)
+                        .is_some_and(|q| q.abs_diff(r) <= f.max_jump_mm)
+                };
+                if !near(i.checked_sub(1)) && !near(Some(i + 1)) {
+                    p.range_mm = None;
+                    k[4] += 1;
+                    filtered = true;
+                }
+            }
+        }
+        if let Some(m) = cfg.median {
+            let h = match m {
+                MedianWidth::Three => 1,
+                MedianWidth::Five => 2,
+            };
+            let before = v.clone();
+            for (i, p) in v.iter_mut().enumerate() {
+                let Some(own) = p.range_mm else { continue };
+                let lo_i = i.saturating_sub(h);
+                let hi_i = (i + h).min(before.len() - 1);
+                let mut vals: Vec<u32> = before[lo_i..=hi_i]
+                    .iter()
+                    .filter_map(|q| q.range_mm)
+                    .collect();
+                vals.sort();
+                let n = vals.len();
+                let (lo, hi) = (vals[(n - 1) / 2], vals[n / 2]);
+                let new = own.clamp(lo, hi);
+                if new != own {
+                    filtered = true;
+                }
+                p.range_mm = Some(new);
+            }
+        }
+        if let Some(d) = cfg.decimation.filter(|d| d.factor > 1) {
+            v = v
+                .chunks(usize::from(d.factor))
+                .map(|g| match d.mode {
+                    DecimationMode::First => g[0],
+                    DecimationMode::Min => {
+                        let mut best: Option<&Point> = None;
+                        for q in g.iter().filter(|q| q.range_mm.is_some()) {
+                            if best.is_none_or(|b| q.range_mm < b.range_mm) {
+                                best = Some(q);
+                            }
+                        }
+                        Point {
+                            step: g[0].step,
+                            range_mm: best.and_then(|b| b.range_mm),
+                            intensity: best.and_then(|b| b.intensity),
+                        }
+                    }
+                    DecimationMode::Mean => {
+                        let valid: Vec<&Point> =
+                            g.iter().filter(|q| q.range_mm.is_some()).collect();
+                        let mean = |xs: Vec<u64>| {
+                            let n = xs.len() as u64;
+                            (n > 0).then(|| ((xs.iter().sum::<u64>() + n / 2) / n) as u32)
+                        };
+                        let range = mean(
+                            valid
+                                .iter()
+                                .map(|q| u64::from(q.range_mm.unwrap()))
+                                .collect(),
+                        );
+                        let intensity = mean(
+                            valid
+                                .iter()
+                                .filter_map(|q| q.intensity.map(u64::from))
+                                .collect(),
+                        );
+                        Point {
+                            step: g[0].step,
+                            range_mm: range,
+                            intensity: range.and(intensity),
+                        }
+                    }
+                })
+                .collect();
+        }
+        k[5] = v.len();
+        k[6] = v.iter().filter(|p| p.range_mm.is_none()).count();
+        (v, k, filtered)
+    }
+
+    fn counters(s: &Stats) -> [usize; 7] {
+        [
+            s.points_outside_roi,
+            s.invalid_error_code,
+            s.invalid_out_of_range,
+            s.invalid_low_intensity,
+            s.invalid_speckle,
+            s.points_out,
+            s.points_out_invalid,
+        ]
+        .map(|x| x as usize)
+    }
+
+    proptest::proptest! {
+        /// Any configuration: pushing points one by one, `filter_run` and `filter_line`
+        /// (in runs of any size, each continuing the scan) give the points, counters and
+        /// `filtered` flag of the whole-scan reference above. `filter_line` gives
+        /// readings: no range as the caller's value, a range of 0 as 1.
+        #[test]
+        fn every_path_matches_the_reference(
+            inputs in proptest::collection::vec(
+                (0u32..2500, 0u32..100, 0u8..8),
+                1..70,
+            ),
+            with_intensity in proptest::bool::ANY,
+            cluster in 1u16..3,
+            roi in proptest::option::of((0u16..80, 0u16..80)),
+            window in proptest::option::of((0u32..1500, 0u32..2500)),
+            min_intensity in proptest::option::of(0u32..100),
+            speckle in proptest::option::of(0u32..400),
+            median in 0u8..3,
+            decimation in proptest::option::of((1u16..5, 0usize..3)),
+            sizes in proptest::collection::vec(1usize..25, 1..5),
+        ) {
+            let config = PipelineConfig {
+                roi: roi.map(|(a, b)| StepWindow { first: a.min(b), last: a.max(b) }),
+                range_window: window.map(|(a, b)| RangeWindow { min_mm: a.min(b), max_mm: a.max(b) }),
+                min_intensity,
+                speckle: speckle.map(|max_jump_mm| SpeckleFilter { max_jump_mm }),
+                median: [None, Some(MedianWidth::Three), Some(MedianWidth::Five)][usize::from(median)],
+                decimation: decimation.map(|(factor, m)| Decimation {
+                    factor,
+                    mode: [DecimationMode::First, DecimationMode::Min, DecimationMode::Mean][m],
+                }),
+                temporal: TemporalDecimation::All,
+            };
+            let n = inputs.len() as u16;
+            let info = ScanInfo { seq: 0, timestamp_ms: 0, first_step: 10, last_step: 10 + (n - 1) * cluster, cluster };
+            // An error code one time in eight (distance 0, as the sensors send).
+            let points: Vec<RawPoint> = inputs
+                .iter()
+                .enumerate()
+                .map(|(i, &(d, i_val, e))| RawPoint {
+                    step: 10 + i as u16 * cluster,
+                    distance: if e == 0 { 0 } else { d + 1 },
+                    intensity: with_intensity.then_some(i_val),
+                    valid: e != 0,
+                })
+                .collect();
+            let (want, want_k, want_filtered) = reference(&config, &points);
+            // 0: one by one; 1: filter_run; 2: filter_line.
+            for mode in 0..3 {
+                let mut p = Pipeline::new(config).unwrap();
+                let ScanStart::Publish { points: announced } = p.begin_scan(info) else {
+                    panic!("not published");
+                };
+                let mut out = Vec::new();
+                let mut rest = &points[..];
+                let mut i = 0;
+                while !rest.is_empty() {
+                    let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
+                    match mode {
+                        0 => p.push_batch(a, &mut |x| out.push(x)),
+                        1 => {
+                            let mut buf = Vec::new();
+                            let k = p.filter_run(a[0].step, a, |r| *r, |x| buf.push(x));
+                            match k {
+                                Some(k) => {
+                                    proptest::prop_assert_eq!(k, buf.len());
+                                    out.extend(buf);
+                                }
+                                None => {
+                                    proptest::prop_assert!(config.is_passthrough());
+                                    p.push_batch(a, &mut |x| out.push(x));
+                                }
+                            }
+                        }
+                        _ => {
+                            let input: Vec<scip::Reading> = a
+                                .iter()
+                                .map(|r| scip::Reading { index: 0, echo: 0, distance: r.distance, aux: r.intensity.unwrap_or(0) })
+                                .collect();
+                            let mut cells = input.clone();
+                            let k = p.filter_line(a[0].step, &input, &mut cells, |d| d != 0, with_intensity, 7_777_777);
+                            match k {
+                                Some(k) => {
+                                    let base = out.len();
+                                    out.extend(cells[..k].iter().enumerate().map(|(j, c)| Point {
+                                    // The line path gives no steps: the reference's are used.
+                                    step: want.get(base + j).map_or(0, |w| w.step),
+                                    range_mm: (c.distance != 7_777_777).then_some(c.distance),
+                                    intensity: with_intensity.then_some(c.aux),
+                                }));
+                                }
+                                None => {
+                                    proptest::prop_assert!(config.is_passthrough());
+                                    p.push_batch(a, &mut |x| out.push(x));
+                                }
+                            }
+                        }
+                    }
+                    rest = b;
+                    i += 1;
+                }
+                let end = p.end_scan(true, &mut |x| out.push(x));
+                proptest::prop_assert_eq!(end, ScanEnd::Complete { points: want.len() });
+                proptest::prop_assert_eq!(announced, want.len());
+                let mut want = want.clone();
+                if mode == 2 {
+                    // Readings: a range of 0 mm is given as 1, and an invalid point has
+                    // no intensity to compare.
+                    let norm = |p: &mut Point| {
+                        p.range_mm = p.range_mm.map(|r| r.max(1));
+                        p.intensity = p.range_mm.and(p.intensity);
+                    };
+                    want.iter_mut().for_each(norm);
+                    out.iter_mut().for_each(norm);
+                }
+                proptest::prop_assert_eq!(&out, &want, "mode {}", mode);
+                proptest::prop_assert_eq!(counters(p.stats()), want_k, "mode {}", mode);
+                proptest::prop_assert_eq!(p.filtered(), want_filtered, "mode {}", mode);
+            }
         }
     }
 }

@@ -1,8 +1,11 @@
 //! Centred sliding windows and the two filters that use them: speckle removal and median.
 //!
-//! A centred window of half-width `h` holds at most `2h + 1` points. A point leaves once
-//! the `h` points after it have arrived (or the scan ended); its window is then the points
-//! from `h` before to `h` after it, cut at the ends of the scan (no padding).
+//! A centred window of half-width `h` (1 or 2) holds a point until the `h` points after it
+//! have arrived (or the scan ended); the point then leaves with its neighbourhood: the
+//! ranges of the `h` points before and after it, cut at the ends of the scan (no padding).
+//! Only what the filters need is kept: the ranges of the `h` points before the oldest
+//! pending one, and the pending points themselves (at most `h`). A push is a few moves
+//! of registers, no ring, no slice.
 
 use super::config::MedianWidth;
 use super::point::Point;
@@ -16,116 +19,239 @@ const EMPTY: Point = Point {
     intensity: None,
 };
 
-/// A centred point and its neighbours, cut at the ends of the scan.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Window<'a> {
-    /// The points of the window in step order.
-    pub points: &'a [Point],
-    /// Position of the centre point in `points`.
-    pub centre: usize,
-}
+/// The ranges around a centre point, nearest last before it and nearest first after it:
+/// `[second before, before, after, second after]`. `None` where the neighbour is
+/// invalid or absent (cut at the scan's ends, or outside a window of half-width 1): both
+/// mean the same to the filters, which use valid ranges only.
+pub(crate) type Neighbours = [Option<u32>; 4];
 
-impl Window<'_> {
-    /// The centre point, or an invalid placeholder if the window is malformed (never
-    /// happens; keeps the code free of panics).
-    pub fn centre_point(&self) -> Point {
-        self.points.get(self.centre).copied().unwrap_or(EMPTY)
-    }
-}
-
-/// A sliding window of fixed capacity emitting each point with its neighbourhood.
-///
-/// The points are kept in a mirrored ring: each point is written twice, at `head` and at
-/// `head + span`, so the newest `span` points are always one contiguous slice ending at
-/// `head + span`. A push costs two writes, never a shift.
+/// A centred window of half-width 1 or 2 emitting each point with its [`Neighbours`].
 #[derive(Debug, Clone)]
 pub(crate) struct CentredWindow {
-    buf: [Point; 2 * WINDOW_CAP],
-    /// Next write position, `0..span`.
-    head: usize,
-    /// Points held (at most `span`).
-    len: usize,
-    /// Newest points not yet emitted (at most `half`, between calls).
-    pending: usize,
-    /// Neighbours on each side.
-    half: usize,
-    /// `2 * half + 1`.
-    span: usize,
+    /// The pending points, oldest first (`n` of them).
+    pending: [Point; 2],
+    /// Points pending (at most `half`, between calls).
+    n: u8,
+    /// Neighbours on each side (1 or 2).
+    half: u8,
+    /// Ranges of the point just before the oldest pending one, and of the one before
+    /// that (`None`: invalid, or no such point).
+    before: [Option<u32>; 2],
 }
 
 impl CentredWindow {
-    /// A window with `half` neighbours on each side (`2 * half + 1 <= WINDOW_CAP`).
+    /// A window with `half` neighbours on each side (clamped to 1..=2).
     pub fn new(half: usize) -> Self {
-        let half = half.min((WINDOW_CAP - 1) / 2);
         CentredWindow {
-            buf: [EMPTY; 2 * WINDOW_CAP],
-            head: 0,
-            len: 0,
-            pending: 0,
-            half,
-            span: half.saturating_mul(2).saturating_add(1),
+            pending: [EMPTY; 2],
+            n: 0,
+            half: if half >= 2 { 2 } else { 1 },
+            before: [None; 2],
         }
     }
 
     /// Points received but not yet emitted.
     pub fn pending(&self) -> usize {
-        self.pending
+        usize::from(self.n)
     }
 
     /// Forgets everything (the start of a new scan).
     pub fn clear(&mut self) {
-        self.head = 0;
-        self.len = 0;
-        self.pending = 0;
+        self.n = 0;
+        self.before = [None; 2];
     }
 
-    /// Adds the next point; returns the window of the point that became complete, if any.
-    /// Constant work: two writes and a few index computations. (Wrapping arithmetic on
-    /// the indices: each stays at most `span <= WINDOW_CAP`, so none ever wraps.)
-    pub fn push(&mut self, p: Point) -> Option<Window<'_>> {
-        let head = self.head;
-        if let Some(slot) = self.buf.get_mut(head) {
-            *slot = p;
+    /// Adds the next point; returns the point that became complete, if any, with its
+    /// neighbours. Constant work. (Never inlined: one copy serves both filters and
+    /// the end of a scan, the per-point path being the rare one.)
+    #[inline(never)]
+    pub fn push(&mut self, p: Point) -> Option<(Point, Neighbours)> {
+        if self.n < self.half {
+            if let Some(slot) = self.pending.get_mut(usize::from(self.n)) {
+                *slot = p;
+            }
+            self.n = self.n.wrapping_add(1);
+            return None;
         }
-        if let Some(slot) = self.buf.get_mut(head.wrapping_add(self.span)) {
-            *slot = p;
-        }
-        let next = head.wrapping_add(1);
-        self.head = if next >= self.span { 0 } else { next };
-        if self.len < self.span {
-            self.len = self.len.wrapping_add(1);
-        }
-        self.pending = self.pending.wrapping_add(1);
-        if self.pending > self.half {
-            self.emit()
+        let [b1, b2] = self.before;
+        let c = self.pending[0];
+        let nb = if self.half == 1 {
+            self.pending[0] = p;
+            [None, b1, p.range_mm, None]
         } else {
-            None
-        }
+            let a1 = self.pending[1];
+            self.pending = [a1, p];
+            [b2, b1, a1.range_mm, p.range_mm]
+        };
+        self.before = [c.range_mm, b1];
+        Some((c, nb))
     }
 
     /// Emits the next pending point at the end of the scan, its window cut there.
-    pub fn pop_tail(&mut self) -> Option<Window<'_>> {
-        if self.pending == 0 {
+    pub fn pop_tail(&mut self) -> Option<(Point, Neighbours)> {
+        if self.n == 0 {
             return None;
         }
-        self.emit()
+        let [b1, b2] = self.before;
+        let c = self.pending[0];
+        let a1 = if self.n >= 2 {
+            self.pending[1].range_mm
+        } else {
+            None
+        };
+        let nb = if self.half == 1 {
+            [None, b1, None, None]
+        } else {
+            [b2, b1, a1, None]
+        };
+        self.pending[0] = self.pending[1];
+        self.n = self.n.wrapping_sub(1);
+        self.before = [c.range_mm, b1];
+        Some((c, nb))
     }
+}
 
-    /// Emits the oldest pending point (there is one); its window runs to the newest
-    /// point held, which is `half` points after it, or fewer at the end of the scan.
-    fn emit(&mut self) -> Option<Window<'_>> {
-        let centre = self.len.checked_sub(self.pending)?;
-        self.pending = self.pending.wrapping_sub(1);
-        let start = centre.saturating_sub(self.half);
-        // The held points, oldest first, end just before `head + span`.
-        let end = self.head.wrapping_add(self.span);
-        let first = end.checked_sub(self.len)?.wrapping_add(start);
-        let points = self.buf.get(first..end)?;
-        Some(Window {
-            points,
-            centre: centre.wrapping_sub(start),
-        })
+/// The state of a [`CentredWindow`] in the form [`CentredWindow::run_line`] works on:
+/// distances with a "no range" value instead of options.
+impl CentredWindow {
+    /// Runs the window over `buf` in place, as [`CentredWindow::push`] for each point:
+    /// a distance equal to `none` has no range, `aux` is the intensity (when
+    /// `intensity`). `f` gives a centre's new distance from its own and its neighbours'
+    /// (`[second before, before, after, second after]`, `none` where invalid or absent).
+    /// The points that leave the window are written to the front of `buf`; their number
+    /// is returned. The points left pending get steps counted back from `last_step`
+    /// (the step of `buf`'s last point), `cluster` apart. `changed` counts the centres
+    /// whose distance the filter changed.
+    /// One function for both filters (`filter` says which), so that the firmware holds
+    /// one copy of the loop.
+    #[inline(never)]
+    pub fn run_line(
+        &mut self,
+        buf: &mut [scip::Reading],
+        none: u32,
+        intensity: bool,
+        (last_step, cluster): (u32, u32),
+        filter: LineFilter,
+        changed: &mut usize,
+    ) -> usize {
+        let mut f = |c: u32, nb: [u32; 4]| {
+            let out = match filter {
+                LineFilter::Speckle { max_jump_mm } => speckle_line(c, nb, none, max_jump_mm).0,
+                LineFilter::Median => median_line(c, nb, none),
+            };
+            // At most the line's points.
+            *changed = changed.wrapping_add(usize::from(out != c));
+            out
+        };
+        let d = |p: &Point| p.range_mm.unwrap_or(none);
+        let [p0, p1] = self.pending;
+        let mut pend = [
+            (d(&p0), p0.intensity.unwrap_or(0)),
+            (d(&p1), p1.intensity.unwrap_or(0)),
+        ];
+        let mut np = usize::from(self.n);
+        let [b1, b2] = self.before;
+        let (mut b1, mut b2) = (b1.unwrap_or(none), b2.unwrap_or(none));
+        let two = self.half >= 2;
+        let half = if two { 2 } else { 1 };
+        let mut w = 0usize;
+        for i in 0..buf.len() {
+            let Some(x) = buf.get(i).map(|r| (r.distance, r.aux)) else {
+                break;
+            };
+            if np < half {
+                if let Some(slot) = pend.get_mut(np) {
+                    *slot = x;
+                }
+                np = np.wrapping_add(1);
+                continue;
+            }
+            let c = pend[0];
+            let nb = if two {
+                [b2, b1, pend[1].0, x.0]
+            } else {
+                [none, b1, x.0, none]
+            };
+            let out = f(c.0, nb);
+            if let Some(slot) = buf.get_mut(w) {
+                slot.distance = out;
+                slot.aux = c.1;
+            }
+            // At most `i`.
+            w = w.wrapping_add(1);
+            b2 = b1;
+            b1 = c.0;
+            if two {
+                pend = [pend[1], x];
+            } else {
+                pend[0] = x;
+            }
+        }
+        let point = |(dist, aux): (u32, u32), back: usize| Point {
+            step: u16::try_from(
+                last_step.saturating_sub(u32::try_from(back).unwrap_or(0).saturating_mul(cluster)),
+            )
+            .unwrap_or(u16::MAX),
+            range_mm: (dist != none).then_some(dist),
+            intensity: intensity.then_some(aux),
+        };
+        // The pending points are the last `np` of the stream.
+        let last = np.saturating_sub(1);
+        self.pending = [point(pend[0], last), point(pend[1], last.saturating_sub(1))];
+        self.n = u8::try_from(np).unwrap_or(0);
+        self.before = [(b1 != none).then_some(b1), (b2 != none).then_some(b2)];
+        w
     }
+}
+
+/// The filter a [`CentredWindow::run_line`] applies.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum LineFilter {
+    /// Speckle removal with this threshold.
+    Speckle {
+        /// See [`super::SpeckleFilter`].
+        max_jump_mm: u32,
+    },
+    /// The median.
+    Median,
+}
+
+/// Speckle removal on distances with a "no range" value `none` (as [`speckle`]): the
+/// centre's new distance and whether it was removed.
+#[inline(always)]
+pub(crate) fn speckle_line(c: u32, nb: [u32; 4], none: u32, max_jump_mm: u32) -> (u32, bool) {
+    if c == none {
+        return (c, false);
+    }
+    let supports = |n: u32| n != none && n.abs_diff(c) <= max_jump_mm;
+    if supports(nb[1]) || supports(nb[2]) {
+        (c, false)
+    } else {
+        (none, true)
+    }
+}
+
+/// The median on distances with a "no range" value `none` (as [`median`]).
+#[inline(always)]
+pub(crate) fn median_line(c: u32, nb: [u32; 4], none: u32) -> u32 {
+    if c == none {
+        return c;
+    }
+    if nb[0] == none && nb[3] == none {
+        let (b, a) = (nb[1], nb[2]);
+        return if b != none && a != none {
+            c.min(b).max(c.max(b).min(a))
+        } else {
+            c
+        };
+    }
+    let opt = |v: u32| (v != none).then_some(v);
+    let centre = Point {
+        step: 0,
+        range_mm: Some(c),
+        intensity: None,
+    };
+    median(centre, &nb.map(opt)).range_mm.unwrap_or(c)
 }
 
 /// What a filter did to one point.
@@ -137,20 +263,16 @@ pub(crate) enum Verdict {
     Invalidated(Point),
 }
 
-/// Speckle removal on a window of half-width 1 (see [`super::SpeckleFilter`]).
-pub(crate) fn speckle(w: &Window<'_>, max_jump_mm: u32) -> Verdict {
-    let c = w.centre_point();
+/// Speckle removal for the centre `c` of a window of half-width 1 (see
+/// [`super::SpeckleFilter`]): a valid centre with no valid neighbour within `max_jump_mm`
+/// becomes invalid.
+#[inline]
+pub(crate) fn speckle(c: Point, nb: &Neighbours, max_jump_mm: u32) -> Verdict {
     let Some(range) = c.range_mm else {
         return Verdict::Keep(c);
     };
-    let supports = |n: Option<&Point>| match n.and_then(|n| n.range_mm) {
-        Some(r) => r.abs_diff(range) <= max_jump_mm,
-        None => false,
-    };
-    let before = w.centre.checked_sub(1).and_then(|i| w.points.get(i));
-    let after = w.points.get(w.centre.saturating_add(1));
-    let supported = supports(before) || supports(after);
-    if supported {
+    let supports = |n: Option<u32>| n.is_some_and(|r| r.abs_diff(range) <= max_jump_mm);
+    if supports(nb[1]) || supports(nb[2]) {
         Verdict::Keep(c)
     } else {
         Verdict::Invalidated(Point {
@@ -169,30 +291,28 @@ pub(crate) fn speckle(w: &Window<'_>, max_jump_mm: u32) -> Verdict {
 /// window is cut at the scan's end) the result is whichever middle value is nearest the
 /// centre's own range, which is the centre's range when it is one of them. The result is
 /// always one of the measured ranges, never an average. The centre keeps its intensity.
-pub(crate) fn median(w: &Window<'_>) -> Point {
-    let c = w.centre_point();
+#[inline(never)]
+pub(crate) fn median(c: Point, nb: &Neighbours) -> Point {
     let Some(own) = c.range_mm else {
         return c;
     };
-    // The common case, a whole window of 3 valid ranges: their median, no sort.
-    if let [Point {
-        range_mm: Some(a), ..
-    }, _, Point {
-        range_mm: Some(b), ..
-    }] = w.points
-    {
-        if w.centre == 1 {
-            return Point {
-                range_mm: Some(own.min(*a).max(own.max(*a).min(*b))),
-                ..c
-            };
-        }
+    // The common case, a window of 3 valid ranges: their median, no sort. (With one
+    // neighbour only, n = 2 and the centre is one of the middle pair: it stays.)
+    if let [None, b, a, None] = *nb {
+        let r = match (b, a) {
+            (Some(b), Some(a)) => own.min(b).max(own.max(b).min(a)),
+            _ => own,
+        };
+        return Point {
+            range_mm: Some(r),
+            ..c
+        };
     }
-    let mut vals = [0u32; WINDOW_CAP];
-    let mut n = 0usize;
-    for r in w.points.iter().filter_map(|p| p.range_mm) {
+    let mut vals = [own; WINDOW_CAP];
+    let mut n = 1usize;
+    for r in nb.iter().flatten() {
         if let Some(slot) = vals.get_mut(n) {
-            *slot = r;
+            *slot = *r;
             n = n.saturating_add(1);
         }
     }
@@ -243,23 +363,24 @@ mod tests {
         }
     }
 
-    /// Runs a window over a whole sequence; returns (centre step, window steps) pairs.
+    /// Runs a window over a whole sequence of steps (range = step); returns, per centre,
+    /// its step and the steps of its neighbours (range = step) in window order.
     fn windows(half: usize, n: u16) -> Vec<(u16, Vec<u16>)> {
         let mut w = CentredWindow::new(half);
         let mut out = Vec::new();
-        let record = |win: Window<'_>, out: &mut Vec<(u16, Vec<u16>)>| {
-            out.push((
-                win.centre_point().step,
-                win.points.iter().map(|p| p.step).collect(),
-            ));
+        let record = |(c, nb): (Point, Neighbours), out: &mut Vec<(u16, Vec<u16>)>| {
+            let mut steps: Vec<u16> = nb[..2].iter().flatten().map(|&r| r as u16).collect();
+            steps.push(c.step);
+            steps.extend(nb[2..].iter().flatten().map(|&r| r as u16));
+            out.push((c.step, steps));
         };
         for s in 0..n {
-            if let Some(win) = w.push(pt(s, Some(1))) {
-                record(win, &mut out);
+            if let Some(x) = w.push(pt(s, Some(u32::from(s)))) {
+                record(x, &mut out);
             }
         }
-        while let Some(win) = w.pop_tail() {
-            record(win, &mut out);
+        while let Some(x) = w.pop_tail() {
+            record(x, &mut out);
         }
         out
     }
@@ -291,8 +412,8 @@ mod tests {
         assert_eq!(windows(2, 1), std::vec![(0, std::vec![0])]);
         assert_eq!(windows(1, 1), std::vec![(0, std::vec![0])]);
         assert_eq!(
-            windows(0, 2),
-            std::vec![(0, std::vec![0]), (1, std::vec![1])]
+            windows(2, 2),
+            std::vec![(0, std::vec![0, 1]), (1, std::vec![0, 1])]
         );
         assert!(windows(2, 0).is_empty());
     }
@@ -303,15 +424,31 @@ mod tests {
         assert!(w.push(pt(0, None)).is_none());
         assert!(w.push(pt(1, None)).is_none());
         assert_eq!(w.pending(), 2);
-        assert_eq!(w.push(pt(2, None)).map(|x| x.centre_point().step), Some(0));
+        assert_eq!(w.push(pt(2, None)).map(|x| x.0.step), Some(0));
         assert_eq!(w.pending(), 2);
         w.clear();
         assert_eq!(w.pending(), 0);
         assert!(w.pop_tail().is_none());
     }
 
-    fn win(points: &[Point], centre: usize) -> Window<'_> {
-        Window { points, centre }
+    /// A window over `points` centred on `points[centre]`: the centre and its neighbours.
+    fn win(points: &[Point], centre: usize) -> (Point, Neighbours) {
+        let at = |i: Option<usize>| i.and_then(|i| points.get(i)).and_then(|p| p.range_mm);
+        let nb = [
+            at(centre.checked_sub(2)),
+            at(centre.checked_sub(1)),
+            at(Some(centre + 1)),
+            at(Some(centre + 2)),
+        ];
+        (points[centre], nb)
+    }
+
+    fn speckle_of(w: (Point, Neighbours), jump: u32) -> Verdict {
+        speckle(w.0, &w.1, jump)
+    }
+
+    fn median_of(w: (Point, Neighbours)) -> Point {
+        median(w.0, &w.1)
     }
 
     #[test]
@@ -319,29 +456,32 @@ mod tests {
         let keep = |p| Verdict::Keep(p);
         // 1000 between 1040 and 5000, threshold 50: 1040 supports it.
         let p = [pt(0, Some(1040)), pt(1, Some(1000)), pt(2, Some(5000))];
-        assert_eq!(speckle(&win(&p, 1), 50), keep(p[1]));
+        assert_eq!(speckle_of(win(&p, 1), 50), keep(p[1]));
         // Threshold 39: nobody supports it.
-        assert_eq!(speckle(&win(&p, 1), 39), Verdict::Invalidated(pt(1, None)));
+        assert_eq!(
+            speckle_of(win(&p, 1), 39),
+            Verdict::Invalidated(pt(1, None))
+        );
         // Exactly at the threshold still supports.
-        assert_eq!(speckle(&win(&p, 1), 40), keep(p[1]));
+        assert_eq!(speckle_of(win(&p, 1), 40), keep(p[1]));
         // Both neighbours invalid.
         let q = [pt(0, None), pt(1, Some(1000)), pt(2, None)];
         assert_eq!(
-            speckle(&win(&q, 1), 10_000),
+            speckle_of(win(&q, 1), 10_000),
             Verdict::Invalidated(pt(1, None))
         );
         // Edge point: only its inner neighbour counts.
         let e = [pt(0, Some(700)), pt(1, Some(705))];
-        assert_eq!(speckle(&win(&e, 0), 5), keep(e[0]));
-        assert_eq!(speckle(&win(&e, 0), 4), Verdict::Invalidated(pt(0, None)));
+        assert_eq!(speckle_of(win(&e, 0), 5), keep(e[0]));
+        assert_eq!(speckle_of(win(&e, 0), 4), Verdict::Invalidated(pt(0, None)));
         // A lone point has no support.
         let l = [pt(9, Some(700))];
         assert_eq!(
-            speckle(&win(&l, 0), u32::MAX),
+            speckle_of(win(&l, 0), u32::MAX),
             Verdict::Invalidated(pt(9, None))
         );
         // An invalid centre passes unchanged.
-        assert_eq!(speckle(&win(&q, 0), 0), keep(q[0]));
+        assert_eq!(speckle_of(win(&q, 0), 0), keep(q[0]));
     }
 
     #[test]
@@ -385,12 +525,12 @@ mod tests {
             pt(3, Some(40)),
             pt(4, Some(30)),
         ];
-        assert_eq!(r(median(&win(&p, 2))), Some(30));
+        assert_eq!(r(median_of(win(&p, 2))), Some(30));
         // Centre invalid stays invalid.
         let q = [pt(0, Some(10)), pt(1, None), pt(2, Some(20))];
-        assert_eq!(r(median(&win(&q, 1))), None);
+        assert_eq!(r(median_of(win(&q, 1))), None);
         // Even count: centre 10 with neighbour 20 -> middle pair (10, 20) holds the centre.
-        assert_eq!(r(median(&win(&q, 0))), Some(10));
+        assert_eq!(r(median_of(win(&q, 0))), Some(10));
         // Even count, centre outside the middle pair: 9000 with 100, 200, 300 ->
         // sorted 100 200 300 9000, pair (200, 300), nearest to 9000 is 300.
         let s = [
@@ -400,7 +540,7 @@ mod tests {
             pt(3, Some(300)),
             pt(4, None),
         ];
-        assert_eq!(r(median(&win(&s, 2))), Some(300));
+        assert_eq!(r(median_of(win(&s, 2))), Some(300));
         // Centre 5 with 100, 200, 300 -> pair (100, 200), nearest is 100.
         let t = [
             pt(0, Some(100)),
@@ -408,16 +548,16 @@ mod tests {
             pt(2, Some(200)),
             pt(3, Some(300)),
         ];
-        assert_eq!(r(median(&win(&t, 1))), Some(100));
+        assert_eq!(r(median_of(win(&t, 1))), Some(100));
         // Single valid (the centre itself).
         let u = [pt(0, None), pt(1, Some(77)), pt(2, None)];
-        assert_eq!(r(median(&win(&u, 1))), Some(77));
+        assert_eq!(r(median_of(win(&u, 1))), Some(77));
         // Spike removal with 3: 1000 9999 1002 -> 1002.
         let v = [pt(0, Some(1000)), pt(1, Some(9999)), pt(2, Some(1002))];
-        assert_eq!(r(median(&win(&v, 1))), Some(1002));
+        assert_eq!(r(median_of(win(&v, 1))), Some(1002));
         // Intensity of the centre is kept.
         let mut w = v;
         w[1].intensity = Some(321);
-        assert_eq!(median(&win(&w, 1)).intensity, Some(321));
+        assert_eq!(median_of(win(&w, 1)).intensity, Some(321));
     }
 }
