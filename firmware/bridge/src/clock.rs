@@ -49,7 +49,7 @@ pub const VALID_SPAN_US: i64 = 600;
 /// A latency interval this much wider than the best one still refines it, µs.
 const SPAN_SLACK_US: i64 = 64;
 /// `TM1` answers intersected for one calibration.
-const TM_SAMPLES: u8 = 16;
+const TM_SAMPLES: u8 = 24;
 /// Fixed-point shift of the periods (µs × 2^16).
 const Q: u32 = 16;
 
@@ -338,7 +338,7 @@ impl ScanClock {
                 .unwrap_or(1)
                 .max(1);
             let step = unq(s.period_s.saturating_mul(n));
-            let err = unq(s.period_s_err.saturating_mul(n)).saturating_add(1);
+            let err = unq(s.period_s_err.saturating_mul(n).saturating_mul(2)).saturating_add(2);
             let p = s.phase.shift(step);
             (
                 n,
@@ -366,25 +366,27 @@ impl ScanClock {
             s.best_k = s.k;
             s.best_phase = phase;
         }
-        let pair = |k0: i64, p0: Span| -> Option<(i64, i64)> {
-            let dk = s.k.saturating_sub(k0);
+        let pair = |k0: i64, p0: Span, k1: i64, p1: Span| -> Option<(i64, i64)> {
+            let dk = k1.saturating_sub(k0);
             if dk <= 0 {
                 return None;
             }
-            let span = phase.mid().saturating_sub(p0.mid());
-            let err = q(phase.width().saturating_add(p0.width()) / 2).checked_div(dk)?;
+            let span = p1.mid().saturating_sub(p0.mid());
+            let err = q(p1.width().saturating_add(p0.width()) / 2).checked_div(dk)?;
             Some((q(span).checked_div(dk)?, err))
         };
-        let from_ref = pair(s.ref_k, s.ref_phase);
-        let from_best = pair(s.best_k, s.best_phase);
-        let chosen = match (from_ref, from_best) {
-            (Some(r), Some(b)) if b.1 < r.1 => {
-                s.ref_k = s.best_k;
-                s.ref_phase = s.best_phase;
-                Some(b)
-            }
-            (r, b) => r.or(b),
+        let better = |a: Option<(i64, i64)>, b: Option<(i64, i64)>| match (a, b) {
+            (Some(x), Some(y)) if y.1 < x.1 => Some(y),
+            (x, y) => x.or(y),
         };
+        let from_ref = pair(s.ref_k, s.ref_phase, s.k, phase);
+        let from_best = pair(s.best_k, s.best_phase, s.k, phase);
+        let ref_best = pair(s.ref_k, s.ref_phase, s.best_k, s.best_phase);
+        if from_best.is_some_and(|b| from_ref.is_none_or(|r| b.1 < r.1)) {
+            s.ref_k = s.best_k;
+            s.ref_phase = s.best_phase;
+        }
+        let chosen = better(better(from_ref, from_best), ref_best);
         if let Some((p, err)) = chosen {
             s.period_s = p;
             s.period_s_err = err;

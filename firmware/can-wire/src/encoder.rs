@@ -1235,6 +1235,7 @@ mod tests {
             point_count: count,
             encoding,
             time_synced: false,
+            time_estimated: false,
             grouping: Grouping::Single,
             step_increment: 1,
             first_step: -2,

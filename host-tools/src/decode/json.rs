@@ -339,6 +339,7 @@ mod tests {
                     unit_exp: 1,
                 },
                 time_synced: false,
+                time_estimated: false,
                 grouping: Grouping::Single,
                 step_increment: 2,
                 first_step: -1,
