@@ -918,7 +918,14 @@ impl<const Q: usize> Core<Q> {
         // SPEC 3.1: the sensor's 24-bit clock extended (modulo 2^32), or with a time
         // sync the caller's clock.
         let sensor_ms = self.clock.unwrap(raw_timestamp);
-        let estimate = self.scan_clock.on_scan(sensor_ms, self.event_us);
+        let estimate = if self.estimate_time {
+            self.scan_clock.on_scan(sensor_ms, self.event_us)
+        } else {
+            crate::clock::Estimate {
+                time_us: 0,
+                valid: false,
+            }
+        };
         let (mut timestamp, time_synced) = match self.sync_offset {
             Some(offset) => ((sensor_ms as i64).wrapping_add(offset) as u32, true),
             None => (sensor_ms as u32, false),
