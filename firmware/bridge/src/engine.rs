@@ -169,8 +169,10 @@ struct Core<const Q: usize> {
     /// Put the model's estimate in headers once valid, and take a TM at session start
     /// ([`Bridge::set_time_estimation`]).
     estimate_time: bool,
-    /// When the byte that ended the current event arrived, caller's µs.
-    event_us: u64,
+    /// When the last byte of the current UART chunk arrived, caller's µs, and how many
+    /// bytes of it follow the current event ([`Core::event_us`]).
+    chunk_end_us: u64,
+    bytes_after: usize,
     /// When the last command sent left the UART, caller's µs (estimated).
     sent_us: u64,
     /// `(ARES, AFRT)` assumed where no PP answer gave them ([`Bridge::assume_sensor`]).
@@ -228,7 +230,8 @@ impl<const Q: usize> Bridge<Q> {
                 sync_asked: false,
                 scan_clock: crate::clock::ScanClock::new(),
                 estimate_time: false,
-                event_us: 0,
+                chunk_end_us: 0,
+                bytes_after: 0,
                 sent_us: 0,
                 assumed: (None, None),
                 model: None,
@@ -308,18 +311,14 @@ impl<const Q: usize> Bridge<Q> {
         if !bytes.is_empty() {
             self.last_uart_ms = now_ms;
         }
-        let byte_ns = 10_000_000_000u64
-            .checked_div(u64::from(self.core.config.uart_bit_rate))
-            .unwrap_or(0);
+        self.core.chunk_end_us = now_us;
         let mut rest = bytes;
         while !rest.is_empty() {
             let (used, event) = self.decoder.feed(rest);
             rest = rest.get(used..).unwrap_or(&[]);
             if let Some(event) = event {
-                // Bytes after the event's last one: at most a chunk, far below 2^32.
-                let after = u64::try_from(rest.len()).unwrap_or(u64::MAX);
-                let early_us = after.saturating_mul(byte_ns) / 1000;
-                self.core.event_us = now_us.saturating_sub(early_us);
+                // The event's time is worked out only where it is used.
+                self.core.bytes_after = rest.len();
                 self.core.event(&event, now_ms);
             }
         }
@@ -858,6 +857,17 @@ impl<const Q: usize> Core<Q> {
         }
     }
 
+    /// When the byte that ended the current event arrived, caller's µs: the chunk's
+    /// end less the bytes after it at the UART's bit rate.
+    fn event_us(&self) -> u64 {
+        let byte_ns = 10_000_000_000u64
+            .checked_div(u64::from(self.config.uart_bit_rate))
+            .unwrap_or(0);
+        let after = u64::try_from(self.bytes_after).unwrap_or(u64::MAX);
+        self.chunk_end_us
+            .saturating_sub(after.saturating_mul(byte_ns) / 1000)
+    }
+
     fn start_session(&mut self, now: u64) {
         self.model = None;
         self.clock.reset();
@@ -884,7 +894,7 @@ impl<const Q: usize> Core<Q> {
                 .checked_div(u64::from(self.config.uart_bit_rate))
                 .unwrap_or(0);
             let read_by = self
-                .event_us
+                .event_us()
                 .saturating_sub(byte_ns.saturating_mul(14) / 1000);
             self.scan_clock
                 .on_tm(sensor, self.sent_us.min(read_by), read_by);
@@ -919,7 +929,7 @@ impl<const Q: usize> Core<Q> {
         // sync the caller's clock.
         let sensor_ms = self.clock.unwrap(raw_timestamp);
         let estimate = if self.estimate_time {
-            self.scan_clock.on_scan(sensor_ms, self.event_us)
+            self.scan_clock.on_scan(sensor_ms, self.event_us())
         } else {
             crate::clock::Estimate {
                 time_us: 0,
