@@ -72,6 +72,11 @@ pub struct BridgeArgs {
     /// bridge up.
     #[arg(long, value_name = "HOST:PORT")]
     pub foxglove: Option<String>,
+    /// Estimate each scan's time in this host's monotonic clock (µs since the bridge
+    /// started; a TM calibration at session start) and send it in scan headers once
+    /// calibrated (SPEC 3.1 `time_estimated`).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub time_estimate: bool,
 }
 
 /// The Foxglove side of the bridge: every frame on the bus (sent and received) is
@@ -176,7 +181,11 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         .seconds
         .map(|s| start + Duration::from_secs_f64(s.max(0.0)));
     let now_ms = || start.elapsed().as_millis() as u64;
+    let now_us = || start.elapsed().as_micros() as u64;
+    bridge.set_time_estimation(args.time_estimate);
     bridge.start(now_ms());
+    // µs per byte at the sensor link's rate (10 bits a byte).
+    let byte_us = 10_000_000 / u64::from(args.baud.max(1));
     let mut buf = vec![0u8; 4096];
     let mut next_report = Duration::from_secs(1);
     let mut last = Summary::default();
@@ -184,9 +193,13 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         let n = link
             .recv(&mut buf, Duration::from_millis(2))
             .context("reading the sensor")?;
-        // In UART-sized pieces, with the queue drained between them, as on the MCU.
+        // In UART-sized pieces, with the queue drained between them, as on the MCU;
+        // the last byte arrived when `recv` returned, earlier ones a byte time apart.
+        let arrived = now_us();
+        let mut left = n;
         for piece in buf.get(..n).unwrap_or(&[]).chunks(SLICE) {
-            bridge.on_uart(piece, now_ms());
+            left -= piece.len();
+            bridge.on_uart_at(piece, arrived.saturating_sub(left as u64 * byte_us));
             while let Some(frame) = bridge.pop_frame() {
                 can.send(&frame).context("writing to the CAN port")?;
                 if let Some(v) = &mut viewer {
@@ -194,7 +207,7 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
                 }
             }
         }
-        while let Some(action) = bridge.poll(now_ms()) {
+        while let Some(action) = bridge.poll_at(now_us()) {
             match action {
                 Action::Send(request) => send(link.as_mut(), &request)?,
                 Action::SetBitRate(rate) => link

@@ -17,6 +17,7 @@ mod pp_faults;
 mod qemu;
 mod recordings;
 mod replay_model;
+mod scan_clock;
 mod session_timing;
 mod sim_clients;
 mod sim_protocol;

@@ -161,6 +161,20 @@ struct Core<const Q: usize> {
     clock: scip::TimestampUnwrapper,
     /// Bridge ms minus extended sensor ms at the last TM sync, while it holds.
     sync_offset: Option<i64>,
+    /// The caller asked for the TM sync ([`Bridge::request_time_sync`]): it maps header
+    /// timestamps (without it, TM answers only calibrate the clock model).
+    sync_asked: bool,
+    /// The sensor clock model: scan times in the caller's clock, µs.
+    scan_clock: crate::clock::ScanClock,
+    /// Put the model's estimate in headers once valid, and take a TM at session start
+    /// ([`Bridge::set_time_estimation`]).
+    estimate_time: bool,
+    /// When the last byte of the current UART chunk arrived, caller's µs, and how many
+    /// bytes of it follow the current event ([`Core::event_us`]).
+    chunk_end_us: u64,
+    bytes_after: usize,
+    /// When the last command sent left the UART, caller's µs (estimated).
+    sent_us: u64,
     /// `(ARES, AFRT)` assumed where no PP answer gave them ([`Bridge::assume_sensor`]).
     assumed: (Option<u32>, Option<u32>),
     /// The model the sensor's `MODL` or `PROD` text named (status page 4).
@@ -216,6 +230,12 @@ impl<const Q: usize> Bridge<Q> {
                 decimated: [scip::Reading::default(); scip::MAX_READINGS],
                 clock: scip::TimestampUnwrapper::new(),
                 sync_offset: None,
+                sync_asked: false,
+                scan_clock: crate::clock::ScanClock::new(),
+                estimate_time: false,
+                chunk_end_us: 0,
+                bytes_after: 0,
+                sent_us: 0,
                 assumed: (None, None),
                 model: None,
                 time_sync: crate::timesync::TimeSync::new(),
@@ -241,7 +261,23 @@ impl<const Q: usize> Bridge<Q> {
     /// (the `now_ms` this bridge is given, truncated to 32 bits) and marked
     /// `time_synced`, until the sensor restarts or the session is started again.
     pub fn request_time_sync(&mut self, now_ms: u64) {
+        self.core.sync_asked = true;
         self.core.session.request_time_sync(now_ms);
+    }
+
+    /// Estimates each scan's time in the caller's clock (the sensor clock model,
+    /// [`crate::clock`]): a session starts with a `TM` exchange that calibrates it, and
+    /// once the model is valid, headers carry the first point's time in µs
+    /// (`time_estimated`, SPEC 3.1). Give arrival times in µs ([`Bridge::on_uart_at`],
+    /// [`Bridge::poll_at`]) for sub-millisecond results. Takes effect at the next
+    /// [`Bridge::start`].
+    pub fn set_time_estimation(&mut self, on: bool) {
+        self.core.estimate_time = on;
+    }
+
+    /// The sensor clock model.
+    pub fn scan_clock(&self) -> &crate::clock::ScanClock {
+        &self.core.scan_clock
     }
 
     /// Sensor parameters to assume where the sensor's own PP answer gives none (it
@@ -272,17 +308,45 @@ impl<const Q: usize> Bridge<Q> {
 
     /// Takes bytes from the sensor's UART. Work is linear in `bytes.len()`.
     pub fn on_uart(&mut self, bytes: &[u8], now_ms: u64) {
+        self.on_uart_at(bytes, now_ms.saturating_mul(1000));
+    }
+
+    /// [`Bridge::on_uart`] with the time, µs of the caller's monotonic clock, at which
+    /// the chunk's last byte arrived; earlier bytes are placed back at the UART's bit
+    /// rate (10 bits a byte). The time a scan's timestamp line ended arriving feeds the
+    /// sensor clock model.
+    pub fn on_uart_at(&mut self, bytes: &[u8], now_us: u64) {
+        let now_ms = now_us / 1000;
         if !bytes.is_empty() {
             self.last_uart_ms = now_ms;
         }
+        self.core.chunk_end_us = now_us;
         let mut rest = bytes;
         while !rest.is_empty() {
             let (used, event) = self.decoder.feed(rest);
             rest = rest.get(used..).unwrap_or(&[]);
             if let Some(event) = event {
+                // The event's time is worked out only where it is used.
+                self.core.bytes_after = rest.len();
                 self.core.event(&event, now_ms);
             }
         }
+    }
+
+    /// [`Bridge::poll`] with the time in µs: a command it returns is taken as sent
+    /// (its last byte leaving the UART) at `now_us` plus its UART time.
+    pub fn poll_at(&mut self, now_us: u64) -> Option<Action> {
+        let action = self.poll(now_us / 1000);
+        if let Some(Action::Send(request)) = &action {
+            let mut buf = [0u8; scip::REQUEST_MAX];
+            let len = scip::Request::encode(request, &mut buf).unwrap_or(0);
+            let bits = u64::try_from(len).unwrap_or(0).saturating_mul(10_000_000);
+            let uart_us = bits
+                .checked_div(u64::from(self.core.config.uart_bit_rate))
+                .unwrap_or(0);
+            self.core.sent_us = now_us.saturating_add(uart_us);
+        }
+        action
     }
 
     /// The next command for the sensor or UART change, if any. Call after `on_uart` and
@@ -858,11 +922,27 @@ impl<const Q: usize> Core<Q> {
         }
     }
 
+    /// When the byte that ended the current event arrived, caller's µs: the chunk's
+    /// end less the bytes after it at the UART's bit rate.
+    fn event_us(&self) -> u64 {
+        let byte_ns = 10_000_000_000u64
+            .checked_div(u64::from(self.config.uart_bit_rate))
+            .unwrap_or(0);
+        let after = u64::try_from(self.bytes_after).unwrap_or(u64::MAX);
+        self.chunk_end_us
+            .saturating_sub(after.saturating_mul(byte_ns) / 1000)
+    }
+
     fn start_session(&mut self, now: u64) {
         self.model = None;
         self.clock.reset();
         self.sync_offset = None;
+        self.sync_asked = false;
+        self.scan_clock.reset();
         self.session.start(now);
+        if self.estimate_time {
+            self.session.request_time_sync(now);
+        }
     }
 
     fn notice(&mut self, notice: Notice) {
@@ -873,16 +953,29 @@ impl<const Q: usize> Core<Q> {
             // The TM reading is one more reading of the sensor's clock, in order with the
             // scans' timestamps: extended the same way.
             let sensor = self.clock.unwrap(sensor_ms);
-            self.sync_offset = i64::try_from(now_ms)
-                .ok()
-                .zip(i64::try_from(sensor).ok())
-                .map(|(now, sensor)| now.wrapping_sub(sensor));
+            // The sensor read its clock before sending the answer: echo `TM1`, status
+            // and the timestamp line are 14 bytes ahead of the time this line ended.
+            let byte_ns = 10_000_000_000u64
+                .checked_div(u64::from(self.config.uart_bit_rate))
+                .unwrap_or(0);
+            let read_by = self
+                .event_us()
+                .saturating_sub(byte_ns.saturating_mul(14) / 1000);
+            self.scan_clock
+                .on_tm(sensor, self.sent_us.min(read_by), read_by);
+            if self.sync_asked {
+                self.sync_offset = i64::try_from(now_ms)
+                    .ok()
+                    .zip(i64::try_from(sensor).ok())
+                    .map(|(now, sensor)| now.wrapping_sub(sensor));
+            }
         }
         if matches!(notice, Notice::Recovering(_)) {
             // The sensor rebooted, or the recovery's `RS` resets its clock to 0: the
             // extension and the sync are void.
             self.clock.reset();
             self.sync_offset = None;
+            self.scan_clock.sensor_restarted();
         }
         if let Notice::Recovering(reason) = notice {
             self.abort_scan(match reason {
@@ -900,10 +993,26 @@ impl<const Q: usize> Core<Q> {
         // SPEC 3.1: the sensor's 24-bit clock extended (modulo 2^32), or with a time
         // sync the caller's clock.
         let sensor_ms = self.clock.unwrap(raw_timestamp);
-        let (timestamp, time_synced) = match self.sync_offset {
+        let estimate = if self.estimate_time {
+            self.scan_clock.on_scan(sensor_ms, self.event_us())
+        } else {
+            crate::clock::Estimate {
+                time_us: 0,
+                valid: false,
+            }
+        };
+        let (mut timestamp, time_synced) = match self.sync_offset {
             Some(offset) => ((sensor_ms as i64).wrapping_add(offset) as u32, true),
             None => (sensor_ms as u32, false),
         };
+        let time_estimated = self.estimate_time && estimate.valid;
+        if time_estimated {
+            // SPEC 3.1: the first point's time, µs modulo 2^32.
+            timestamp = estimate
+                .time_us
+                .wrapping_add(self.first_point_offset_us(&s)) as u32;
+        }
+        let time_synced = time_synced || time_estimated;
         if !self.session.geometry().allows_scans() {
             // The last PP answer was damaged or doubted: no angles to publish it with.
             self.lose_scan();
@@ -955,6 +1064,7 @@ impl<const Q: usize> Core<Q> {
             point_count,
             encoding,
             time_synced,
+            time_estimated,
             grouping: self.grouping(&s),
             step_increment: u8::try_from(self.step_increment(&s)).unwrap_or(u8::MAX),
             first_step: self.first_output_step(&s),
@@ -1016,6 +1126,25 @@ impl<const Q: usize> Core<Q> {
             .and_then(|a| u16::try_from(a).ok())
             .filter(|&a| a > 0)?;
         Some((ares, afrt?))
+    }
+
+    /// How long after the sensor's stamp (step 0 of its revolution) the first output
+    /// point was measured, µs: its step × the scan period / ARES (0 without geometry
+    /// or scan speed).
+    fn first_point_offset_us(&self, s: &ScanRequest) -> u64 {
+        let Some((ares, afrt)) = self.geometry() else {
+            return 0;
+        };
+        let Some(rpm) = self.session.params().scan_rpm.filter(|&r| r > 0) else {
+            return 0;
+        };
+        // The first point's sensor step: its step relative to AFRT, plus AFRT.
+        let step = i64::from(self.first_output_step(s)).saturating_add(i64::from(afrt));
+        let step = u64::try_from(step).unwrap_or(0);
+        // step < 2^16, 60·10^6 < 2^26: the product fits easily.
+        step.saturating_mul(60_000_000)
+            .checked_div(u64::from(rpm).saturating_mul(u64::from(ares)))
+            .unwrap_or(0)
     }
 
     /// Step of the first output point, relative to the sensor's front step (AFRT); with

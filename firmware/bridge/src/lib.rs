@@ -18,6 +18,7 @@
 //!
 //! - [`pipeline`]: the streaming scan pipeline (region of interest, range window,
 //!   intensity threshold, speckle removal, median, angular and temporal decimation).
+//! - [`clock`]: the sensor clock model (scan start times in the bridge's clock).
 //! - [`engine`]: the bridge itself: UART bytes in, CAN frames out.
 //! - [`control`]: control frames validated, applied and answered.
 //! - [`status`]: health counters and the status (heartbeat) frames.
@@ -27,6 +28,7 @@
 //!   sync).
 //! - [`timesync`]: following a time master over CAN (the robot's clock).
 
+pub mod clock;
 pub mod control;
 pub mod engine;
 pub mod governor;

@@ -148,6 +148,7 @@ mod tests {
                 unit_exp: 0,
             },
             time_synced: false,
+            time_estimated: false,
             grouping: Grouping::Single,
             step_increment: 1,
             first_step: 0,

@@ -1281,6 +1281,7 @@ mod tests {
             point_count: count,
             encoding,
             time_synced: false,
+            time_estimated: false,
             grouping: Grouping::Single,
             step_increment: 1,
             first_step: -2,

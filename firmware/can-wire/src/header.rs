@@ -80,7 +80,8 @@ pub(crate) fn put(buf: &mut [u8], r: core::ops::Range<usize>, bytes: &[u8]) {
 pub struct ScanHeader {
     /// Scan sequence number (wrapping).
     pub seq: u16,
-    /// Sensor time of the scan, ms.
+    /// Time of the scan, modulo 2^32: sensor ms (or bridge ms when `time_synced`);
+    /// with `time_estimated`, µs of the bridge's clock at the first point (SPEC 3.1).
     pub timestamp_ms: u32,
     /// Number of points, 0..=4095.
     pub point_count: u16,
@@ -88,6 +89,9 @@ pub struct ScanHeader {
     pub encoding: Encoding,
     /// Timestamp mapped to the bridge clock.
     pub time_synced: bool,
+    /// Timestamp is the bridge's estimate of the first point's time, µs (protocol
+    /// version 3; SPEC 3.2).
+    pub time_estimated: bool,
     /// How each point summarises its steps.
     pub grouping: Grouping,
     /// Sensor steps between consecutive points, ≥ 1.
@@ -152,7 +156,9 @@ impl ScanHeader {
         let mut b = [0u8; HEADER_LEN];
         b[field::SEQ_LOW] = self.seq as u8;
         b[field::ENCODING] = self.encoding.distance.code() | (self.encoding.intensity.code() << 4);
-        b[field::FLAGS] = u8::from(self.time_synced) | ((self.grouping as u8) << 1);
+        b[field::FLAGS] = u8::from(self.time_synced)
+            | ((self.grouping as u8) << 1)
+            | (u8::from(self.time_estimated) << 3);
         b[field::STEP_INCREMENT] = self.step_increment;
         put(&mut b, field::FIRST_STEP, &self.first_step.to_le_bytes());
         put(&mut b, field::ARES, &self.ares.to_le_bytes());
@@ -175,6 +181,7 @@ impl ScanHeader {
                 unit_exp: a.unit_exp,
             },
             time_synced: b.time_synced,
+            time_estimated: b.time_estimated,
             grouping: b.grouping,
             step_increment: b.step_increment,
             first_step: b.first_step,
@@ -223,6 +230,8 @@ pub struct HeaderB {
     pub intensity: IntensityEncoding,
     /// Timestamp mapped to the bridge clock.
     pub time_synced: bool,
+    /// Timestamp in µs, the bridge's estimate (version 3).
+    pub time_estimated: bool,
     /// Point grouping.
     pub grouping: Grouping,
     /// Steps between points (≥ 1).
@@ -241,7 +250,7 @@ impl HeaderB {
         let distance = DistanceEncoding::from_code(enc & 0xF)?;
         let intensity = IntensityEncoding::from_code(enc >> 4)?;
         let flags = byte(data, field::FLAGS);
-        if flags & !0x07 != 0 {
+        if flags & !0x0F != 0 {
             return Err(Error::ReservedBits);
         }
         let grouping = Grouping::from_bits((flags >> 1) & 3).ok_or(Error::OutOfRange {
@@ -259,6 +268,7 @@ impl HeaderB {
             distance,
             intensity,
             time_synced: flags & 1 == 1,
+            time_estimated: flags & 0x08 != 0,
             grouping,
             step_increment,
             first_step: le16(data, field::FIRST_STEP) as i16,
@@ -282,6 +292,7 @@ mod tests {
                 unit_exp: 1,
             },
             time_synced: true,
+            time_estimated: false,
             grouping: Grouping::Min,
             step_increment: 1,
             first_step: -340,
@@ -337,8 +348,12 @@ mod tests {
         b[1] = 0x43; // intensity encoding 4
         assert_eq!(HeaderB::parse(&b), Err(Error::UnknownEncoding(4)));
         let mut b = B;
-        b[2] = 0x08;
+        b[2] = 0x10;
         assert_eq!(HeaderB::parse(&b), Err(Error::ReservedBits));
+        // Bit 3: the timestamp is the bridge's estimate in µs (version 3).
+        b[2] = 0x09;
+        let h = HeaderB::parse(&b).unwrap();
+        assert!(h.time_estimated && h.time_synced);
         let mut b = B;
         b[2] = 0x06; // grouping 3
         assert_eq!(HeaderB::parse(&b), Err(Error::OutOfRange { offset: 2 }));

@@ -161,6 +161,7 @@ impl<const P: usize> Scan<P> {
                 point_count: 0,
                 encoding: crate::Encoding::PLAIN_MM,
                 time_synced: false,
+                time_estimated: false,
                 grouping: crate::Grouping::Single,
                 step_increment: 1,
                 first_step: 0,

@@ -43,6 +43,7 @@ fn header(n: usize, intensity: IntensityEncoding, unit_exp: u8, seq: u16) -> Sca
             unit_exp,
         },
         time_synced: false,
+        time_estimated: false,
         grouping: Grouping::Single,
         step_increment: 1,
         first_step: -540,

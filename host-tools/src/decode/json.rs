@@ -2,7 +2,10 @@
 //!
 //! **JSON lines**, one object per item, with a `"type"`:
 //! - `"scan"`: `node`, `seq`, `time` (log time of the completing frame, s), `timestamp`
-//!   (sensor time, ms), `completeness` (`"intact"`, `"incomplete"`, `"crc_mismatch"`,
+//!   (the header's field: sensor time, ms; bridge ms when `time_synced`; µs when
+//!   `time_estimated`), `time_estimated`, `scan_time_us` (with `time_estimated`: the
+//!   bridge's estimate of point 0's time, µs of its clock modulo 2^32; else null),
+//!   `completeness` (`"intact"`, `"incomplete"`, `"crc_mismatch"`,
 //!   `"corrupt"`, `"aborted"`) with `missing_points`/`trailer_missing` or
 //!   `abort_reason`/`abort_detail` where they apply, `flags` (the trailer's, null without
 //!   it), `point_count`, `received`, the geometry (`first_step` relative to the sensor's
@@ -77,6 +80,13 @@ pub fn scan(s: &DecodedScan) -> Value {
     o.insert("seq".into(), h.seq.into());
     o.insert("time".into(), seconds(s.time_us).into());
     o.insert("timestamp".into(), h.timestamp_ms.into());
+    o.insert("time_estimated".into(), h.time_estimated.into());
+    o.insert(
+        "scan_time_us".into(),
+        h.time_estimated
+            .then_some(h.timestamp_ms)
+            .map_or(Value::Null, Value::from),
+    );
     completeness(&s.completeness, &mut o);
     o.insert(
         "flags".into(),
@@ -345,6 +355,7 @@ mod tests {
                     unit_exp: 1,
                 },
                 time_synced: false,
+                time_estimated: false,
                 grouping: Grouping::Single,
                 step_increment: 2,
                 first_step: -1,
@@ -365,12 +376,23 @@ mod tests {
     }
 
     #[test]
+    fn an_estimated_time_is_printed_in_us() {
+        let mut s = sample();
+        s.header.time_estimated = true;
+        s.header.time_synced = true;
+        let v = scan(&s);
+        assert_eq!(v["time_estimated"], true);
+        assert_eq!(v["scan_time_us"], 1234);
+        assert_eq!(v["time_synced"], true);
+    }
+
+    #[test]
     fn scan_json_golden() {
         let text = serde_json::to_string(&scan(&sample())).unwrap();
         assert_eq!(
             text,
             concat!(
-                r#"{"type":"scan","node":2,"seq":7,"time":1.5,"timestamp":1234,"#,
+                r#"{"type":"scan","node":2,"seq":7,"time":1.5,"timestamp":1234,"time_estimated":false,"scan_time_us":null,"#,
                 r#""completeness":"incomplete","missing_points":1,"trailer_missing":true,"#,
                 r#""flags":null,"point_count":4,"received":3,"first_step":-1,"#,
                 r#""step_increment":2,"ares":4,"first_angle_rad":-1.5707963705062866,"#,

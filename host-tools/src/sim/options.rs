@@ -10,7 +10,7 @@ use super::measure::{SceneSource, Source};
 use super::model::{Model, ModelKind, Noise};
 use super::replay::{Recording, ReplaySource};
 use super::scene::Scene;
-use super::session::Sensor;
+use super::session::{ClockModel, Sensor};
 
 /// What the sensor sees.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -64,6 +64,15 @@ pub struct SimOptions {
     /// The sensor clock at power-on, ms (e.g. 16777000 to see the 24-bit wrap soon).
     #[arg(long, default_value_t = 0)]
     pub clock: u32,
+    /// Drift of the sensor's clock against the caller's, ppm (positive: fast).
+    #[arg(long, default_value_t = 0.0)]
+    pub drift_ppm: f64,
+    /// Where the sensor clock's millisecond ticks fall at time 0, µs (0..1000).
+    #[arg(long, default_value_t = 0)]
+    pub clock_phase_us: u64,
+    /// Output jitter: each stream frame leaves up to this many µs late.
+    #[arg(long, default_value_t = 0)]
+    pub jitter_us: u64,
     /// Sensor time runs this many times faster than real time (transports only).
     #[arg(long, default_value_t = 1.0)]
     pub speed: f64,
@@ -115,6 +124,9 @@ impl Default for SimOptions {
             replay: None,
             scip11: None,
             clock: 0,
+            drift_ppm: 0.0,
+            clock_phase_us: 0,
+            jitter_us: 0,
             speed: 1.0,
             flip: 0.0,
             drop: 0.0,
@@ -152,6 +164,9 @@ impl SimOptions {
                 "replay" => o.replay = Some(PathBuf::from(v)),
                 "scip11" => o.scip11 = Some(matches!(v, "1" | "true" | "yes")),
                 "clock" => o.clock = u32::try_from(int(v)?)?,
+                "drift_ppm" => o.drift_ppm = num(v)?,
+                "clock_phase_us" => o.clock_phase_us = int(v)?,
+                "jitter_us" => o.jitter_us = int(v)?,
                 "speed" => o.speed = num(v)?,
                 "flip" => o.flip = num(v)?,
                 "drop" => o.drop = num(v)?,
@@ -167,6 +182,12 @@ impl SimOptions {
         }
         if o.speed.is_nan() || o.speed <= 0.0 {
             bail!("speed must be > 0");
+        }
+        if !(-1000.0..=1000.0).contains(&o.drift_ppm) {
+            bail!("drift_ppm must be within ±1000");
+        }
+        if o.clock_phase_us >= 1000 || o.jitter_us > 1_000_000 {
+            bail!("clock_phase_us must be below 1000 and jitter_us at most 1000000");
         }
         if !(0.0..=1.0).contains(&o.ber) {
             bail!("ber must be a chance per byte, 0..=1");
@@ -216,13 +237,14 @@ impl SimOptions {
             }
         };
         let scip11 = self.scip11.unwrap_or(model.boots_scip11);
-        Ok(Sensor::new(
-            model,
-            source,
-            self.faults(),
-            self.clock,
-            scip11,
-        ))
+        let mut sensor = Sensor::new(model, source, self.faults(), self.clock, scip11);
+        sensor.set_clock_model(ClockModel {
+            drift_ppb: (self.drift_ppm * 1000.0).round() as i64,
+            phase_us: self.clock_phase_us,
+            jitter_us: self.jitter_us,
+            seed: self.fault_seed,
+        });
+        Ok(sensor)
     }
 }
 
@@ -246,5 +268,12 @@ mod tests {
         assert!(SimOptions::from_spec("seed").is_err());
         assert!(SimOptions::from_spec("speed=0").is_err());
         assert!(SimOptions::from_spec("").is_ok());
+        let o = SimOptions::from_spec("drift_ppm=-100,jitter_us=2000,clock_phase_us=300").unwrap();
+        assert_eq!(
+            (o.drift_ppm, o.jitter_us, o.clock_phase_us),
+            (-100.0, 2000, 300)
+        );
+        assert!(SimOptions::from_spec("drift_ppm=5000").is_err());
+        assert!(SimOptions::from_spec("clock_phase_us=1000").is_err());
     }
 }

@@ -48,6 +48,20 @@ const TX_FIFO: u64 = 32;
 /// SCIP 2.2 `RB`: the second `RB` must follow the first within this time, µs.
 const RB_WINDOW_US: u64 = 1_000_000;
 
+/// The sensor's oscillator against the caller's clock.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ClockModel {
+    /// Drift, parts per billion (positive: the sensor's clock runs fast).
+    pub drift_ppb: i64,
+    /// Sub-millisecond phase of the oscillator at time 0, µs (where its ms ticks fall).
+    pub phase_us: u64,
+    /// Each stream frame leaves up to this many µs late (uniform, drawn per frame):
+    /// the output jitter of the sensor's data path.
+    pub jitter_us: u64,
+    /// Seed of the jitter draws.
+    pub seed: u64,
+}
+
 /// What the sensor meant to send for one scan, before any fault: the ground truth a
 /// receiver's output is judged against.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -60,6 +74,9 @@ pub struct ScanTruth {
     pub status: [u8; 2],
     /// The scan's timestamp, 24-bit ms.
     pub timestamp: u32,
+    /// When the scan's first requested step was measured, µs of the caller's clock
+    /// (the simulation's true time; the timestamp is the sensor's clock at step 0).
+    pub first_step_us: u64,
     /// Per value (step or cluster), its first echo: (distance or error code, second
     /// value; 0 without one).
     pub values: Vec<Value>,
@@ -113,6 +130,9 @@ pub struct Sensor {
     speed_step: u8,
     rpm: u32,
     timer_offset_ms: i64,
+    clock_model: ClockModel,
+    /// State of the jitter draws.
+    jitter_rng: u64,
     epoch_us: u64,
     epoch_scan: u64,
     stream: Option<Stream>,
@@ -174,6 +194,8 @@ impl Sensor {
             speed_step: 0,
             rpm,
             timer_offset_ms: i64::from(clock_start_ms),
+            clock_model: ClockModel::default(),
+            jitter_rng: 0,
             epoch_us: 0,
             epoch_scan: 0,
             stream: None,
@@ -292,10 +314,42 @@ impl Sensor {
         Model::scan_period_us(self.rpm)
     }
 
+    /// Sets the sensor's oscillator ([`ClockModel`]); the clock keeps its reading
+    /// at time 0.
+    pub fn set_clock_model(&mut self, model: ClockModel) {
+        self.clock_model = model;
+        self.jitter_rng = model.seed;
+    }
+
+    /// The sensor's free-running oscillator at `now` µs of the caller's clock, µs:
+    /// `now × (1 + drift) + phase`.
+    pub fn oscillator_us(&self, now: u64) -> i64 {
+        let now = i128::from(now);
+        let drift = now * i128::from(self.clock_model.drift_ppb) / 1_000_000_000;
+        i64::try_from(now + drift + i128::from(self.clock_model.phase_us)).unwrap_or(i64::MAX)
+    }
+
     /// The 24-bit ms clock at `now` µs.
     pub fn clock_ms(&self, now: u64) -> u32 {
-        let ms = i64::try_from(now / 1000).unwrap_or(i64::MAX);
+        let ms = self.oscillator_us(now).div_euclid(1000);
         ms.wrapping_add(self.timer_offset_ms).rem_euclid(1 << 24) as u32
+    }
+
+    /// The clock's offset for it to read 0 at `now` (a reboot, `RS`).
+    fn zero_offset(&self, now: u64) -> i64 {
+        -self.oscillator_us(now).div_euclid(1000)
+    }
+
+    /// A draw of the output jitter, µs.
+    fn jitter(&mut self) -> u64 {
+        if self.clock_model.jitter_us == 0 {
+            return 0;
+        }
+        self.jitter_rng = self
+            .jitter_rng
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.jitter_rng >> 33) % (self.clock_model.jitter_us + 1)
     }
 
     /// The host closed the connection: a stream stops (laser stays as it is).
@@ -317,7 +371,7 @@ impl Sensor {
         self.set_rpm(now, self.model.scan_rpm);
         self.bit_rate = self.model.default_bit_rate();
         if reboot {
-            self.timer_offset_ms = -i64::try_from(now / 1000).unwrap_or(0);
+            self.timer_offset_ms = self.zero_offset(now);
             self.booting_until = now + BOOT_US;
         } else {
             self.timer_offset_ms = i64::from(self.clock_start_ms);
@@ -599,7 +653,7 @@ impl Sensor {
                 self.sleeping = false;
                 self.adjust = false;
                 self.high_sensitivity = false;
-                self.timer_offset_ms = -i64::try_from(now / 1000).unwrap_or(0);
+                self.timer_offset_ms = self.zero_offset(now);
                 if keep {
                     self.speed_step = step;
                     self.set_rpm(now, rpm);
@@ -874,7 +928,7 @@ impl Sensor {
         }
         let frame = self.frames;
         self.frames += 1;
-        let stall = self.faults.stall(due, response, k);
+        let stall = self.faults.stall(due, response, k) + self.jitter();
         if let Some(sent) = self.faults.reboot(frame, buf.len(), due, response, k) {
             buf.truncate(sent);
             self.push(due + stall, buf, None);
@@ -917,6 +971,7 @@ impl Sensor {
             request: *scan,
             status,
             timestamp: clock,
+            first_step_us: start_us + period * u64::from(first) / ares,
             values: Vec::new(),
             extra: Vec::new(),
         });
@@ -1080,6 +1135,45 @@ ARES:1024;\\\nAMIN:44;7\nAMAX:725;o\nAFRT:384;6\nSCAN:600;e\n\n"[..]
         let out = ask(&mut s, 45_000, b"TM1\n");
         scip::value::encode(5, &mut t).unwrap();
         assert_eq!(&out[8..12], &t);
+    }
+
+    #[test]
+    fn a_drifting_clock_and_jittered_frames() {
+        let mut s = sensor(ModelKind::Utm30lx, false);
+        s.set_clock_model(ClockModel {
+            drift_ppb: 100_000,
+            phase_us: 600,
+            jitter_us: 2000,
+            seed: 7,
+        });
+        // +100 ppm: 1 ms gained in 10 s; the phase puts the ticks 400 µs early.
+        assert_eq!(s.clock_ms(0), 0);
+        assert_eq!(s.clock_ms(399), 0);
+        assert_eq!(s.clock_ms(400), 1);
+        assert_eq!(s.clock_ms(10_000_000), 10_001);
+        // -100 ppm after 10 s: 9 999 ms (and 400 µs).
+        s.set_clock_model(ClockModel {
+            drift_ppb: -100_000,
+            ..ClockModel::default()
+        });
+        assert_eq!(s.clock_ms(10_000_000), 9_999);
+        // Jitter: frames leave between their due time and 2 ms later, not all on time.
+        s.set_clock_model(ClockModel {
+            jitter_us: 2000,
+            seed: 3,
+            ..ClockModel::default()
+        });
+        s.record_truth(true);
+        ask(&mut s, 0, b"MD0000108000000\n");
+        let mut lates = Vec::new();
+        for now in (100_000..1_100_000u64).step_by(50) {
+            if !s.take_output(now).is_empty() {
+                lates.push((now - 100_000) % 25_000);
+            }
+        }
+        assert!(lates.len() >= 38, "{} frames", lates.len());
+        assert!(lates.iter().all(|&l| l <= 2050), "{lates:?}");
+        assert!(lates.iter().any(|&l| l >= 1000), "{lates:?}");
     }
 
     #[test]

@@ -38,6 +38,7 @@ fn header(n: u16, intensity: bool) -> ScanHeader {
             unit_exp: 0,
         },
         time_synced: false,
+        time_estimated: false,
         grouping: Grouping::Single,
         step_increment: 1,
         first_step: 0,

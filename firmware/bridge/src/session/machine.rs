@@ -13,6 +13,9 @@ pub const STALL_FRAMES: u32 = 8;
 
 /// Silence a stream may have on top of [`STALL_FRAMES`] frame periods, ms.
 pub const STALL_MARGIN_MS: u32 = 500;
+/// `TM1` readings per time sync: answers at different phases of the sensor's
+/// millisecond place its ticks to a fraction of one.
+pub const TM_READS: u8 = 24;
 
 /// Where the session is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -199,6 +202,8 @@ pub struct Session {
     backoff_until: u64,
     reached_scip2: bool,
     sync_wanted: bool,
+    /// `TM1` answers still to read in this time sync.
+    sync_reads: u8,
     /// The UART bit rate the session last asked for (the power-up rate at first).
     link_rate: u32,
     params: SensorParams,
@@ -235,6 +240,7 @@ impl Session {
             backoff_until: 0,
             reached_scip2: false,
             sync_wanted: false,
+            sync_reads: 0,
             link_rate: config.initial_bit_rate,
             params: SensorParams::default(),
             stats: SessionStats::default(),
@@ -530,11 +536,24 @@ impl Session {
                 Request::new(Command::Time(TimeMode::Enter)),
                 now,
             ),
-            State::SyncEnter => self.send(
-                State::SyncRead,
-                Request::new(Command::Time(TimeMode::Read)),
-                now,
-            ),
+            State::SyncEnter => {
+                self.sync_reads = TM_READS.saturating_sub(1);
+                self.send(
+                    State::SyncRead,
+                    Request::new(Command::Time(TimeMode::Read)),
+                    now,
+                )
+            }
+            State::SyncRead if self.sync_reads > 0 => {
+                // Another reading: answers at other phases of the sensor's millisecond
+                // narrow down where its ticks fall (crate::clock).
+                self.sync_reads = self.sync_reads.saturating_sub(1);
+                self.send(
+                    State::SyncRead,
+                    Request::new(Command::Time(TimeMode::Read)),
+                    now,
+                )
+            }
             State::SyncRead => self.send(
                 State::SyncLeave,
                 Request::new(Command::Time(TimeMode::Leave)),
