@@ -28,9 +28,22 @@ struct Run {
     resets: u32,
 }
 
+/// A time master (SPEC 9) on the bridge's bus whose clock runs `offset_us` ahead of the
+/// bridge's: a SYNC and its FOLLOW-UP every `period_us`, taken by the bridge as sent
+/// (an in-process bus: no transmission delay).
+#[derive(Clone, Copy)]
+struct Master {
+    offset_us: u64,
+    period_us: u64,
+}
+
 /// Runs a bridge estimating scan times against `spec` for `secs` seconds, bytes
 /// crossing a 5 Mbit/s UART one by one.
 fn run(spec: &str, secs: u64) -> Run {
+    run_with(spec, secs, None)
+}
+
+fn run_with(spec: &str, secs: u64, master: Option<Master>) -> Run {
     let sim = SimOptions::from_spec(spec).unwrap();
     let config = BridgeConfig {
         session: SessionConfig::default(),
@@ -58,8 +71,19 @@ fn run(spec: &str, secs: u64) -> Run {
     let mut wire: VecDeque<u8> = VecDeque::new();
     let mut wire_t = 0u64;
     let mut chunk = Vec::new();
+    let time_id = can_wire::timesync::time_id(0x0FF, &IdWindow::DEFAULT).unwrap();
     for step in 0..secs * 1_000_000 / STEP_US {
         let now = step * STEP_US;
+        if let Some(m) = master.filter(|m| now % m.period_us == 0) {
+            let seq = ((now / m.period_us) % 16) as u8;
+            let sync = can_wire::timesync::TimeFrame::Sync { seq };
+            let follow_up = can_wire::timesync::TimeFrame::FollowUp {
+                seq,
+                master_us: now + m.offset_us,
+            };
+            bridge.on_can_frame_at(&sync.to_frame(time_id).unwrap(), now);
+            bridge.on_can_frame_at(&follow_up.to_frame(time_id).unwrap(), now + 300);
+        }
         // Bytes made since the last step start on an idle wire now (at most a step
         // late, like a UART interrupt's latency).
         if wire.is_empty() {
@@ -150,4 +174,36 @@ fn scan_times_within_a_third_of_a_millisecond_of_the_truth() {
         assert!(times.windows(2).all(|w| w[0] < w[1]));
         assert_eq!(r.resets, 0);
     }
+}
+
+#[test]
+fn scan_times_in_the_time_masters_clock() {
+    // The master's clock (Unix µs, as `scip2can timesync` sends) is 1 795 985 999 s ahead
+    // of the bridge's; SYNC every second. Once calibrated, each header carries the
+    // first point's time in the master's clock modulo 2^32 (`time_master`), within the
+    // estimate's bound of the truth mapped by the same offset.
+    let offset_us: u64 = 1_795_985_999_000_000;
+    let m = Master {
+        offset_us,
+        period_us: 1_000_000,
+    };
+    let spec = "model=utm30lx,scene=wall:2000,noise=0,drift_ppm=100,clock_phase_us=500,\
+                jitter_us=2000";
+    let r = run_with(spec, 24, Some(m));
+    let mut e: Vec<u64> = r
+        .seen
+        .iter()
+        .filter(|(h, at)| h.time_estimated && *at >= 20_000_000)
+        .map(|(h, _)| {
+            assert!(h.time_master, "an estimated scan in the bridge's clock");
+            r.truth
+                .iter()
+                .map(|&x| u64::from(((x + offset_us) as u32).abs_diff(h.timestamp_ms)))
+                .min()
+                .unwrap()
+        })
+        .collect();
+    e.sort();
+    assert!(e.len() >= 150, "{} estimated scans", e.len());
+    assert!(p99(&e) <= 300, "p99 {} µs", p99(&e));
 }

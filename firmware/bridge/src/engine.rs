@@ -1006,11 +1006,16 @@ impl<const Q: usize> Core<Q> {
             None => (sensor_ms as u32, false),
         };
         let time_estimated = self.estimate_time && estimate.valid;
+        let mut time_master = false;
         if time_estimated {
-            // SPEC 3.1: the first point's time, µs modulo 2^32.
-            timestamp = estimate
+            // SPEC 3.1: the first point's time, µs modulo 2^32, in the time master's
+            // clock while a time sync holds (SPEC 9), else in the bridge's.
+            let first_us = estimate
                 .time_us
-                .wrapping_add(self.first_point_offset_us(&s)) as u32;
+                .wrapping_add(self.first_point_offset_us(&s));
+            let master = self.time_sync.to_master(first_us);
+            time_master = master.is_some();
+            timestamp = master.unwrap_or(first_us) as u32;
         }
         let time_synced = time_synced || time_estimated;
         if !self.session.geometry().allows_scans() {
@@ -1065,6 +1070,7 @@ impl<const Q: usize> Core<Q> {
             encoding,
             time_synced,
             time_estimated,
+            time_master,
             grouping: self.grouping(&s),
             step_increment: u8::try_from(self.step_increment(&s)).unwrap_or(u8::MAX),
             first_step: self.first_output_step(&s),

@@ -149,6 +149,7 @@ mod tests {
             },
             time_synced: false,
             time_estimated: false,
+            time_master: false,
             grouping: Grouping::Single,
             step_increment: 1,
             first_step: 0,

@@ -1282,6 +1282,7 @@ mod tests {
             encoding,
             time_synced: false,
             time_estimated: false,
+            time_master: false,
             grouping: Grouping::Single,
             step_increment: 1,
             first_step: -2,

@@ -92,6 +92,9 @@ pub struct ScanHeader {
     /// Timestamp is the bridge's estimate of the first point's time, µs (protocol
     /// version 3; SPEC 3.2).
     pub time_estimated: bool,
+    /// With `time_estimated`: the time is in µs of the time master's clock (SPEC 9),
+    /// modulo 2^32, not the bridge's (protocol version 3; SPEC 3.1).
+    pub time_master: bool,
     /// How each point summarises its steps.
     pub grouping: Grouping,
     /// Sensor steps between consecutive points, ≥ 1.
@@ -112,6 +115,11 @@ impl ScanHeader {
         if self.step_increment == 0 {
             return Err(Error::OutOfRange {
                 offset: field::STEP_INCREMENT as u8,
+            });
+        }
+        if self.time_master && !self.time_estimated {
+            return Err(Error::OutOfRange {
+                offset: field::FLAGS as u8,
             });
         }
         Ok(())
@@ -158,7 +166,8 @@ impl ScanHeader {
         b[field::ENCODING] = self.encoding.distance.code() | (self.encoding.intensity.code() << 4);
         b[field::FLAGS] = u8::from(self.time_synced)
             | ((self.grouping as u8) << 1)
-            | (u8::from(self.time_estimated) << 3);
+            | (u8::from(self.time_estimated) << 3)
+            | (u8::from(self.time_master) << 4);
         b[field::STEP_INCREMENT] = self.step_increment;
         put(&mut b, field::FIRST_STEP, &self.first_step.to_le_bytes());
         put(&mut b, field::ARES, &self.ares.to_le_bytes());
@@ -182,6 +191,7 @@ impl ScanHeader {
             },
             time_synced: b.time_synced,
             time_estimated: b.time_estimated,
+            time_master: b.time_master,
             grouping: b.grouping,
             step_increment: b.step_increment,
             first_step: b.first_step,
@@ -232,6 +242,8 @@ pub struct HeaderB {
     pub time_synced: bool,
     /// Timestamp in µs, the bridge's estimate (version 3).
     pub time_estimated: bool,
+    /// The estimate is in the time master's clock (version 3; needs `time_estimated`).
+    pub time_master: bool,
     /// Point grouping.
     pub grouping: Grouping,
     /// Steps between points (≥ 1).
@@ -250,8 +262,14 @@ impl HeaderB {
         let distance = DistanceEncoding::from_code(enc & 0xF)?;
         let intensity = IntensityEncoding::from_code(enc >> 4)?;
         let flags = byte(data, field::FLAGS);
-        if flags & !0x0F != 0 {
+        if flags & !0x1F != 0 {
             return Err(Error::ReservedBits);
+        }
+        // The master's clock is only ever given for an estimated time.
+        if flags & 0x18 == 0x10 {
+            return Err(Error::OutOfRange {
+                offset: field::FLAGS as u8,
+            });
         }
         let grouping = Grouping::from_bits((flags >> 1) & 3).ok_or(Error::OutOfRange {
             offset: field::FLAGS as u8,
@@ -269,6 +287,7 @@ impl HeaderB {
             intensity,
             time_synced: flags & 1 == 1,
             time_estimated: flags & 0x08 != 0,
+            time_master: flags & 0x10 != 0,
             grouping,
             step_increment,
             first_step: le16(data, field::FIRST_STEP) as i16,
@@ -293,6 +312,7 @@ mod tests {
             },
             time_synced: true,
             time_estimated: false,
+            time_master: false,
             grouping: Grouping::Min,
             step_increment: 1,
             first_step: -340,
@@ -348,12 +368,19 @@ mod tests {
         b[1] = 0x43; // intensity encoding 4
         assert_eq!(HeaderB::parse(&b), Err(Error::UnknownEncoding(4)));
         let mut b = B;
-        b[2] = 0x10;
+        b[2] = 0x20;
         assert_eq!(HeaderB::parse(&b), Err(Error::ReservedBits));
+        // Bit 4 (the master's clock) without bit 3 (an estimated time) says nothing.
+        b[2] = 0x11;
+        assert_eq!(HeaderB::parse(&b), Err(Error::OutOfRange { offset: 2 }));
         // Bit 3: the timestamp is the bridge's estimate in µs (version 3).
         b[2] = 0x09;
         let h = HeaderB::parse(&b).unwrap();
-        assert!(h.time_estimated && h.time_synced);
+        assert!(h.time_estimated && h.time_synced && !h.time_master);
+        // Bits 3 and 4: that estimate in µs of the time master's clock.
+        b[2] = 0x19;
+        let h = HeaderB::parse(&b).unwrap();
+        assert!(h.time_estimated && h.time_master);
         let mut b = B;
         b[2] = 0x06; // grouping 3
         assert_eq!(HeaderB::parse(&b), Err(Error::OutOfRange { offset: 2 }));

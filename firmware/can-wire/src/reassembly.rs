@@ -162,6 +162,7 @@ impl<const P: usize> Scan<P> {
                 encoding: crate::Encoding::PLAIN_MM,
                 time_synced: false,
                 time_estimated: false,
+                time_master: false,
                 grouping: crate::Grouping::Single,
                 step_increment: 1,
                 first_step: 0,

@@ -9,7 +9,7 @@ pub const STATUS_LEN: usize = 8;
 /// Largest load value (0.5 % units): 100 %.
 pub const MAX_LOAD: u8 = 200;
 /// The protocol version this crate implements.
-pub const PROTOCOL_VERSION: u8 = 2;
+pub const PROTOCOL_VERSION: u8 = 3;
 
 mod field {
     use core::ops::Range;

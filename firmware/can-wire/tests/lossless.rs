@@ -44,6 +44,7 @@ fn header(n: usize, intensity: IntensityEncoding, unit_exp: u8, seq: u16) -> Sca
         },
         time_synced: false,
         time_estimated: false,
+        time_master: false,
         grouping: Grouping::Single,
         step_increment: 1,
         first_step: -540,

@@ -71,6 +71,16 @@ fn completeness(c: &Completeness, obj: &mut Map<String, Value>) {
     }
 }
 
+/// The whole time (µs) of a scan stamped in the time master's clock (SPEC 3.1): the
+/// value congruent to `stamp` modulo 2^32 nearest to `received_us`, the time the scan
+/// was received (a candump log's Unix time; the `timesync` master sends Unix time).
+pub fn robot_time_us(stamp: u32, received_us: u64) -> u64 {
+    let low = received_us as u32;
+    // The signed distance from the receive time's low bits to the stamp, |d| < 2^31.
+    let d = i64::from(stamp.wrapping_sub(low) as i32);
+    received_us.saturating_add_signed(d)
+}
+
 /// A scan as a JSON object.
 pub fn scan(s: &DecodedScan) -> Value {
     let h = &s.header;
@@ -85,6 +95,13 @@ pub fn scan(s: &DecodedScan) -> Value {
         "scan_time_us".into(),
         h.time_estimated
             .then_some(h.timestamp_ms)
+            .map_or(Value::Null, Value::from),
+    );
+    o.insert("time_master".into(), h.time_master.into());
+    o.insert(
+        "robot_time_us".into(),
+        h.time_master
+            .then(|| robot_time_us(h.timestamp_ms, s.time_us))
             .map_or(Value::Null, Value::from),
     );
     completeness(&s.completeness, &mut o);
@@ -356,6 +373,7 @@ mod tests {
                 },
                 time_synced: false,
                 time_estimated: false,
+                time_master: false,
                 grouping: Grouping::Single,
                 step_increment: 2,
                 first_step: -1,
@@ -450,5 +468,19 @@ mod tests {
             v.to_string(),
             r#"{"type":"answer","node":0,"time":0.0,"opcode":32,"token":9,"outcome":"OutOfRange","detail":2}"#
         );
+    }
+
+    #[test]
+    fn robot_time_is_the_stamp_nearest_the_receive_time() {
+        // A scan at 1 795 985 999 960 000 µs of Unix time (40 ms before 21:00:00 UTC on
+        // 2026-11-24), stamped with that modulo 2^32 = 2 475 464 640, received 40 ms later.
+        let t: u64 = 1_795_985_999_960_000;
+        let stamp: u32 = 2_475_464_640;
+        assert_eq!(robot_time_us(stamp, t + 40_000), t);
+        // Received before the stamp (a receive clock 1 s behind the master's).
+        assert_eq!(robot_time_us(stamp, t - 1_000_000), t);
+        // Across a wrap of the low 32 bits.
+        let w: u64 = (1_795_986 << 32) - 10;
+        assert_eq!(robot_time_us(w as u32, w + 20), w);
     }
 }

@@ -39,6 +39,7 @@ fn header(n: u16, intensity: bool) -> ScanHeader {
         },
         time_synced: false,
         time_estimated: false,
+        time_master: false,
         grouping: Grouping::Single,
         step_increment: 1,
         first_step: 0,
