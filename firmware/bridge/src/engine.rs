@@ -271,8 +271,12 @@ impl<const Q: usize> Bridge<Q> {
     /// (`time_estimated`, SPEC 3.1). Give arrival times in µs ([`Bridge::on_uart_at`],
     /// [`Bridge::poll_at`]) for sub-millisecond results. Takes effect at the next
     /// [`Bridge::start`].
+    ///
+    /// Needs the crate feature `time-estimate` (the host tools have it); without it
+    /// the model is not built in (it does not fit the 96 KiB flash budget of the STM32
+    /// boards yet) and this does nothing.
     pub fn set_time_estimation(&mut self, on: bool) {
-        self.core.estimate_time = on;
+        self.core.estimate_time = on && cfg!(feature = "time-estimate");
     }
 
     /// The sensor clock model.
@@ -940,7 +944,7 @@ impl<const Q: usize> Core<Q> {
         self.sync_asked = false;
         self.scan_clock.reset();
         self.session.start(now);
-        if self.estimate_time {
+        if self.estimating() {
             self.session.request_time_sync(now);
         }
     }
@@ -987,13 +991,19 @@ impl<const Q: usize> Core<Q> {
         self.notice = Some(notice);
     }
 
+    /// Whether the sensor clock model runs: asked for, and built in (a constant false
+    /// without the `time-estimate` feature, so that none of its code is linked).
+    fn estimating(&self) -> bool {
+        cfg!(feature = "time-estimate") && self.estimate_time
+    }
+
     fn begin_scan(&mut self, s: ScanRequest, raw_timestamp: u32, now: u64) {
         self.stats.scans_in = self.stats.scans_in.wrapping_add(1);
         self.phase = Phase::Ignored;
         // SPEC 3.1: the sensor's 24-bit clock extended (modulo 2^32), or with a time
         // sync the caller's clock.
         let sensor_ms = self.clock.unwrap(raw_timestamp);
-        let estimate = if self.estimate_time {
+        let estimate = if self.estimating() {
             self.scan_clock.on_scan(sensor_ms, self.event_us())
         } else {
             crate::clock::Estimate {
@@ -1005,7 +1015,7 @@ impl<const Q: usize> Core<Q> {
             Some(offset) => ((sensor_ms as i64).wrapping_add(offset) as u32, true),
             None => (sensor_ms as u32, false),
         };
-        let time_estimated = self.estimate_time && estimate.valid;
+        let time_estimated = self.estimating() && estimate.valid;
         let mut time_master = false;
         if time_estimated {
             // SPEC 3.1: the first point's time, µs modulo 2^32, in the time master's
