@@ -122,6 +122,7 @@ pub fn bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
         uart_bit_rate: SENSOR_BIT_RATE,
         status_period_ms: STATUS_PERIOD_MS,
         fd_capable: bus.fd_capable,
+        link: bridge::link::LinkKind::Uart,
     })
 }
 
