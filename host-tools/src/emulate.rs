@@ -13,6 +13,14 @@
 //!
 //! The simulator's bytes towards UART0 are recorded with their time, so that a test can
 //! run the same stream through the same core on the host ([`Emulation::sensor_stream`]).
+//!
+//! With [`SensorLink::Tcp`] the sensor is an Ethernet one instead: the firmware
+//! `scip2can-qemu-eth` connects over the emulated LAN9118 to 192.168.0.10 (QEMU's user
+//! networking, whose gateway address reaches this host's loopback), on the simulator's
+//! port, which it is told at boot (a word block QEMU's loader device writes). The
+//! simulator serves one connection after another, so the board can reconnect after
+//! [`Emulation::drop_sensor_link`] or a sensor reboot (which drops the connection, as
+//! Ethernet sensors do).
 
 use std::collections::VecDeque;
 use std::io::{self, Read, Write};
@@ -38,6 +46,24 @@ use crate::sim::SimOptions;
 
 /// The firmware binary's name.
 pub const FIRMWARE: &str = "scip2can-qemu";
+
+/// The Ethernet firmware binary's name (same package as [`FIRMWARE`]).
+pub const FIRMWARE_ETH: &str = "scip2can-qemu-eth";
+
+/// The sensor's address as the Ethernet firmware sees it (the default of the real
+/// sensors); QEMU's user networking maps it to this host's loopback.
+pub const SENSOR_IP: [u8; 4] = [192, 168, 0, 10];
+
+/// How the simulated sensor reaches the firmware.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum SensorLink {
+    /// UART0 (a URG-04LX-class sensor), firmware [`FIRMWARE`].
+    #[default]
+    Uart,
+    /// TCP over the emulated Ethernet controller (UST-10LX class), firmware
+    /// [`FIRMWARE_ETH`].
+    Tcp,
+}
 
 /// The board workspace, from this crate's folder.
 pub fn boards_dir() -> PathBuf {
@@ -74,6 +100,12 @@ pub fn build_firmware() -> anyhow::Result<PathBuf> {
         bail!("building the firmware failed; try {BUILD_COMMAND}");
     }
     Ok(default_firmware())
+}
+
+/// [`build_firmware`], returning the Ethernet binary's path.
+pub fn build_firmware_eth() -> anyhow::Result<PathBuf> {
+    build_firmware()?;
+    Ok(default_firmware().with_file_name(FIRMWARE_ETH))
 }
 
 /// The ELF to run: `path` if given (it must exist), else the board workspace's release
@@ -122,6 +154,8 @@ pub struct Setup {
     pub icount: bool,
     /// How UART1 is reached.
     pub uart1: Uart1,
+    /// How the sensor is reached (the firmware must match).
+    pub link: SensorLink,
 }
 
 /// Bytes the simulator sent, with their time in ms since the emulation started.
@@ -134,6 +168,10 @@ pub struct Emulation {
     sim: Option<JoinHandle<anyhow::Result<Vec<FaultRecord>>>>,
     recorded: Arc<Mutex<Recorded>>,
     start: Instant,
+    /// Set to end the sensor's current TCP connection ([`SensorLink::Tcp`]).
+    drop_link: Arc<AtomicBool>,
+    /// TCP connections the simulator accepted.
+    connections: Arc<std::sync::atomic::AtomicU32>,
     /// The SLCAN link to UART1 ([`Uart1::Connect`] only).
     pub can: Option<SlcanLink>,
 }
@@ -203,7 +241,49 @@ impl Emulation {
         // Built here, so that bad options fail before QEMU starts.
         let mut sensor = setup.sim.build()?;
         let speed = setup.sim.speed;
-        let sim = {
+        let drop_link = Arc::new(AtomicBool::new(false));
+        let connections = Arc::new(std::sync::atomic::AtomicU32::new(0));
+        let sim = if setup.link == SensorLink::Tcp {
+            let (stop, recorded) = (Arc::clone(&stop), Arc::clone(&recorded));
+            let (drop_link, connections) = (Arc::clone(&drop_link), Arc::clone(&connections));
+            std::thread::spawn(move || -> anyhow::Result<Vec<FaultRecord>> {
+                let clock = Clock::new(speed);
+                // One connection after another, as the board makes them.
+                while !stop.load(Ordering::Relaxed) {
+                    let Ok(stream) = accept(&sim_listener, &stop, Duration::from_secs(3600)) else {
+                        break;
+                    };
+                    connections.fetch_add(1, Ordering::Relaxed);
+                    drop_link.store(false, Ordering::Relaxed);
+                    let reader = stream.try_clone()?;
+                    reader.set_read_timeout(Some(Duration::from_millis(50)))?;
+                    let conn_stop = Arc::new(AtomicBool::new(false));
+                    let input = reader_thread(reader, Arc::clone(&conn_stop));
+                    let mut out = Tee {
+                        inner: stream.try_clone()?,
+                        recorded: Arc::clone(&recorded),
+                        start,
+                    };
+                    let mut log = |_: &str| {};
+                    // Ends on `drop_link` (which stopping sets too), when the board
+                    // closes, or when the sensor reboots (an Ethernet sensor drops its
+                    // connection).
+                    let _ = serve_connection(
+                        &mut sensor,
+                        &clock,
+                        &input,
+                        &mut out,
+                        false,
+                        &drop_link,
+                        &mut log,
+                    );
+                    conn_stop.store(true, Ordering::Relaxed);
+                    sensor.disconnect();
+                    let _ = stream.shutdown(std::net::Shutdown::Both);
+                }
+                Ok(sensor.fault_log().to_vec())
+            })
+        } else {
             let (stop, recorded) = (Arc::clone(&stop), Arc::clone(&recorded));
             std::thread::spawn(move || -> anyhow::Result<Vec<FaultRecord>> {
                 let stream = accept(&sim_listener, &stop, Duration::from_secs(20))?;
@@ -249,9 +329,37 @@ impl Emulation {
             "none",
             "-monitor",
             "none",
-        ])
-        .args(["-no-reboot", "-serial", &format!("tcp:{sim_addr}")])
-        .args(["-serial", &uart1]);
+        ]);
+        match setup.link {
+            SensorLink::Uart => {
+                cmd.args(["-no-reboot", "-serial", &format!("tcp:{sim_addr}")])
+                    .args(["-serial", &uart1]);
+            }
+            SensorLink::Tcp => {
+                let [a, b, c, d] = SENSOR_IP;
+                // The board's boot block (its bootcfg.rs): magic "S2CE", the port, the
+                // address. The gateway of QEMU's user network is the sensor's address, and
+                // a connection to it reaches 127.0.0.1 on the same port.
+                let port = u64::from(sim_addr.port());
+                let ip = u32::from_be_bytes(SENSOR_IP);
+                cmd.args(["-no-reboot", "-serial", "null", "-serial", &uart1])
+                    .args([
+                        "-nic",
+                        &format!("user,model=lan9118,net={a}.{b}.{c}.0/24,host={a}.{b}.{c}.{d}"),
+                    ])
+                    .args([
+                        "-device",
+                        &format!(
+                            "loader,addr=0x21000000,data={:#x},data-len=8",
+                            (port << 32) | 0x5332_4345
+                        ),
+                    ])
+                    .args([
+                        "-device",
+                        &format!("loader,addr=0x21000008,data={ip:#x},data-len=4"),
+                    ]);
+            }
+        }
         if setup.icount {
             cmd.args(["-icount", "shift=0"]);
         }
@@ -269,6 +377,8 @@ impl Emulation {
             sim: Some(sim),
             recorded,
             start,
+            drop_link,
+            connections,
             can: None,
         };
         if let Some(l) = can_listener {
@@ -282,6 +392,18 @@ impl Emulation {
     /// Time since the emulation started.
     pub fn elapsed(&self) -> Duration {
         self.start.elapsed()
+    }
+
+    /// Ends the sensor's current TCP connection ([`SensorLink::Tcp`]): the simulator
+    /// closes it, as a sensor whose cable is pulled and put back would after a reset,
+    /// and accepts the board's next one.
+    pub fn drop_sensor_link(&self) {
+        self.drop_link.store(true, Ordering::Relaxed);
+    }
+
+    /// TCP connections the simulator accepted so far ([`SensorLink::Tcp`]).
+    pub fn sensor_connections(&self) -> u32 {
+        self.connections.load(Ordering::Relaxed)
     }
 
     /// Whether QEMU is still running.
@@ -308,6 +430,7 @@ impl Emulation {
         let _ = self.qemu.kill();
         let _ = self.qemu.wait();
         self.stop.store(true, Ordering::Relaxed);
+        self.drop_link.store(true, Ordering::Relaxed);
     }
 }
 
@@ -515,6 +638,11 @@ pub struct EmulateArgs {
     /// Run QEMU with `-icount shift=0` (virtual time = instructions; slower).
     #[arg(long)]
     pub icount: bool,
+    /// How the sensor is connected: `uart` (UART0, URG-04LX class) or `tcp` (emulated
+    /// Ethernet, UST-10LX class: use `--model ust10lx`; the firmware is then
+    /// scip2can-qemu-eth).
+    #[arg(long, value_enum, default_value_t = SensorLink::Uart)]
+    pub link: SensorLink,
 }
 
 /// Counters of one reporting period (and of the whole run).
@@ -547,10 +675,14 @@ pub fn run(args: EmulateArgs) -> anyhow::Result<()> {
     let sim = SimOptions::from_spec(&spec)?;
     let setup = Setup {
         sim,
-        firmware: firmware(args.firmware.as_deref())?,
+        firmware: match (args.link, args.firmware.as_deref()) {
+            (SensorLink::Tcp, None) => build_firmware_eth()?,
+            (_, path) => firmware(path)?,
+        },
         qemu: args.qemu.clone(),
         icount: args.icount,
         uart1: Uart1::Connect,
+        link: args.link,
     };
     let stop = Arc::new(AtomicBool::new(false));
     {

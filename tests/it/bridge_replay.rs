@@ -38,6 +38,7 @@ pub(crate) fn config(format: FrameFormat, encoding: Encoding) -> BridgeConfig {
         uart_bit_rate: 115_200,
         status_period_ms: 0,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     }
 }
 

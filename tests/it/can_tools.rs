@@ -47,6 +47,7 @@ fn config(format: FrameFormat, distance: DistanceEncoding) -> BridgeConfig {
         uart_bit_rate: 115_200,
         status_period_ms: 1000,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     }
 }
 

@@ -45,6 +45,7 @@ fn start(firmware: PathBuf, sim: &str) -> Emulation {
         qemu: QEMU.into(),
         icount: false,
         uart1: Uart1::Connect,
+        link: emulate::SensorLink::Uart,
     };
     Emulation::start(&setup).unwrap()
 }
@@ -335,6 +336,7 @@ fn python_can_slcan_client_works_on_the_can_port() {
         qemu: QEMU.into(),
         icount: false,
         uart1: Uart1::Server(port),
+        link: emulate::SensorLink::Uart,
     };
     let emu = Emulation::start(&setup).unwrap();
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("slcan_client.py");

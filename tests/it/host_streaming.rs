@@ -343,6 +343,7 @@ fn config() -> BridgeConfig {
         uart_bit_rate: 115_200,
         status_period_ms: 1000,
         fd_capable: false,
+        link: bridge::link::LinkKind::Uart,
     }
 }
 

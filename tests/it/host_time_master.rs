@@ -47,6 +47,7 @@ fn emulated_board_follows_the_host_master_within_1_ms() {
         qemu: QEMU.into(),
         icount: true,
         uart1: Uart1::Connect,
+        link: scip2can_host::emulate::SensorLink::Uart,
     };
     let mut emu = Emulation::start(&setup).unwrap();
     let mut link = emu.can.take().unwrap();

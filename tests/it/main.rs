@@ -4,6 +4,7 @@ mod bridge_replay;
 mod can_tools;
 mod codec_props;
 mod emulate_e2e;
+mod emulate_eth;
 mod host_streaming;
 mod host_time_master;
 mod icount;

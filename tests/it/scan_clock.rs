@@ -59,6 +59,7 @@ fn run_with(spec: &str, secs: u64, master: Option<Master>) -> Run {
         uart_bit_rate: 5_000_000,
         status_period_ms: 0,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     };
     let mut sensor = sim.build().unwrap();
     sensor.record_truth(true);

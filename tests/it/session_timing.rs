@@ -29,6 +29,7 @@ fn config(uart_bit_rate: u32) -> BridgeConfig {
         uart_bit_rate,
         status_period_ms: 0,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     }
 }
 

@@ -446,6 +446,7 @@ fn bridge_config() -> bridge::engine::BridgeConfig {
         uart_bit_rate: 115_200,
         status_period_ms: 0,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     }
 }
 

@@ -43,6 +43,7 @@ fn run_sim(sim: &SimOptions, ms: u64, sync_at: Option<u64>) -> Vec<Seen> {
         uart_bit_rate: 1_000_000,
         status_period_ms: 0,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     };
     let mut sensor = sim.build().unwrap();
     let mut bridge: Box<Bridge<Q>> = Box::new(Bridge::new(config).unwrap());

@@ -120,6 +120,7 @@ fn config(typical: bool, distance: DistanceEncoding) -> BridgeConfig {
         uart_bit_rate: 12_000_000,
         status_period_ms: 1000,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     }
 }
 

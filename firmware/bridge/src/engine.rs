@@ -29,6 +29,7 @@ use can_wire::{
 use scip::{Command, DataLine, Decoder, Event, ScanMode, ScanRequest, Status};
 
 use crate::governor::{Budget, Governor};
+use crate::link::LinkKind;
 use crate::pipeline::{
     Decimation, DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo, ScanStart,
     TemporalDecimation,
@@ -55,6 +56,9 @@ pub struct BridgeConfig {
     pub status_period_ms: u32,
     /// The CAN controller can send CAN FD frames (a control frame may switch to FD).
     pub fd_capable: bool,
+    /// The link to the sensor: a UART (at `uart_bit_rate`) or a TCP stream
+    /// ([`crate::link`]).
+    pub link: LinkKind,
 }
 
 /// Why a bridge configuration is refused.
@@ -69,6 +73,8 @@ pub enum BridgeError {
     Wire(can_wire::Error),
     /// A UART bit rate of 0.
     UartBitRate,
+    /// An `SS` bit rate asked for on a link without one (TCP).
+    LinkHasNoBitRate,
 }
 
 impl core::fmt::Display for BridgeError {
@@ -78,6 +84,7 @@ impl core::fmt::Display for BridgeError {
             Self::Pipeline(e) => write!(f, "pipeline: {e}"),
             Self::Wire(e) => write!(f, "wire: {e:?}"),
             Self::UartBitRate => f.write_str("UART bit rate must be non-zero"),
+            Self::LinkHasNoBitRate => f.write_str("a TCP link has no bit rate to set with SS"),
         }
     }
 }
@@ -182,6 +189,8 @@ struct Core<const Q: usize> {
     /// Following a time master over CAN (SPEC 9), on identifier `time_id`.
     time_sync: crate::timesync::TimeSync,
     time_id: Option<embedded_can::Id>,
+    /// The sensor link is up (always for a UART; see [`crate::link`]).
+    link_up: bool,
 }
 
 /// The bridge. `Q` is the capacity of the CAN transmit queue, in frames (at least 4).
@@ -199,6 +208,9 @@ impl<const Q: usize> Bridge<Q> {
         if config.uart_bit_rate == 0 {
             return Err(BridgeError::UartBitRate);
         }
+        if !config.link.has_bit_rate() && config.session.bit_rate.is_some() {
+            return Err(BridgeError::LinkHasNoBitRate);
+        }
         config.encoding.validate().map_err(BridgeError::Wire)?;
         let session = Session::new(config.session).map_err(BridgeError::Session)?;
         let pipeline = Pipeline::new(config.pipeline).map_err(BridgeError::Pipeline)?;
@@ -208,6 +220,7 @@ impl<const Q: usize> Bridge<Q> {
             decoder: Decoder::new(),
             last_uart_ms: 0,
             core: Core {
+                link_up: config.link.up_at_start(),
                 session,
                 pipeline,
                 encoder,
@@ -254,6 +267,42 @@ impl<const Q: usize> Bridge<Q> {
     pub fn start(&mut self, now_ms: u64) {
         self.decoder.forget_stream();
         self.core.start_session(now_ms);
+    }
+
+    /// The sensor link is up: a TCP connection to the sensor was made (or made again).
+    /// A session held by [`Bridge::link_down`] (or started before the link was up)
+    /// starts over from the probe, identification included (the sensor may have
+    /// rebooted); the extended sensor clock and any time sync start over. Nothing
+    /// happens on a link that was already up. See [`crate::link`].
+    pub fn link_up(&mut self, now_ms: u64) {
+        if self.core.link_up {
+            return;
+        }
+        self.core.link_up = true;
+        if self.core.session.state() == crate::session::State::LinkDown {
+            self.decoder.reset();
+            self.decoder.forget_stream();
+            self.core.start_session(now_ms);
+        }
+    }
+
+    /// The sensor link is down: the TCP connection closed or failed. The scan in
+    /// progress ends with an abort ([`AbortReason::LinkLost`]), any partial response is
+    /// dropped, and the session is held (no commands, no timeouts) until
+    /// [`Bridge::link_up`]. A stopped session stays stopped. See [`crate::link`].
+    pub fn link_down(&mut self, now_ms: u64) {
+        let _ = now_ms;
+        self.core.link_up = false;
+        self.core.abort_scan(AbortReason::LinkLost);
+        self.decoder.reset();
+        if let Some(notice) = self.core.session.link_down() {
+            self.core.notice(notice);
+        }
+    }
+
+    /// Whether the sensor link is up (always, for a UART).
+    pub fn link_is_up(&self) -> bool {
+        self.core.link_up
     }
 
     /// Asks the session for a time sync (SCIP `TM`); a running stream stops for it and
@@ -943,9 +992,14 @@ impl<const Q: usize> Core<Q> {
         self.sync_offset = None;
         self.sync_asked = false;
         self.scan_clock.reset();
-        self.session.start(now);
-        if self.estimating() {
-            self.session.request_time_sync(now);
+        if self.link_up {
+            self.session.start(now);
+            if self.estimating() {
+                self.session.request_time_sync(now);
+            }
+        } else {
+            // Nothing to send to yet: held until the link is up.
+            self.session.start_link_down();
         }
     }
 
@@ -1062,10 +1116,14 @@ impl<const Q: usize> Core<Q> {
         let bytes = chars
             .wrapping_add(chars.div_ceil(64).wrapping_mul(2))
             .wrapping_add(40);
-        let uart_us = bytes
-            .wrapping_mul(10 * 1_000_000)
-            .checked_div(u64::from(self.config.uart_bit_rate.max(1)))
-            .unwrap_or(0);
+        let uart_us = match self.config.link {
+            // A TCP stream brings a scan at once: no frame leaves while it arrives.
+            LinkKind::Tcp => 0,
+            LinkKind::Uart => bytes,
+        }
+        .wrapping_mul(10 * 1_000_000)
+        .checked_div(u64::from(self.config.uart_bit_rate.max(1)))
+        .unwrap_or(0);
         let free = Q.saturating_sub(self.queue.len());
         if !self.governor.admit(now, &cost, uart_us, free) {
             self.stats.scans_dropped = self.stats.scans_dropped.wrapping_add(1);

@@ -23,6 +23,7 @@
 //! - [`control`]: control frames validated, applied and answered.
 //! - [`status`]: health counters and the status (heartbeat) frames.
 //! - [`governor`]: the bandwidth governor (decimation plan, whole-scan admission).
+//! - [`link`]: the sensor link (UART or TCP stream), its bit rate and its state.
 //! - [`session`]: the sensor session state machine (SCIP 1.1 detection, identification,
 //!   bit rate, streaming, silence/fault/reboot detection, recovery with back-off, time
 //!   sync).
@@ -32,6 +33,7 @@ pub mod clock;
 pub mod control;
 pub mod engine;
 pub mod governor;
+pub mod link;
 pub mod pipeline;
 pub mod queue;
 pub mod session;

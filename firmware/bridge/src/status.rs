@@ -174,7 +174,9 @@ pub fn bridge_state(state: SessionState) -> BridgeState {
         | SessionState::SyncLeave
         | SessionState::Stopping => BridgeState::Configuring,
         SessionState::Streaming => BridgeState::Streaming,
-        SessionState::Resetting | SessionState::Backoff => BridgeState::Recovering,
+        SessionState::Resetting | SessionState::Backoff | SessionState::LinkDown => {
+            BridgeState::Recovering
+        }
     }
 }
 

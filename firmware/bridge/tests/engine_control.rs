@@ -28,6 +28,7 @@ fn config() -> BridgeConfig {
         uart_bit_rate: 115_200,
         status_period_ms: 1000,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     }
 }
 

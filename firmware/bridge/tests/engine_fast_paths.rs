@@ -36,6 +36,7 @@ fn config(pipeline: PipelineConfig, format: FrameFormat) -> BridgeConfig {
         uart_bit_rate: 115_200,
         status_period_ms: 0,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     }
 }
 

@@ -27,6 +27,7 @@ fn config(window: IdWindow) -> BridgeConfig {
         uart_bit_rate: 115_200,
         status_period_ms: 0,
         fd_capable: false,
+        link: bridge::link::LinkKind::Uart,
     }
 }
 

@@ -35,6 +35,8 @@ pub enum AbortReason {
     SensorRestart,
     /// The sensor sent malformed data.
     BadData,
+    /// The link to the sensor (a TCP connection) was lost.
+    LinkLost,
     /// A code this version does not know.
     Unknown(u8),
 }
@@ -50,6 +52,7 @@ impl From<u8> for AbortReason {
             6 => AbortReason::Reconfigured,
             7 => AbortReason::SensorRestart,
             8 => AbortReason::BadData,
+            9 => AbortReason::LinkLost,
             other => AbortReason::Unknown(other),
         }
     }
@@ -66,6 +69,7 @@ impl From<AbortReason> for u8 {
             AbortReason::Reconfigured => 6,
             AbortReason::SensorRestart => 7,
             AbortReason::BadData => 8,
+            AbortReason::LinkLost => 9,
             AbortReason::Unknown(v) => v,
         }
     }
@@ -143,6 +147,8 @@ mod tests {
             assert_eq!(u8::from(AbortReason::from(v)), v);
         }
         assert_eq!(AbortReason::from(0), AbortReason::Unknown(0));
+        // SPEC 3.5: 9 is the sensor link lost.
+        assert_eq!(AbortReason::from(9), AbortReason::LinkLost);
     }
 
     #[test]

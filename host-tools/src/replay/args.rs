@@ -377,5 +377,6 @@ pub fn bridge_config(
         uart_bit_rate: uart_baud,
         status_period_ms: status_period,
         fd_capable: c.fd,
+        link: bridge::link::LinkKind::Uart,
     })
 }

@@ -777,8 +777,8 @@ impl Sensor {
         self.rebooted = true;
     }
 
-    /// True once after the sensor rebooted on request (`RB` twice): an Ethernet
-    /// sensor's connection ends there.
+    /// True once after the sensor rebooted on request (`RB` twice), or an Ethernet
+    /// sensor by a reboot fault: an Ethernet sensor's connection ends there.
     pub fn take_rebooted(&mut self) -> bool {
         core::mem::take(&mut self.rebooted)
     }
@@ -933,6 +933,8 @@ impl Sensor {
             buf.truncate(sent);
             self.push(due + stall, buf, None);
             self.power_on(due, true);
+            // An Ethernet sensor's connection ends with it (`take_rebooted`).
+            self.rebooted = self.model.link == LinkKind::Ethernet;
             return;
         }
         self.push(due + stall, buf, None);

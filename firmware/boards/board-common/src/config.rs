@@ -127,6 +127,7 @@ pub fn bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
         uart_bit_rate: SENSOR_BIT_RATE,
         status_period_ms: STATUS_PERIOD_MS,
         fd_capable: bus.fd_capable,
+        link: bridge::link::LinkKind::Uart,
     })
 }
 
@@ -137,12 +138,15 @@ pub fn bridge(bus: CanBus) -> Result<Bridge, BridgeError> {
 
 /// The bridge configuration of a board whose sensor is on Ethernet (a TCP connection to
 /// a UST-10LX/20LX, UTM-30LX-EW, ...): as [`bridge_config`], but no SCIP bit-rate steps
-/// (`SS` is for serial links; the session's `bit_rate` is `None`) and the link's speed
-/// is [`ETHERNET_BIT_RATE`].
+/// (`SS` is for serial links; the session's `bit_rate` is `None`), the link's speed
+/// is [`ETHERNET_BIT_RATE`] and the link a TCP stream ([`bridge::link::LinkKind::Tcp`]:
+/// the session starts when the board reports the connection up).
 pub fn ethernet_bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
     let mut config = bridge_config(bus)?;
     config.session.bit_rate = None;
     config.uart_bit_rate = ETHERNET_BIT_RATE;
+    // A TCP stream: the session waits for `Bridge::link_up` and holds on `link_down`.
+    config.link = bridge::link::LinkKind::Tcp;
     Ok(config)
 }
 

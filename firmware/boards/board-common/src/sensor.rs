@@ -239,11 +239,12 @@ pub async fn run<B: Board>(shared: &Shared, board: &mut B) -> ! {
         opening: false,
         backoff: Backoff::new(FIRST_RETRY_MS, MAX_RETRY_MS),
     };
-    if link.up {
-        shared.with(|b| b.start(now));
-        info!("bridge started");
-    } else {
-        // The first attempt at once; the session starts when the link is up.
+    // On a TCP link the bridge's session waits for `Bridge::link_up` (the board's
+    // `link_changed`).
+    shared.with(|b| b.start(now));
+    info!("bridge started");
+    if !link.up {
+        // The first attempt at once.
         link.opening = true;
         board.open_link();
     }

@@ -377,10 +377,11 @@ impl Board for TcpBoard {
     fn link_changed(&mut self, bridge: &mut config::Bridge, up: bool, now_ms: u64) {
         let t = self.now();
         self.log.borrow_mut().push(Net::Changed(up, t));
+        // As the H723 board does.
         if up {
-            bridge.start(now_ms);
+            bridge.link_up(now_ms);
         } else {
-            bridge.stop(now_ms);
+            bridge.link_down(now_ms);
         }
     }
 }

@@ -62,5 +62,6 @@ pub fn bridge_with(encoding: Encoding) -> Option<BridgeConfig> {
         uart_bit_rate: BAUD,
         status_period_ms: 1000,
         fd_capable: true,
+        link: bridge::link::LinkKind::Uart,
     })
 }

@@ -156,13 +156,13 @@ impl Board for H723 {
 
     /// The hook where the bridge learns that the sensor link came up or went down.
     fn link_changed(&mut self, bridge: &mut Bridge, up: bool, now_ms: u64) {
-        // link up/down: `Bridge::start` / `Bridge::stop` stand in for the bridge's link
-        // calls until it has them (link down: abort the scan, hold the session; link up:
-        // the session starts over, without bit-rate steps).
+        // Link down: the scan in progress is aborted (reason "sensor link lost") and
+        // the session held; link up: the session starts over (the sensor may have
+        // rebooted), without bit-rate steps.
         if up {
-            bridge.start(now_ms);
+            bridge.link_up(now_ms);
         } else {
-            bridge.stop(now_ms);
+            bridge.link_down(now_ms);
         }
     }
 }

@@ -53,6 +53,9 @@ pub enum State {
     Resetting,
     /// Waiting out the back-off before probing again.
     Backoff,
+    /// The sensor link (a TCP connection) is down: nothing is sent and nothing times
+    /// out until [`Session::link_up`] starts the session again.
+    LinkDown,
 }
 
 /// What the caller must do for the session.
@@ -133,6 +136,8 @@ pub enum Notice {
     },
     /// `stop()` completed.
     Stopped,
+    /// The sensor link went down: the session is held ([`State::LinkDown`]).
+    LinkDown,
 }
 
 /// Counters.
@@ -283,9 +288,59 @@ impl Session {
         self.probe(now);
     }
 
-    /// Stops the stream (`QT`) and turns the session off.
+    /// Stops the stream (`QT`) and turns the session off (at once when the link is
+    /// down: there is no sensor to tell).
     pub fn stop(&mut self, now: u64) {
+        if self.state == State::LinkDown {
+            self.state = State::Off;
+            self.notice = Some(Notice::Stopped);
+            return;
+        }
         self.send(State::Stopping, Request::new(Command::LaserOff), now);
+    }
+
+    /// Starts the session held for its link: nothing is sent until [`Session::link_up`].
+    pub fn start_link_down(&mut self) {
+        self.hold();
+    }
+
+    /// The sensor link went down: whatever was asked or being answered is forgotten, and
+    /// the session is held ([`State::LinkDown`]) until [`Session::link_up`]. A session
+    /// that is off stays off. Returns [`Notice::LinkDown`] when it was running.
+    pub fn link_down(&mut self) -> Option<Notice> {
+        if matches!(self.state, State::Off | State::LinkDown) {
+            return None;
+        }
+        self.hold();
+        Some(Notice::LinkDown)
+    }
+
+    /// The sensor link is up (again): a held session starts from the probe, as the
+    /// sensor may have rebooted (`QT`, `VV`, `PP`, `II`, then the stream; no `SS` is
+    /// re-sent unless configured). Any other state is left as it is.
+    pub fn link_up(&mut self, now: u64) {
+        if self.state == State::LinkDown {
+            self.backoff_ms = self.config.backoff_min_ms;
+            self.probe(now);
+        }
+    }
+
+    /// Holds the session for its link: nothing pending, nothing queued, no response
+    /// being decoded.
+    fn hold(&mut self) {
+        self.state = State::LinkDown;
+        self.pending = None;
+        self.retries = 0;
+        self.outbox = [None, None];
+        self.current_is_pending = false;
+        self.current_is_frame = false;
+        self.current_is_pp = false;
+        self.current_is_vv = false;
+        self.current_echo_damaged = false;
+        self.current_status = None;
+        self.after_frame = false;
+        // The sensor on the other end may be another one, or rebooted in SCIP 1.1.
+        self.reached_scip2 = false;
     }
 
     /// Asks for a time sync (TM0/TM1/TM2); while streaming, the stream stops for it and
@@ -325,7 +380,7 @@ impl Session {
             return Some(a);
         }
         match self.state {
-            State::Off => {}
+            State::Off | State::LinkDown => {}
             State::Backoff => {
                 if now >= self.backoff_until {
                     self.probe(now);
@@ -578,7 +633,7 @@ impl Session {
                     self.back_off(now);
                 }
             }
-            State::Off | State::Streaming | State::Backoff => {}
+            State::Off | State::Streaming | State::Backoff | State::LinkDown => {}
         }
         None
     }

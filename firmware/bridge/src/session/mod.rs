@@ -16,6 +16,8 @@
 //!          Recover: QT, RS, back-off (doubling, capped) ─▶ Probe
 //! ```
 //! Time sync on request: QT ▶ TM0 ▶ TM1 ▶ TM2 ▶ Start again.
+//! Link down (a TCP link, [`crate::link`]): any state ▶ LinkDown (held: nothing sent,
+//! nothing times out) ▶ link up ▶ Probe.
 //!
 //! The PP answer is judged whole ([`scip::SensorParams::check`]: every field once and all
 //! digits, DMIN < DMAX, AMIN ≤ AFRT ≤ AMAX < ARES, SCAN plausible, the known model's
