@@ -35,7 +35,8 @@
 //! encoding can express (one unit up to the largest range code).
 //! **Timing**: `scan_time = 60 / scan_rpm` and `time_increment = scan_time ·
 //! step_increment / ares` from status page 6, both 0 until one was seen.
-//! **Time**: the header's timestamp, by [`scan_stamp_ns`].
+//! **Time**: the header's timestamp (in the robot's clock with `time_master`), by
+//! [`scan_stamp_ns`].
 //!
 //! Only scans whose points are the values sent are converted: intact and incomplete
 //! ones (missing points are `NaN`); a scan with a CRC mismatch, a corrupt or an aborted
@@ -50,10 +51,21 @@ use can_wire::{Distance, DistanceEncoding, ScanHeader, SensorModel, Status};
 
 use crate::decode::DecodedScan;
 
-/// The time of a scan in nanoseconds: the header's timestamp (ms of sensor time, or of
-/// the bridge's clock when `time_synced`). The one place where scan time is converted.
-pub fn scan_stamp_ns(header: &ScanHeader) -> u64 {
-    u64::from(header.timestamp_ms) * 1_000_000
+/// The time of a scan in nanoseconds, received at `received_us` (the log time of the
+/// frame that completed it): in the time master's clock (Unix time) when the header says
+/// `time_master`, made whole from its low 32 bits of µs with the receive time
+/// ([`crate::decode::json::robot_time_us`]); otherwise the header's timestamp as it is, µs
+/// of the bridge's clock with `time_estimated`, ms (sensor or bridge time) without. The
+/// one place where scan time is converted.
+pub fn scan_stamp_ns(header: &ScanHeader, received_us: u64) -> u64 {
+    let stamp = header.timestamp_ms;
+    if header.time_master {
+        crate::decode::json::robot_time_us(stamp, received_us).saturating_mul(1000)
+    } else if header.time_estimated {
+        u64::from(stamp) * 1000
+    } else {
+        u64::from(stamp) * 1_000_000
+    }
 }
 
 /// What a bridge's status frames told about its sensor.
@@ -213,7 +225,7 @@ pub fn laser_scan(scan: &DecodedScan, info: &NodeInfo, frame_id: &str) -> Result
         Vec::new()
     };
     Ok(LaserScan {
-        stamp_ns: scan_stamp_ns(h),
+        stamp_ns: scan_stamp_ns(h, scan.time_us),
         frame_id: frame_id.to_owned(),
         angle_min,
         angle_max,
@@ -258,5 +270,30 @@ mod tests {
             range_m(Some(Distance::SensorError(65533)), None),
             f32::INFINITY
         );
+    }
+
+    #[test]
+    fn stamps_by_time_base() {
+        let mut h = ScanHeader {
+            seq: 1,
+            timestamp_ms: 2_475_464_640,
+            point_count: 1,
+            encoding: can_wire::Encoding::PLAIN_MM,
+            time_synced: false,
+            time_estimated: false,
+            time_master: false,
+            grouping: can_wire::Grouping::Single,
+            step_increment: 1,
+            first_step: 0,
+            ares: 1024,
+        };
+        let received = 1_795_985_999_990_000; // Unix µs, 30 ms after the scan below
+        assert_eq!(scan_stamp_ns(&h, received), 2_475_464_640_000_000);
+        h.time_synced = true;
+        h.time_estimated = true;
+        assert_eq!(scan_stamp_ns(&h, received), 2_475_464_640_000);
+        h.time_master = true;
+        // 1 795 985 999 960 000 µs ≡ 2 475 464 640 (mod 2^32).
+        assert_eq!(scan_stamp_ns(&h, received), 1_795_985_999_960_000_000);
     }
 }
