@@ -178,3 +178,38 @@ impl CanPort {
 pub fn kind(ids: &can_wire::NodeIds, id: Id) -> Option<can_wire::Kind> {
     ids.window().classify(id).map(|(_, k)| k)
 }
+
+/// The CAN side of one pass of a board's loop: a frame from the SLCAN host goes to the
+/// bridge, stamped in µs of the SysTick clock (so a time master's SYNC, SPEC 9, is taken
+/// at that resolution); then the bridge's frames go out as far as the port has room,
+/// each metered. True when the host asked for the diagnostics line (`?`), which the
+/// board writes.
+pub fn serve<const Q: usize>(
+    port: &mut CanPort,
+    can: &mut Uart,
+    bridge: &mut bridge::engine::Bridge<Q>,
+    meter: &mut crate::meter::Meter,
+    now_ms: u32,
+) -> bool {
+    let diagnostics = match port.receive(can) {
+        Some(Input::Frame(frame)) => {
+            let now_us = crate::hw::ticks() / u64::from(crate::hw::TICKS_PER_MS / 1000);
+            bridge.on_can_frame_at(&frame, now_us);
+            false
+        }
+        Some(Input::Diagnostics) => true,
+        None => false,
+    };
+    let ids = bridge.config().ids;
+    port.flush(can);
+    while port.has_room_for_frame() {
+        let Some(frame) = bridge.pop_frame() else {
+            break;
+        };
+        let kind = kind(&ids, frame.id());
+        let ((), ticks) = crate::hw::measure(|| port.send(&frame, now_ms));
+        meter.frame(kind, crate::hw::ticks(), ticks, bridge.stats());
+        port.flush(can);
+    }
+    diagnostics
+}

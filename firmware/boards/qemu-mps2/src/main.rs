@@ -24,7 +24,7 @@ mod meter;
 
 use bridge::engine::Bridge;
 use bridge::session::Action;
-use can_port::{CanPort, Input};
+use can_port::CanPort;
 use cortex_m_rt::entry;
 use embedded_io::Write;
 use slcan::StatusFlags;
@@ -76,7 +76,6 @@ fn main() -> ! {
     let Ok(mut bridge) = Bridge::<{ config::QUEUE }>::new(bridge_config) else {
         hw::exit()
     };
-    let ids = bridge.config().ids;
     bridge.set_bus_state(can_wire::BusState::ErrorActive);
     let mut port = CanPort::new(config::SLCAN_VERSION, config::SLCAN_SERIAL);
     let mut meter = meter::Meter::default();
@@ -133,28 +132,10 @@ fn main() -> ! {
             }
         }
 
-        // Control frames from the bus (the SLCAN host).
-        match port.receive(&mut can) {
-            Some(Input::Frame(frame)) => {
-                // Stamped in µs of the SysTick clock: a time master's SYNC (SPEC 9)
-                // is taken at that resolution.
-                let now_us = hw::ticks() / u64::from(hw::TICKS_PER_MS / 1000);
-                bridge.on_can_frame_at(&frame, now_us);
-            }
-            Some(Input::Diagnostics) => diagnostics(&mut port, &mut can, &bridge, &meter),
-            None => {}
-        }
-
-        // The bridge's frames onto the bus.
-        port.flush(&mut can);
-        while port.has_room_for_frame() {
-            let Some(frame) = bridge.pop_frame() else {
-                break;
-            };
-            let kind = can_port::kind(&ids, frame.id());
-            let ((), ticks) = hw::measure(|| port.send(&frame, ms));
-            meter.frame(kind, hw::ticks(), ticks, bridge.stats());
-            port.flush(&mut can);
+        // Control and time frames from the bus (the SLCAN host), the bridge's frames
+        // onto it.
+        if can_port::serve(&mut port, &mut can, &mut bridge, &mut meter, ms) {
+            diagnostics(&mut port, &mut can, &bridge, &meter);
         }
 
         let output_moves = port.has_output() && !can.tx_full();

@@ -43,7 +43,7 @@ mod meter;
 use bridge::engine::{Bridge, BridgeConfig};
 use bridge::link::LinkKind;
 use bridge::session::Action;
-use can_port::{CanPort, Input};
+use can_port::CanPort;
 use can_wire::bandwidth::BitRates;
 use can_wire::FrameFormat;
 use cortex_m_rt::entry;
@@ -138,7 +138,6 @@ fn main() -> ! {
     let Ok(mut bridge) = Bridge::<{ config::QUEUE }>::new(bridge_config) else {
         hw::exit()
     };
-    let ids = bridge.config().ids;
     bridge.set_bus_state(can_wire::BusState::ErrorActive);
 
     let (ip, port) = bootcfg::sensor();
@@ -271,27 +270,10 @@ fn main() -> ! {
         }
         iface.poll(stamp, &mut nic, &mut sockets);
 
-        // Control frames from the bus (the SLCAN host).
-        match port_can.receive(&mut can) {
-            Some(Input::Frame(frame)) => {
-                bridge.on_can_frame(&frame, now);
-            }
-            Some(Input::Diagnostics) => {
-                diagnostics(&mut port_can, &mut can, &bridge, &meter, &link_stats, &nic)
-            }
-            None => {}
-        }
-
-        // The bridge's frames onto the bus.
-        port_can.flush(&mut can);
-        while port_can.has_room_for_frame() {
-            let Some(frame) = bridge.pop_frame() else {
-                break;
-            };
-            let kind = can_port::kind(&ids, frame.id());
-            let ((), ticks) = hw::measure(|| port_can.send(&frame, ms));
-            meter.frame(kind, hw::ticks(), ticks, bridge.stats());
-            port_can.flush(&mut can);
+        // Control and time frames from the bus (the SLCAN host), the bridge's frames
+        // onto it.
+        if can_port::serve(&mut port_can, &mut can, &mut bridge, &mut meter, ms) {
+            diagnostics(&mut port_can, &mut can, &bridge, &meter, &link_stats, &nic);
         }
 
         let output_moves = port_can.has_output() && !can.tx_full();
