@@ -49,7 +49,7 @@ pub const VALID_SPAN_US: i64 = 600;
 /// A latency interval this much wider than the best one still refines it, µs.
 const SPAN_SLACK_US: i64 = 64;
 /// `TM1` answers intersected for one calibration.
-const TM_SAMPLES: u8 = 24;
+pub const TM_SAMPLES: u8 = 24;
 /// Fixed-point shift of the periods (µs × 2^16).
 const Q: u32 = 16;
 
