@@ -410,7 +410,7 @@ mod tests {
         assert_eq!(
             text,
             concat!(
-                r#"{"type":"scan","node":2,"seq":7,"time":1.5,"timestamp":1234,"time_estimated":false,"scan_time_us":null,"#,
+                r#"{"type":"scan","node":2,"seq":7,"time":1.5,"timestamp":1234,"time_estimated":false,"scan_time_us":null,"time_master":false,"robot_time_us":null,"#,
                 r#""completeness":"incomplete","missing_points":1,"trailer_missing":true,"#,
                 r#""flags":null,"point_count":4,"received":3,"first_step":-1,"#,
                 r#""step_increment":2,"ares":4,"first_angle_rad":-1.5707963705062866,"#,
