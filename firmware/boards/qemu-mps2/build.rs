@@ -1,5 +1,6 @@
 //! Puts this board's `memory.x` on the linker search path, where cortex-m-rt's
-//! `link.x` includes it: the UART binaries get `memory.x`, the Ethernet binary
+//! `link.x` includes it: the UART binaries get `memory.x`, the benchmarks
+//! `memory-bench.x` (more RAM for a bridge built on the stack), the Ethernet binary
 //! `memory-eth.x` (each binary its own search folder).
 
 use std::{env, fs, path::PathBuf};
@@ -8,8 +9,8 @@ use std::{env, fs, path::PathBuf};
 const LAYOUTS: [(&str, &[u8]); 5] = [
     ("scip2can-qemu", include_bytes!("memory.x")),
     ("scip2can-qemu-decode", include_bytes!("memory.x")),
-    ("scip2can-qemu-bench", include_bytes!("memory.x")),
-    ("scip2can-qemu-bench-d16", include_bytes!("memory.x")),
+    ("scip2can-qemu-bench", include_bytes!("memory-bench.x")),
+    ("scip2can-qemu-bench-d16", include_bytes!("memory-bench.x")),
     ("scip2can-qemu-eth", include_bytes!("memory-eth.x")),
 ];
 
@@ -23,5 +24,6 @@ fn main() {
     }
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=memory-eth.x");
+    println!("cargo:rerun-if-changed=memory-bench.x");
     println!("cargo:rerun-if-changed=build.rs");
 }
