@@ -325,7 +325,7 @@ impl<const Q: usize> Bridge<Q> {
     /// the model is not built in (it does not fit the 96 KiB flash budget of the STM32
     /// boards yet) and this does nothing.
     pub fn set_time_estimation(&mut self, on: bool) {
-        self.core.estimate_time = on && cfg!(feature = "time-estimate");
+        self.core.estimate_time = on;
     }
 
     /// The sensor clock model.
