@@ -181,28 +181,16 @@ fn diagnostics(
     while port.has_output() {
         port.flush(can);
     }
-    let s = bridge.stats();
-    let g = bridge.governor().stats();
+    let core = meter::CoreFields {
+        meter,
+        stats: bridge.stats(),
+        governor: bridge.governor().stats(),
+    };
     let closed_drops = port.closed_drops;
     port.text(format_args!(
-        "?fw={} stack={} stack_size={} bytes={} core_ticks={} calls={} max_call_ticks={} \
-         slcan_ticks={} frames={} scans_in={} scans_sent={} scans_aborted={} \
-         dropped_budget={} dropped_queue={} lat_n={} lat_sum={} lat_max={} early={} late={} \
+        "?fw={} {core} lat_n={} lat_sum={} lat_max={} early={} late={} \
          rx_lost={} closed_drops={} cpu_permille={} ms={}",
         env!("CARGO_PKG_VERSION"),
-        hw::stack_used(),
-        hw::stack_size(),
-        meter.bytes,
-        meter.core_ticks,
-        meter.calls,
-        meter.max_call_ticks,
-        meter.slcan_ticks,
-        meter.frames,
-        s.scans_in,
-        s.scans_sent,
-        s.scans_aborted,
-        g.dropped_budget,
-        g.dropped_queue,
         meter.latency_n,
         meter.latency_sum,
         meter.latency_max,

@@ -95,3 +95,39 @@ impl Meter {
         }
     }
 }
+
+/// The fields every bridge binary's `?` line starts with after its version: stack,
+/// work counters, scans and the governor's drops (`key=value`, space-separated).
+pub struct CoreFields<'a> {
+    /// The work counters.
+    pub meter: &'a Meter,
+    /// The core's scan counters.
+    pub stats: &'a BridgeStats,
+    /// The governor's counters.
+    pub governor: &'a bridge::governor::GovernorStats,
+}
+
+impl core::fmt::Display for CoreFields<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let (m, s, g) = (self.meter, self.stats, self.governor);
+        write!(
+            f,
+            "stack={} stack_size={} bytes={} core_ticks={} calls={} max_call_ticks={} \
+             slcan_ticks={} frames={} scans_in={} scans_sent={} scans_aborted={} \
+             dropped_budget={} dropped_queue={}",
+            crate::hw::stack_used(),
+            crate::hw::stack_size(),
+            m.bytes,
+            m.core_ticks,
+            m.calls,
+            m.max_call_ticks,
+            m.slcan_ticks,
+            m.frames,
+            s.scans_in,
+            s.scans_sent,
+            s.scans_aborted,
+            g.dropped_budget,
+            g.dropped_queue,
+        )
+    }
+}

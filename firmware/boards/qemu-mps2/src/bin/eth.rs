@@ -298,28 +298,16 @@ fn diagnostics(
     while port.has_output() {
         port.flush(can);
     }
-    let s = bridge.stats();
-    let g = bridge.governor().stats();
+    let core = meter::CoreFields {
+        meter,
+        stats: bridge.stats(),
+        governor: bridge.governor().stats(),
+    };
     let e = nic.stats();
     port.text(format_args!(
-        "?fw={}-eth stack={} stack_size={} bytes={} core_ticks={} calls={} max_call_ticks={} \
-         slcan_ticks={} frames={} scans_in={} scans_sent={} scans_aborted={} \
-         dropped_budget={} dropped_queue={} connects={} drops={} connect_failures={} \
+        "?fw={}-eth {core} connects={} drops={} connect_failures={} \
          eth_rx={} eth_rx_errors={} eth_tx={} link_up={} ms={}",
         env!("CARGO_PKG_VERSION"),
-        hw::stack_used(),
-        hw::stack_size(),
-        meter.bytes,
-        meter.core_ticks,
-        meter.calls,
-        meter.max_call_ticks,
-        meter.slcan_ticks,
-        meter.frames,
-        s.scans_in,
-        s.scans_sent,
-        s.scans_aborted,
-        g.dropped_budget,
-        g.dropped_queue,
         link.connects,
         link.drops,
         link.failed,
