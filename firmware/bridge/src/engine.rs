@@ -493,6 +493,12 @@ impl<const Q: usize> Bridge<Q> {
         Ok(())
     }
 
+    /// The identifier of the time master's frames this bridge follows (SPEC 9), if any:
+    /// a board's CAN acceptance filter must let it through beside the control frames.
+    pub fn time_id(&self) -> Option<embedded_can::Id> {
+        self.core.time_id
+    }
+
     /// The board saw a CAN bus error.
     pub fn on_bus_error(&mut self) {
         self.core.health.bus_errors = self.core.health.bus_errors.saturating_add(1);

@@ -156,6 +156,15 @@ pub fn ethernet_bridge(bus: CanBus) -> Result<Bridge, BridgeError> {
     Bridge::new(ethernet_bridge_config(bus)?)
 }
 
+/// The identifiers a board's CAN acceptance filter must let through: this bridge's
+/// control frames and, when the bridge follows a time master (SPEC 9), the master's SYNC
+/// and FOLLOW-UP identifier. Without a time master the control identifier fills both
+/// entries, so a filter of two entries always takes both.
+pub fn accepted_ids(bridge: &Bridge) -> [embedded_can::Id; 2] {
+    let control = bridge.config().ids.id(can_wire::Kind::Control);
+    [control, bridge.time_id().unwrap_or(control)]
+}
+
 /// The identifiers of this bridge: node [`NODE`] of the default window.
 pub fn node_ids() -> Result<can_wire::NodeIds, BridgeError> {
     IdWindow::DEFAULT.node(NODE).map_err(BridgeError::Wire)
@@ -191,6 +200,36 @@ mod tests {
     fn sensor_rates_are_scip_rates() {
         assert!(scip::BIT_RATES.contains(&SENSOR_POWER_UP_BIT_RATE));
         assert!(scip::BIT_RATES.contains(&SENSOR_BIT_RATE));
+    }
+
+    /// Time sync worked on the QEMU board (which filters nothing) but not on the STM32
+    /// boards, whose filters took only the control identifier: the SYNC / FOLLOW-UP pair
+    /// of a master (SPEC 9) never reached the bridge.
+    #[test]
+    fn the_filters_let_the_time_masters_frames_through() {
+        use can_wire::timesync::DEFAULT_TIME_ID;
+        use can_wire::TimeFrame;
+        for bus in [CanBus::CLASSIC_1M, CanBus::FD_1M_5M] {
+            let mut b = bridge(bus).expect("bridge");
+            let ids = accepted_ids(&b);
+            let time = embedded_can::StandardId::new(DEFAULT_TIME_ID).expect("11 bits");
+            assert!(ids.contains(&embedded_can::Id::Standard(time)), "{ids:?}");
+            assert!(ids.contains(&node_ids().expect("node").id(Kind::Control)));
+            // A SYNC and its FOLLOW-UP on the accepted identifier give a mapping to the
+            // master's clock: the master sent at 1 000 000 µs, the bridge took the SYNC at
+            // its 5 000 µs, so bridge 6 000 µs is master 1 001 000 µs.
+            let id = ids[1];
+            let sync = TimeFrame::Sync { seq: 3 }.to_frame(id).expect("sync");
+            let follow = TimeFrame::FollowUp {
+                seq: 3,
+                master_us: 1_000_000,
+            }
+            .to_frame(id)
+            .expect("follow-up");
+            b.on_can_frame_at(&sync, 5_000);
+            b.on_can_frame_at(&follow, 5_400);
+            assert_eq!(b.to_master(6_000), Some(1_001_000), "{bus:?}");
+        }
     }
 
     #[test]

@@ -40,8 +40,10 @@ use embedded_can::Id;
 /// bound only keeps a faulty controller from hanging the main loop: well under 1 ms).
 const INIT_ACK_READS: u32 = 10_000;
 
-/// Sets up CAN1 on `rx`/`tx` for `bus`: bit timing, FIFO transmit order, only this
-/// bridge's control data frames accepted (`control_id`, filter bank 0 into FIFO 0). The
+/// Sets up CAN1 on `rx`/`tx` for `bus`: bit timing, FIFO transmit order, only the data
+/// frames of the identifiers `ids` accepted (this bridge's control frames and the time
+/// master's, `board_common::config::accepted_ids`: filter bank 0, a list of two, into
+/// FIFO 0). The
 /// controller stays asleep until the transmit task enables it.
 pub fn configure(
     peri: Peri<'static, CAN1>,
@@ -53,12 +55,11 @@ pub fn configure(
         + Binding<CAN1_SCE, SceInterruptHandler<CAN1>>
         + 'static,
     bus: CanBus,
-    control_id: Id,
+    ids: [Id; 2],
 ) -> Can<'static> {
     let mut can = Can::new(peri, rx, tx, irqs);
-    let entry = ListEntry32::data_frames_with_id(control_id);
-    can.modify_filters()
-        .enable_bank(0, Fifo::Fifo0, [entry, entry]);
+    let entries = ids.map(ListEntry32::data_frames_with_id);
+    can.modify_filters().enable_bank(0, Fifo::Fifo0, entries);
     // Dropping the configuration proxy leaves initialisation mode (into sleep).
     can.modify_config()
         .set_bitrate(bus.rates.nominal)
@@ -112,9 +113,11 @@ pub async fn rx_task(shared: &'static Shared, mut rx: CanRx<'static>) {
         match rx.read().await {
             Ok(envelope) => {
                 if let Some(frame) = from_bxcan(&envelope.frame) {
-                    // µs when the task took it (a software stamp: the controller's RX timestamp
-                    // would be exact): a time master's SYNC (SPEC 9) is taken at that resolution.
-                    let now_us = embassy_time::Instant::now().as_micros();
+                    // The reception time (a time master's SYNC, SPEC 9, is taken at it):
+                    // embassy stamps the frame in the receive interrupt, as it takes it
+                    // from the controller's FIFO (bxCAN's own 16-bit stamp counts bit
+                    // times and would need the bit rate to be turned into µs).
+                    let now_us = envelope.ts.as_micros();
                     if shared.with(|b| b.on_can_frame_at(&frame, now_us)) {
                         shared.notify_frames();
                     }

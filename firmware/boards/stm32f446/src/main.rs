@@ -139,7 +139,7 @@ fn setup(shared: &'static Shared) -> Setup {
     let p = embassy_stm32::init(clocks());
     info!("scip2can-stm32f446 {}", env!("CARGO_PKG_VERSION"));
 
-    let control_id = shared.with(|b| b.config().ids.id(can_wire::Kind::Control));
+    let can_ids = shared.with(|b| board_common::config::accepted_ids(b));
 
     // Sensor: USART1, TX PA9, RX PA10 (Arduino D8 and D2), 8N1; DMA2 streams 7 and 2
     // (channel 4).
@@ -158,7 +158,7 @@ fn setup(shared: &'static Shared) -> Setup {
     let rx = rx.into_ring_buffered(UART_RING.init([0; config::UART_RING]));
 
     // CAN: CAN1, RX PA11, TX PA12 (morpho CN10 pins 14 and 12), to a CAN transceiver.
-    let can = bxcan::configure(p.CAN1, p.PA11, p.PA12, Irqs, BUS, control_id);
+    let can = bxcan::configure(p.CAN1, p.PA11, p.PA12, Irqs, BUS, can_ids);
 
     // The watchdog stops while a debugger halts the core (otherwise every breakpoint
     // resets the MCU after 500 ms); it runs normally under `probe-rs run`.

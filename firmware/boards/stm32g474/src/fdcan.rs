@@ -39,7 +39,9 @@ use board_common::Shared;
 use can_wire::BusState;
 use embassy_stm32::can::config::{GlobalFilter, TxBufferMode};
 use embassy_stm32::can::enums::BusErrorMode;
-use embassy_stm32::can::filter::{Action, FilterType, StandardFilter, StandardFilterSlot};
+use embassy_stm32::can::filter::{
+    Action, ExtendedFilter, ExtendedFilterSlot, FilterType, StandardFilter, StandardFilterSlot,
+};
 use embassy_stm32::can::frame::{FdFrame, Header};
 use embassy_stm32::can::{
     CanConfigurator, CanRx, CanTx, IT0InterruptHandler, IT1InterruptHandler, Properties, RxPin,
@@ -56,8 +58,9 @@ use embedded_can::Id;
 const INIT_ACK_READS: u32 = 10_000;
 
 /// Sets up FDCAN1 on `rx`/`tx` for `bus` and starts it: FIFO transmit order, no automatic
-/// bus-off recovery, only this bridge's control frames accepted (`control_id`, into
-/// receive FIFO 0).
+/// bus-off recovery, only the identifiers `ids` accepted (this bridge's control frames and
+/// the time master's, `board_common::config::accepted_ids`; standard filter slots 0 and 1
+/// or extended slots 0 and 1, into receive FIFO 0).
 pub fn start(
     peri: Peri<'static, FDCAN1>,
     rx: Peri<'static, impl RxPin<FDCAN1>>,
@@ -66,7 +69,7 @@ pub fn start(
         + Binding<FDCAN1_IT1, IT1InterruptHandler<FDCAN1>>
         + 'static,
     bus: CanBus,
-    control_id: Id,
+    ids: [Id; 2],
 ) -> (CanTx<'static>, CanRx<'static>, Supervisor) {
     let mut can = CanConfigurator::new(peri, rx, tx, irqs);
     can.set_bitrate(bus.rates.nominal);
@@ -80,21 +83,28 @@ pub fn start(
         .set_automatic_bus_off_recovery(false)
         .set_global_filter(GlobalFilter::reject_all());
     can.set_config(config);
-    match control_id {
-        Id::Standard(id) => can.properties().set_standard_filter(
-            StandardFilterSlot::_0,
-            StandardFilter {
-                filter: FilterType::DedicatedSingle(id),
-                action: Action::StoreInFifo0,
-            },
-        ),
-        Id::Extended(id) => can.properties().set_extended_filter(
-            embassy_stm32::can::filter::ExtendedFilterSlot::_0,
-            embassy_stm32::can::filter::ExtendedFilter {
-                filter: FilterType::DedicatedSingle(id),
-                action: Action::StoreInFifo0,
-            },
-        ),
+    for (n, id) in ids.into_iter().enumerate() {
+        let (standard, extended) = if n == 0 {
+            (StandardFilterSlot::_0, ExtendedFilterSlot::_0)
+        } else {
+            (StandardFilterSlot::_1, ExtendedFilterSlot::_1)
+        };
+        match id {
+            Id::Standard(id) => can.properties().set_standard_filter(
+                standard,
+                StandardFilter {
+                    filter: FilterType::DedicatedSingle(id),
+                    action: Action::StoreInFifo0,
+                },
+            ),
+            Id::Extended(id) => can.properties().set_extended_filter(
+                extended,
+                ExtendedFilter {
+                    filter: FilterType::DedicatedSingle(id),
+                    action: Action::StoreInFifo0,
+                },
+            ),
+        }
     }
     let can = can.into_normal_mode();
     if bus.fd_capable {
@@ -191,9 +201,12 @@ pub async fn rx_task(shared: &'static Shared, mut rx: CanRx<'static>) {
             continue;
         };
         if let Some(frame) = from_fdcan(&envelope.frame) {
-            // µs when the task took it (a software stamp: the controller's RX timestamp
-            // would be exact): a time master's SYNC (SPEC 9) is taken at that resolution.
-            let now_us = embassy_time::Instant::now().as_micros();
+            // The reception time (a time master's SYNC, SPEC 9, is taken at it): embassy
+            // stamps the frame in the receive interrupt and, for classic frames, moves
+            // the stamp back to the controller's RX timestamp (its counter in bit times);
+            // with bit-rate switching the counter's rate changes within a frame, so FD
+            // frames keep the interrupt's time.
+            let now_us = envelope.ts.as_micros();
             if shared.with(|b| b.on_can_frame_at(&frame, now_us)) {
                 shared.notify_frames();
             }

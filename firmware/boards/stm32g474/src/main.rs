@@ -135,7 +135,7 @@ fn setup(shared: &'static Shared) -> Setup {
     let p = embassy_stm32::init(clocks());
     info!("scip2can-stm32g474 {}", env!("CARGO_PKG_VERSION"));
 
-    let control_id = shared.with(|b| b.config().ids.id(can_wire::Kind::Control));
+    let can_ids = shared.with(|b| board_common::config::accepted_ids(b));
 
     // Sensor: USART1, TX PC4, RX PC5 (morpho CN10 pins 34 and 6), 8N1.
     let mut uart_config = usart::Config::default();
@@ -153,8 +153,7 @@ fn setup(shared: &'static Shared) -> Setup {
     let rx = rx.into_ring_buffered(UART_RING.init([0; config::UART_RING]));
 
     // CAN: FDCAN1, RX PA11, TX PA12 (morpho CN10 pins 14 and 12), to a CAN FD transceiver.
-    let (can_tx, can_rx, supervisor) =
-        fdcan::start(p.FDCAN1, p.PA11, p.PA12, Irqs, BUS, control_id);
+    let (can_tx, can_rx, supervisor) = fdcan::start(p.FDCAN1, p.PA11, p.PA12, Irqs, BUS, can_ids);
 
     // The watchdog stops while a debugger halts the core (otherwise every breakpoint
     // resets the MCU after 500 ms); it runs normally under `probe-rs run`.

@@ -203,7 +203,7 @@ fn setup(shared: &'static Shared) -> Setup {
     let p = embassy_stm32::init(clocks());
     info!("scip2can-stm32h723 {}", env!("CARGO_PKG_VERSION"));
 
-    let control_id = shared.with(|b| b.config().ids.id(can_wire::Kind::Control));
+    let can_ids = shared.with(|b| board_common::config::accepted_ids(b));
 
     // Sensor: Ethernet, RMII to the board's LAN8742A PHY (RJ45 CN14): REF_CLK PA1,
     // CRS_DV PA7, RXD0 PC4, RXD1 PC5, TXD0 PG13, TXD1 PB13, TX_EN PG11; MDIO PA2, MDC PC1.
@@ -237,7 +237,7 @@ fn setup(shared: &'static Shared) -> Setup {
     );
 
     // CAN: FDCAN1, RX PD0, TX PD1 (Zio connector CN9), to a CAN FD transceiver.
-    let (can_tx, can_rx, supervisor) = fdcan::start(p.FDCAN1, p.PD0, p.PD1, Irqs, BUS, control_id);
+    let (can_tx, can_rx, supervisor) = fdcan::start(p.FDCAN1, p.PD0, p.PD1, Irqs, BUS, can_ids);
 
     // The watchdog stops while a debugger halts the core (see the G474).
     embassy_stm32::pac::DBGMCU
