@@ -152,7 +152,7 @@ impl Source for ReplaySource {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::model::ModelKind;
+    use crate::model::ModelKind;
 
     #[test]
     fn replays_the_tagged_capture() {

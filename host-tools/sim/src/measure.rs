@@ -219,7 +219,7 @@ impl Source for SceneSource {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::model::{ModelKind, Noise};
+    use crate::model::{ModelKind, Noise};
 
     #[test]
     fn power_falls_with_distance_squared_and_intensity_barely() {

@@ -27,7 +27,7 @@
 //! bursts of garbled bytes — whether or not any check of the receiver can catch them.
 //! Nothing is filtered and nothing is logged per event (only counted, see
 //! [`LineNoiseStats`]): what the receiver makes of the damage is judged against the
-//! sensor's ground truth ([`crate::sim::session::ScanTruth`]).
+//! sensor's ground truth ([`crate::session::ScanTruth`]).
 
 use scip::checksum;
 

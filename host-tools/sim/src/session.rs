@@ -1031,9 +1031,9 @@ impl Sensor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::measure::SceneSource;
-    use crate::sim::model::{ModelKind, Noise};
-    use crate::sim::scene::Scene;
+    use crate::measure::SceneSource;
+    use crate::model::{ModelKind, Noise};
+    use crate::scene::Scene;
 
     fn sensor(kind: ModelKind, scip11: bool) -> Sensor {
         let src = SceneSource::new(Scene::wall(1000.0, 0.8), 1, Noise::EXACT);
