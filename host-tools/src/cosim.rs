@@ -49,6 +49,9 @@ pub const STEP_US: u64 = 50;
 pub const SHORT_AFTER_US: u64 = 5_000;
 /// The wire: 5 Mbit/s, 10 bits a byte.
 pub const BYTE_US: u64 = 2;
+/// Largest answer the firmware takes (after its 11-byte head), bytes: a slot of the
+/// wire (500 bytes a millisecond) and its chunk heads.
+pub const ANSWER_MAX: usize = 1024;
 /// Largest chunk (a DMA half-buffer).
 pub const CHUNK: usize = 64;
 
@@ -331,6 +334,12 @@ pub fn run(setup: &Setup) -> anyhow::Result<Run> {
             }
             let (count, chunks) = wire.chunks();
             run.sensor_bytes += (chunks.len() - 9 * count) as u64;
+            if chunks.len() > ANSWER_MAX {
+                bail!(
+                    "slot {t} µs: {} bytes of chunks, the firmware takes {ANSWER_MAX}",
+                    chunks.len()
+                );
+            }
             let mut answer = vec![b'A'];
             answer.extend_from_slice(&end.to_le_bytes());
             answer.extend_from_slice(&(chunks.len() as u16).to_le_bytes());

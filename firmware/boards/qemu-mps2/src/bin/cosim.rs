@@ -60,7 +60,8 @@ const REQUEST: u8 = b'Q';
 /// The answer's first byte: chunks follow.
 const ANSWER: u8 = b'A';
 
-/// Capacity of one slot's answer (at 2 µs a byte, 500 bytes and their chunk headers).
+/// Capacity of one slot's answer after its head (at 2 µs a byte, 500 bytes and their
+/// chunk heads; the host's `cosim::ANSWER_MAX`).
 const ANSWER_CAP: usize = 1024;
 /// The host's pipes, relative to QEMU's working folder.
 const REQUESTS: &core::ffi::CStr = c"cosim-requests";
