@@ -26,6 +26,9 @@ for board in scip2can-qemu stm32g474 stm32f446 stm32h723; do
     cargo clippy --release -p "$board" --all-targets -- -D warnings
     cargo build --release -p "$board"
 done
+# The lockstep co-simulation binary (needs the clock model: tests/it/qemu_time_estimate.rs).
+cargo clippy --release -p scip2can-qemu --features time-estimate --bin scip2can-qemu-cosim \
+    -- -D warnings
 # board-common's tests (unit tests, and the main loop on a simulated board) run on the host.
 host=$(rustc -vV | sed -n 's/^host: //p')
 cargo clippy -p board-common --all-targets --target "$host" -- -D warnings

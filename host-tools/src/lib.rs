@@ -4,6 +4,7 @@
 //! that the integration tests run exactly what the command runs.
 
 pub mod candump;
+pub mod cosim;
 pub mod decode;
 pub mod emulate;
 pub mod icount;

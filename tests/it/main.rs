@@ -16,6 +16,7 @@ mod noise;
 mod pipeline_blocks;
 mod pp_faults;
 mod qemu;
+mod qemu_time_estimate;
 mod recordings;
 mod replay_model;
 mod scan_clock;

@@ -26,6 +26,7 @@ fn main() {
         ("scip2can-qemu-decode", uart),
         ("scip2can-qemu-bench", bench.as_str()),
         ("scip2can-qemu-bench-d16", bench.as_str()),
+        ("scip2can-qemu-cosim", bench.as_str()),
         ("scip2can-qemu-eth", eth),
     ];
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
