@@ -16,7 +16,10 @@ use scip2can_host::sensor::{record, record_file};
 use scip2can_host::sim::transport::{serve_pty, serve_tcp, Clock};
 use scip2can_host::sim::SimOptions;
 
-const TIMEOUT: Duration = Duration::from_secs(3);
+/// How long a client waits for an answer: a safety net against hangs, not a measure. A
+/// debug-build simulator streaming at 10x speed on a 2-core machine busy with other
+/// builds took more than 3 s to get a QT answer through the scans ahead of it.
+const TIMEOUT: Duration = Duration::from_secs(10);
 
 struct Server {
     stop: Arc<AtomicBool>,
