@@ -52,6 +52,14 @@ const SPAN_SLACK_US: i64 = 64;
 pub const TM_SAMPLES: u8 = 24;
 /// Fixed-point shift of the periods (µs × 2^16).
 const Q: u32 = 16;
+/// Longest scan period the model follows, Q16 (2^36: about 1.05 s a scan).
+const MAX_PERIOD_Q: i64 = 1 << 36;
+/// The period fit takes block minima up to this many scans apart.
+const FIT_MAX_SCANS: i64 = 1 << 16;
+/// The period fit takes block minima up to this many µs apart (about 19 hours).
+const FIT_MAX_US: i64 = 1 << 36;
+/// A `TM` anchor calibrates scans up to this many sensor µs away (about 19 hours).
+const ANCHOR_MAX_US: i64 = 1 << 36;
 
 /// A scan's estimated start in the bridge's clock.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -158,8 +166,22 @@ impl Default for ScanClock {
     }
 }
 
+/// The period (Q16) and its uncertainty between the starts `p0` of scan `k0` and `p1`
+/// of scan `k1` (not inlined: called three times a scan, small next to its callers).
+#[inline(never)]
+fn pair(k0: i64, p0: Span, k1: i64, p1: Span) -> Option<(i64, i64)> {
+    let dk = k1.saturating_sub(k0);
+    if dk <= 0 {
+        return None;
+    }
+    let span = p1.mid().saturating_sub(p0.mid());
+    let err = q(p1.width().saturating_add(p0.width()) / 2).checked_div(dk)?;
+    Some((q(span).checked_div(dk)?, err))
+}
+
+/// µs to Q16, clamped to ±2^46 µs (a shift: cheaper than a saturating multiply).
 fn q(us: i64) -> i64 {
-    us.saturating_mul(1 << Q)
+    us.clamp(-(1 << 46), 1 << 46) << Q
 }
 
 fn unq(v: i64) -> i64 {
@@ -221,6 +243,7 @@ impl ScanClock {
     /// scans' stamps) between `sent_us` (request's last byte out) and `recv_us`
     /// (answer's timestamp line in), bridge µs. Answers of one exchange intersect; an
     /// answer that contradicts the ones before starts a new calibration.
+    #[inline(never)]
     pub fn on_tm(&mut self, sensor_ms: u64, sent_us: u64, recv_us: u64) {
         let sensor_us = i64::try_from(sensor_ms)
             .unwrap_or(i64::MAX)
@@ -259,6 +282,7 @@ impl ScanClock {
 
     /// A scan: its stamp `sensor_ms` (extended sensor ms) and the bridge time its
     /// timestamp line ended arriving, µs. Returns the estimated start of the scan.
+    #[inline(never)]
     pub fn on_scan(&mut self, sensor_ms: u64, arrival_us: u64) -> Estimate {
         let ms = i64::try_from(sensor_ms).unwrap_or(i64::MAX);
         let arrival = i64::try_from(arrival_us).unwrap_or(i64::MAX);
@@ -314,6 +338,7 @@ impl ScanClock {
 
     /// Carries the stream to a new scan; `None` if the stamp does not fit it (the
     /// sensor restarted or its period changed).
+    #[inline(never)]
     fn advance(&mut self, mut s: Stream, ms: i64, stamp: Span, arrival: i64) -> Option<Stream> {
         let dms = ms.saturating_sub(s.last_ms);
         if dms <= 0 {
@@ -366,15 +391,6 @@ impl ScanClock {
             s.best_k = s.k;
             s.best_phase = phase;
         }
-        let pair = |k0: i64, p0: Span, k1: i64, p1: Span| -> Option<(i64, i64)> {
-            let dk = k1.saturating_sub(k0);
-            if dk <= 0 {
-                return None;
-            }
-            let span = p1.mid().saturating_sub(p0.mid());
-            let err = q(p1.width().saturating_add(p0.width()) / 2).checked_div(dk)?;
-            Some((q(span).checked_div(dk)?, err))
-        };
         let better = |a: Option<(i64, i64)>, b: Option<(i64, i64)>| match (a, b) {
             (Some(x), Some(y)) if y.1 < x.1 => Some(y),
             (x, y) => x.or(y),
@@ -404,6 +420,7 @@ impl ScanClock {
     }
 
     /// Block minima of the arrivals and the bridge period from their slope.
+    #[inline(never)]
     fn fit_blocks(&mut self, s: &mut Stream, arrival: i64) {
         let block = s.k.checked_div(BLOCK).unwrap_or(0);
         if block != s.block {
@@ -437,6 +454,12 @@ impl ScanClock {
 
     /// Least-squares slope of the block minima: the bridge period, and from how far
     /// the minima stray from it, its uncertainty.
+    ///
+    /// In `i64`: the points are taken relative to the first, `x` (scans) below
+    /// [`FIT_MAX_SCANS`] and `|y|` (µs) below [`FIT_MAX_US`], else the fit waits for
+    /// better points. Then `n·Σxy`, `n·Σx²` and `(Σx)²` stay below 2^60 and the slope
+    /// is taken as quotient and remainder, each scaled to Q16 within 2^56.
+    #[inline(never)]
     fn fit_period(&mut self, s: &mut Stream, arrival: i64) {
         if s.blocks_len < 4 {
             return;
@@ -445,43 +468,50 @@ impl ScanClock {
         let Some(&(k0, a0)) = pts.iter().min_by_key(|p| p.0) else {
             return;
         };
-        let k1 = pts.iter().map(|p| p.0).max().unwrap_or(k0);
-        let (mut n, mut sx, mut sy, mut sxx, mut sxy) = (0i128, 0i128, 0i128, 0i128, 0i128);
+        let (mut n, mut sx, mut sy, mut sxx, mut sxy) = (0i64, 0i64, 0i64, 0i64, 0i64);
+        let mut x_max = 0i64;
         for &(k, a) in pts {
-            let x = i128::from(k.saturating_sub(k0));
-            let y = i128::from(a.saturating_sub(a0));
-            n = n.saturating_add(1);
-            sx = sx.saturating_add(x);
-            sy = sy.saturating_add(y);
-            sxx = sxx.saturating_add(x.saturating_mul(x));
-            sxy = sxy.saturating_add(x.saturating_mul(y));
+            let x = k.saturating_sub(k0);
+            let y = a.saturating_sub(a0);
+            if !(0..FIT_MAX_SCANS).contains(&x) || y.saturating_abs() >= FIT_MAX_US {
+                return;
+            }
+            x_max = x_max.max(x);
+            // Within the ranges above none of these wraps.
+            n = n.wrapping_add(1);
+            sx = sx.wrapping_add(x);
+            sy = sy.wrapping_add(y);
+            sxx = sxx.wrapping_add(x.wrapping_mul(x));
+            sxy = sxy.wrapping_add(x.wrapping_mul(y));
         }
         let num = n.saturating_mul(sxy).saturating_sub(sx.saturating_mul(sy));
         let den = n.saturating_mul(sxx).saturating_sub(sx.saturating_mul(sx));
-        let Some(p) = num
-            .saturating_mul(1 << Q)
-            .checked_div(den)
-            .and_then(|p| i64::try_from(p).ok())
-        else {
-            return;
-        };
-        if p <= 0 {
+        if den <= 0 || num <= 0 {
             return;
         }
-        let b = sy
-            .saturating_sub(i128::from(p).saturating_mul(sx) >> Q)
-            .checked_div(n)
+        // num / den in Q16: |num / den| < 2^36 (a slope of µs per scan), the
+        // remainder below den < 2^41.
+        let whole = num.checked_div(den).unwrap_or(0);
+        let frac = num
+            .checked_rem(den)
+            .unwrap_or(0)
+            .wrapping_shl(Q)
+            .checked_div(den)
             .unwrap_or(0);
-        let (mut lo, mut hi) = (i128::MAX, i128::MIN);
+        let p = whole.saturating_mul(1 << Q).saturating_add(frac);
+        if p <= 0 || p > MAX_PERIOD_Q {
+            return;
+        }
+        // Spread of the residuals about the line (its intercept cancels out).
+        let (mut lo, mut hi) = (i64::MAX, i64::MIN);
         for &(k, a) in pts {
-            let x = i128::from(k.saturating_sub(k0));
-            let r = i128::from(a.saturating_sub(a0))
-                .saturating_sub(b)
-                .saturating_sub(i128::from(p).saturating_mul(x) >> Q);
+            let x = k.saturating_sub(k0);
+            // In range: checked in the loop above, and p ≤ 2^36.
+            let r = a.wrapping_sub(a0).wrapping_sub(p.wrapping_mul(x) >> Q);
             lo = lo.min(r);
             hi = hi.max(r);
         }
-        let spread = i64::try_from(hi.saturating_sub(lo)).unwrap_or(i64::MAX);
+        let spread = hi.saturating_sub(lo);
         if s.period_b == 0 {
             s.env = arrival;
         }
@@ -490,24 +520,37 @@ impl ScanClock {
         // About two standard deviations of the slope: the residuals' spread (some
         // four deviations of the minima) over the span, times sqrt(12 / n) ≈ 1.
         s.period_b_err = q(spread.saturating_add(1))
-            .checked_div(k1.saturating_sub(k0).max(1).saturating_mul(2))
+            .checked_div(x_max.max(1).saturating_mul(2))
             .unwrap_or(i64::MAX);
     }
 
     /// Latency from the `TM` anchor and the scan phase, intersected over scans.
+    #[inline(never)]
     fn calibrate(&mut self, s: &Stream) {
         let Some(tm) = self.tm else { return };
-        if s.period_s == 0 || s.period_b == 0 || s.scans < WARMUP_SCANS {
+        if s.period_s <= 0 || s.period_b <= 0 || s.scans < WARMUP_SCANS {
             return;
         }
         // Bridge time of the scan's start interval: the anchor carried by the sensor
-        // µs between them, scaled by bridge/sensor period (the drift).
+        // µs between them, scaled by bridge/sensor period (the drift). In `i64`: the
+        // anchor at most ANCHOR_MAX_US away, the periods' ratio within 2^-8 of 1 and
+        // taken as a Q30 difference (|ratio − 1| · 2^30 < 2^22), so `ds × ratio` stays
+        // below 2^58; the periods at most MAX_PERIOD_Q (below 2^37).
         let ds = s.phase.lo.saturating_sub(tm.sensor_us);
-        let scaled = i128::from(ds)
-            .saturating_mul(i128::from(s.period_b))
-            .checked_div(i128::from(s.period_s))
-            .unwrap_or(0);
-        let ds_b = i64::try_from(scaled).unwrap_or(if ds < 0 { i64::MIN } else { i64::MAX });
+        if ds.saturating_abs() > ANCHOR_MAX_US
+            || s.period_s > MAX_PERIOD_Q
+            || s.period_b > MAX_PERIOD_Q
+        {
+            return;
+        }
+        // Both periods are positive and at most 2^36 (the fit's bound for `period_b`):
+        // plain arithmetic within the ranges above.
+        let diff = s.period_b.wrapping_sub(s.period_s);
+        if diff.wrapping_abs() > s.period_s >> 8 {
+            return;
+        }
+        let ratio = diff.wrapping_shl(30).checked_div(s.period_s).unwrap_or(0);
+        let ds_b = ds.wrapping_add(ds.wrapping_mul(ratio) >> 30);
         let start = Span {
             lo: tm.bridge.lo.saturating_add(ds_b),
             hi: tm
@@ -516,12 +559,13 @@ impl ScanClock {
                 .saturating_add(ds_b)
                 .saturating_add(s.phase.width()),
         };
-        // What the period's error does over the distance to the anchor.
-        let extra = i128::from(ds.saturating_abs())
-            .saturating_mul(i128::from(s.period_s_err.saturating_add(s.period_b_err)))
-            .checked_div(i128::from(s.period_s))
-            .unwrap_or(i128::MAX);
-        let extra = i64::try_from(extra).unwrap_or(i64::MAX);
+        // What the period's error does over the distance to the anchor (a product that
+        // saturates is far wider than any valid span).
+        let extra = ds
+            .saturating_abs()
+            .saturating_mul(s.period_s_err.saturating_add(s.period_b_err))
+            .checked_div(s.period_s)
+            .unwrap_or(i64::MAX);
         let here = Span {
             lo: s.env.saturating_sub(start.hi).saturating_sub(extra),
             hi: s.env.saturating_sub(start.lo).saturating_add(extra),
