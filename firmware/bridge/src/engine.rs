@@ -1058,7 +1058,14 @@ impl<const Q: usize> Core<Q> {
         // sync the caller's clock.
         let sensor_ms = self.clock.unwrap(raw_timestamp);
         let estimate = if self.estimating() {
-            self.scan_clock.on_scan(sensor_ms, self.event_us())
+            let estimate = self.scan_clock.on_scan(sensor_ms, self.event_us());
+            if self.scan_clock.wants_tm() {
+                // The scans just crossed a tick of the sensor's clock: a TM now pins
+                // the latency (the stream stops for it, a few scans).
+                self.scan_clock.tm_requested();
+                self.session.request_time_sync(now);
+            }
+            estimate
         } else {
             crate::clock::Estimate {
                 time_us: 0,
