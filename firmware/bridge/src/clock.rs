@@ -160,6 +160,9 @@ struct Stream {
     /// Scans the envelope has been carried by `period_b` (it settles onto the lowest
     /// arrivals over [`WARMUP_SCANS`]).
     env_scans: i64,
+    /// Arrival of the stream's first scan, bridge µs (a coarse bridge period before
+    /// the fit has one).
+    first_arrival: i64,
 }
 
 /// `TM1` answers of one calibration: bridge time of sensor time `sensor_us`.
@@ -321,11 +324,25 @@ impl ScanClock {
                 .saturating_abs()
                 > TM_FRESH_US
         });
+        // Only a clock that runs at about the bridge's rate (within 2^-8, as the
+        // calibration needs) is worth a TM: before the fit, the mean arrival period
+        // stands in for the bridge period (2 ms of jitter over the stream's scans).
+        let sensor = unq(s.period_s);
+        let bridge = if s.period_b > 0 {
+            unq(s.period_b)
+        } else {
+            s.env
+                .saturating_sub(s.first_arrival)
+                .checked_div(s.k)
+                .unwrap_or(0)
+        };
+        let slack = (sensor >> 8).saturating_add(2000i64.checked_div(s.k).unwrap_or(2000));
         self.latency.is_none()
             && s.tm_asks < TM_ASKS
             && s.period_s > 0
             && s.best_k == s.k
             && s.best_phase.width() <= NARROW_US
+            && bridge.saturating_sub(sensor).saturating_abs() <= slack
             && stale
     }
 
@@ -378,6 +395,7 @@ impl ScanClock {
             block_min: None,
             tm_asks: 0,
             env_scans: 0,
+            first_arrival: arrival,
         });
         let mut s = s;
         s.scans = s.scans.saturating_add(1);
