@@ -316,7 +316,18 @@ impl ScanClock {
     /// 100 ppm). At most [`TM_ASKS`] a stream; the caller runs the exchange (the
     /// stream stops for it) and calls [`ScanClock::tm_requested`].
     pub fn wants_tm(&self) -> bool {
-        let Some(s) = self.stream else { return false };
+        let Some(s) = self.stream.as_ref() else {
+            return false;
+        };
+        // The cheap tests first: this runs after every scan.
+        if self.latency.is_some()
+            || s.tm_asks >= TM_ASKS
+            || s.period_s <= 0
+            || s.best_k != s.k
+            || s.best_phase.width() > NARROW_US
+        {
+            return false;
+        }
         let stale = self.tm.is_none_or(|tm| {
             s.best_phase
                 .lo
@@ -337,13 +348,7 @@ impl ScanClock {
                 .unwrap_or(0)
         };
         let slack = (sensor >> 8).saturating_add(2000i64.checked_div(s.k).unwrap_or(2000));
-        self.latency.is_none()
-            && s.tm_asks < TM_ASKS
-            && s.period_s > 0
-            && s.best_k == s.k
-            && s.best_phase.width() <= NARROW_US
-            && bridge.saturating_sub(sensor).saturating_abs() <= slack
-            && stale
+        stale && bridge.saturating_sub(sensor).saturating_abs() <= slack
     }
 
     /// The caller asked the sensor for a `TM` exchange ([`ScanClock::wants_tm`]): the
