@@ -43,6 +43,7 @@ fn run(spec: &str, secs: u64) -> Run {
     run_with(spec, secs, None)
 }
 
+/// [`run`] with a time master.
 fn run_with(spec: &str, secs: u64, master: Option<Master>) -> Run {
     let sim = SimOptions::from_spec(spec).unwrap();
     let config = BridgeConfig {
@@ -150,20 +151,27 @@ fn scan_times_within_a_third_of_a_millisecond_of_the_truth() {
             "model=utm30lx,scene=wall:2000,noise=0,clock=16772216,drift_ppm={drift},\
              clock_phase_us={phase},jitter_us=2000"
         );
-        let r = run(&spec, 40);
-        let e = errors(&r, 20_000_000);
+        let r = run(&spec, 24);
+        let e = errors(&r, 10_000_000);
         let first = r
             .seen
             .iter()
             .find(|(h, _)| h.time_estimated)
             .map(|(_, at)| *at);
         eprintln!(
-            "{drift} ppm: first estimate at {first:?} µs, p99 {} µs, worst {} µs after 20 s",
+            "{drift} ppm: first estimate at {first:?} µs, p99 {} µs, worst {} µs after 10 s",
             p99(&e),
             e[e.len() - 1]
-        ); // 20 s at 40 scans a second, all estimated (the first some 15 s into the run:
-           // two passes of the scans across the sensor's millisecond ticks).
-        assert!(e.len() >= 780, "{drift} ppm: {} estimated scans", e.len());
+        );
+        // Valid once the scans crossed a tick of the sensor's clock and the TM that
+        // followed answered (at 100 ppm within 10 s of the stream's start, whatever
+        // the phase); from 10 s on, 14 s at 40 scans a second, all estimated but the
+        // few the TM's stop costs.
+        assert!(
+            first.is_some_and(|t| t <= 10_000_000),
+            "{drift} ppm: first {first:?}"
+        );
+        assert!(e.len() >= 540, "{drift} ppm: {} estimated scans", e.len());
         assert!(p99(&e) <= 300, "{drift} ppm: p99 {} µs", p99(&e));
         // Published times never go back.
         let times: Vec<u32> = r
@@ -194,7 +202,7 @@ fn scan_times_in_the_time_masters_clock() {
     let mut e: Vec<u64> = r
         .seen
         .iter()
-        .filter(|(h, at)| h.time_estimated && *at >= 20_000_000)
+        .filter(|(h, at)| h.time_estimated && *at >= 10_000_000)
         .map(|(h, _)| {
             assert!(h.time_master, "an estimated scan in the bridge's clock");
             r.truth
@@ -205,6 +213,6 @@ fn scan_times_in_the_time_masters_clock() {
         })
         .collect();
     e.sort();
-    assert!(e.len() >= 150, "{} estimated scans", e.len());
+    assert!(e.len() >= 540, "{} estimated scans", e.len());
     assert!(p99(&e) <= 300, "p99 {} µs", p99(&e));
 }

@@ -616,7 +616,16 @@ impl<const Q: usize> Core<Q> {
                 self.begin_scan(s, *t, now);
             }
             (Event::Data(line), Phase::Active(s)) => self.data_line(line, &s),
-            (Event::End(_), Phase::Active(_)) => self.finish_scan(),
+            (Event::End(_), Phase::Active(_)) => {
+                self.finish_scan();
+                if self.estimating() && self.scan_clock.wants_tm() {
+                    // The scans just crossed a tick of the sensor's clock: a TM now pins
+                    // the latency. Asked once the scan is complete (the stream stops for
+                    // it, a few scans; the one under way is not cut).
+                    self.scan_clock.tm_requested();
+                    self.session.request_time_sync(now);
+                }
+            }
             (Event::Error(e), Phase::Active(_)) => {
                 let reason = match e.kind {
                     scip::ErrorKind::BadSum { .. } => AbortReason::Checksum,

@@ -132,8 +132,16 @@ pub fn bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
 }
 
 /// The bridge of a board on `bus`, with [`bridge_config`]; its session is not started.
+/// It estimates scan times in the board's clock (`time_estimated` headers) when built
+/// with the `time-estimate` feature.
 pub fn bridge(bus: CanBus) -> Result<Bridge, BridgeError> {
-    Bridge::new(bridge_config(bus)?)
+    #[cfg_attr(not(feature = "time-estimate"), allow(unused_mut))]
+    let mut bridge = Bridge::new(bridge_config(bus)?);
+    #[cfg(feature = "time-estimate")]
+    if let Ok(b) = bridge.as_mut() {
+        b.set_time_estimation(true);
+    }
+    bridge
 }
 
 /// The bridge configuration of a board whose sensor is on Ethernet (a TCP connection to
@@ -153,7 +161,13 @@ pub fn ethernet_bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> 
 /// The bridge of an Ethernet board on `bus`, with [`ethernet_bridge_config`]; its session
 /// is not started.
 pub fn ethernet_bridge(bus: CanBus) -> Result<Bridge, BridgeError> {
-    Bridge::new(ethernet_bridge_config(bus)?)
+    #[cfg_attr(not(feature = "time-estimate"), allow(unused_mut))]
+    let mut bridge = Bridge::new(ethernet_bridge_config(bus)?);
+    #[cfg(feature = "time-estimate")]
+    if let Ok(b) = bridge.as_mut() {
+        b.set_time_estimation(true);
+    }
+    bridge
 }
 
 /// The identifiers a board's CAN acceptance filter must let through: this bridge's

@@ -257,10 +257,21 @@ pub async fn run<B: Board>(shared: &Shared, board: &mut B) -> ! {
             ticker.next().await;
             Either::Second(())
         };
+        // With the sensor clock model, when a chunk ended arriving (µs of the monotonic
+        // clock) places the scans in the board's clock; the rest of the loop runs in ms.
+        #[cfg(feature = "time-estimate")]
+        let (now_us, now) = {
+            let us = Instant::now().as_micros();
+            (us, us / 1000)
+        };
+        #[cfg(not(feature = "time-estimate"))]
         let now = now_ms();
         match event {
             Either::First(Ok(n)) if n > 0 => {
                 let bytes = chunk.get(..n).unwrap_or(&[]);
+                #[cfg(feature = "time-estimate")]
+                shared.with(|b| b.on_uart_at(bytes, now_us));
+                #[cfg(not(feature = "time-estimate"))]
                 shared.with(|b| b.on_uart(bytes, now));
             }
             Either::First(result) => {
@@ -348,7 +359,16 @@ async fn drive_session<B: Board>(
     stats: &mut LoopStats,
 ) {
     for _ in 0..MAX_ACTIONS {
-        let Some(action) = shared.with(|b| b.poll(now)) else {
+        // With the sensor clock model, when a `TM` request leaves (µs) bounds the
+        // sensor's reading (poll_at times the request's bytes on the UART).
+        #[cfg(feature = "time-estimate")]
+        let action = {
+            let _ = now;
+            shared.with(|b| b.poll_at(Instant::now().as_micros()))
+        };
+        #[cfg(not(feature = "time-estimate"))]
+        let action = shared.with(|b| b.poll(now));
+        let Some(action) = action else {
             return;
         };
         match action {
