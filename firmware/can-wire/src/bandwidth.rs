@@ -47,6 +47,7 @@ pub struct FrameBits {
 
 impl FrameBits {
     /// Time on the bus in nanoseconds at `rates`.
+    #[inline(never)]
     pub fn time_ns(&self, rates: BitRates) -> u64 {
         let ns = |bits: u32, rate: u32| {
             (u64::from(bits) * 1_000_000_000).div_ceil(u64::from(rate.max(1)))
@@ -95,6 +96,9 @@ pub const fn fd_frame_bits(len: usize, extended: bool) -> FrameBits {
 }
 
 /// Worst-case bits of a frame of `len` bytes in `format`.
+// Planning and status arithmetic, never per byte: one copy instead of one at each of the
+// cost functions' call sites.
+#[inline(never)]
 pub const fn frame_bits(len: usize, fd: bool, extended: bool) -> FrameBits {
     if fd {
         fd_frame_bits(len, extended)
