@@ -96,9 +96,6 @@ pub const fn fd_frame_bits(len: usize, extended: bool) -> FrameBits {
 }
 
 /// Worst-case bits of a frame of `len` bytes in `format`.
-// Planning and status arithmetic, never per byte: one copy instead of one at each of the
-// cost functions' call sites.
-#[inline(never)]
 pub const fn frame_bits(len: usize, fd: bool, extended: bool) -> FrameBits {
     if fd {
         fd_frame_bits(len, extended)
