@@ -47,6 +47,7 @@ pub struct FrameBits {
 
 impl FrameBits {
     /// Time on the bus in nanoseconds at `rates`.
+    #[inline(never)]
     pub fn time_ns(&self, rates: BitRates) -> u64 {
         let ns = |bits: u32, rate: u32| {
             (u64::from(bits) * 1_000_000_000).div_ceil(u64::from(rate.max(1)))

@@ -197,7 +197,7 @@ pub enum KnownModel {
 impl KnownModel {
     /// The model a `MODL` (PP) or `PROD` (VV) string names, if it is a known one.
     pub fn from_model(model: &[u8]) -> Option<Self> {
-        let has = |needle: &[u8]| model.windows(needle.len()).any(|w| w == needle);
+        let has = |needle: &[u8]| contains(model, needle);
         if has(b"URG-04LX") {
             Some(Self::Urg04lx)
         } else if has(b"UTM-30LX") {
@@ -231,6 +231,13 @@ impl KnownModel {
     }
 }
 
+/// Whether `needle` (not empty) occurs in `model`: out of line, so that the model names'
+/// needles share one loop (reading an II/PP answer is not on a hot path).
+#[inline(never)]
+fn contains(model: &[u8], needle: &[u8]) -> bool {
+    model.windows(needle.len().max(1)).any(|w| w == needle)
+}
+
 /// A model family: how to read error codes below DMIN.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -248,7 +255,7 @@ pub enum ModelFamily {
 impl ModelFamily {
     /// The family of a model string (`MODL` of PP or `PROD` of VV).
     pub fn from_model(model: &[u8]) -> Self {
-        let has = |needle: &[u8]| model.windows(needle.len()).any(|w| w == needle);
+        let has = |needle: &[u8]| contains(model, needle);
         if has(b"URG-04LX") {
             Self::Urg04lx
         } else if has(b"UST") || has(b"-EW") || has(b"-E(") || has(b"UXM-30LX-E") {

@@ -12,6 +12,8 @@
 //! - [`link`]: the reconnect policy of a sensor link that can go down (TCP).
 //! - [`load`]: CPU load from the executor's busy time.
 //! - [`tdc`]: the CAN FD transmitter delay compensation offset of a data bit timing.
+//! - `panic` (feature `panic-handler`, on the MCU): the boards' panic handler, which logs
+//!   the location and a plain message through defmt without `core::fmt`, then faults.
 //!
 //! The CAN transmit and receive tasks stay in the board crates: their frame types are the
 //! controller's (FDCAN or bxCAN).
@@ -29,6 +31,8 @@ mod fmt;
 pub mod config;
 pub mod link;
 pub mod load;
+#[cfg(all(feature = "panic-handler", target_os = "none"))]
+mod panic;
 pub mod recovery;
 pub mod sensor;
 pub mod shared;

@@ -25,6 +25,7 @@ use board_common::config::CanBus;
 use board_common::Shared;
 use can_wire::BusState;
 use embassy_stm32::can::filter::ListEntry32;
+use embassy_stm32::can::util::calc_can_timings;
 use embassy_stm32::can::{
     Can, CanRx, CanTx, Fifo, Frame, Rx0InterruptHandler, Rx1InterruptHandler, RxPin,
     SceInterruptHandler, TxInterruptHandler, TxPin,
@@ -60,9 +61,16 @@ pub fn configure(
     let mut can = Can::new(peri, rx, tx, irqs);
     let entries = ids.map(ListEntry32::data_frames_with_id);
     can.modify_filters().enable_bank(0, Fifo::Fifo0, entries);
+    // The bit timing as embassy's `set_bitrate` works it out, but a rate the clock cannot
+    // make is logged through defmt: its `unwrap` linked `core::fmt`'s `Debug` machinery
+    // (about 1.5 KB of flash) for the message.
+    let timing = defmt::unwrap!(calc_can_timings(
+        embassy_stm32::rcc::frequency::<CAN1>(),
+        bus.rates.nominal
+    ));
     // Dropping the configuration proxy leaves initialisation mode (into sleep).
     can.modify_config()
-        .set_bitrate(bus.rates.nominal)
+        .set_bit_timing(timing)
         .set_automatic_retransmit(true);
     can.set_tx_fifo_scheduling(true);
     can

@@ -23,6 +23,7 @@ use board_common::sensor::{self, Board};
 use board_common::Shared;
 use can_wire::BusState;
 use defmt::info;
+use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_stm32::can::{Can, CanRx, CanTx};
 use embassy_stm32::mode::Async;
@@ -31,7 +32,6 @@ use embassy_stm32::usart::{self, RingBufferedUartRx, Uart, UartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, Config};
 use static_cell::StaticCell;
-use {defmt_rtt as _, panic_probe as _};
 
 bind_interrupts!(struct Irqs {
     USART1 => usart::InterruptHandler<peripherals::USART1>;

@@ -37,12 +37,15 @@ use board_common::config::CanBus;
 use board_common::tdc::DataBitTiming;
 use board_common::Shared;
 use can_wire::BusState;
-use embassy_stm32::can::config::{GlobalFilter, TxBufferMode};
+use embassy_stm32::can::config::{
+    self as can_config, FrameTransmissionConfig, GlobalFilter, NominalBitTiming, TxBufferMode,
+};
 use embassy_stm32::can::enums::BusErrorMode;
 use embassy_stm32::can::filter::{
     Action, ExtendedFilter, ExtendedFilterSlot, FilterType, StandardFilter, StandardFilterSlot,
 };
 use embassy_stm32::can::frame::{FdFrame, Header};
+use embassy_stm32::can::util::calc_can_timings;
 use embassy_stm32::can::{
     CanConfigurator, CanRx, CanTx, IT0InterruptHandler, IT1InterruptHandler, Properties, RxPin,
     TxPin,
@@ -72,13 +75,31 @@ pub fn start(
     ids: [Id; 2],
 ) -> (CanTx<'static>, CanRx<'static>, Supervisor) {
     let mut can = CanConfigurator::new(peri, rx, tx, irqs);
-    can.set_bitrate(bus.rates.nominal);
+    // The bit timings as embassy's `set_bitrate` and `set_fd_data_bitrate` work them out,
+    // but a rate the kernel clock cannot make is logged through defmt: their `unwrap`
+    // linked `core::fmt`'s `Debug` machinery (about 1.5 KB of flash) for the message.
+    let clock = embassy_stm32::rcc::frequency::<FDCAN1>();
+    let nominal = defmt::unwrap!(calc_can_timings(clock, bus.rates.nominal));
+    let mut config = can.config().set_nominal_bit_timing(NominalBitTiming {
+        sync_jump_width: nominal.sync_jump_width,
+        prescaler: nominal.prescaler,
+        seg1: nominal.seg1,
+        seg2: nominal.seg2,
+    });
     if bus.fd_capable {
-        // Also selects FD frames with bit rate switching; the flag is not written (below).
-        can.set_fd_data_bitrate(bus.rates.data, true);
+        let data = defmt::unwrap!(calc_can_timings(clock, bus.rates.data));
+        // The delay compensation flag is not written by embassy (below).
+        config = config
+            .set_data_bit_timing(can_config::DataBitTiming {
+                transceiver_delay_compensation: true,
+                sync_jump_width: data.sync_jump_width,
+                prescaler: data.prescaler,
+                seg1: data.seg1,
+                seg2: data.seg2,
+            })
+            .set_frame_transmit(FrameTransmissionConfig::AllowFdCanAndBRS);
     }
-    let config = can
-        .config()
+    let config = config
         .set_tx_buffer_mode(TxBufferMode::Fifo)
         .set_automatic_bus_off_recovery(false)
         .set_global_filter(GlobalFilter::reject_all());

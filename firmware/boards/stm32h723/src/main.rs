@@ -27,6 +27,7 @@ use board_common::sensor::{self, Board, LinkState};
 use board_common::Shared;
 use can_wire::BusState;
 use defmt::info;
+use defmt_rtt as _;
 use embassy_executor::Spawner;
 use embassy_net::StackResources;
 use embassy_stm32::eth::{self, Ethernet, GenericPhy, PacketQueue, Sma};
@@ -35,7 +36,6 @@ use embassy_stm32::rng::{self, Rng};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, Config};
 use static_cell::StaticCell;
-use {defmt_rtt as _, panic_probe as _};
 
 use crate::net::SensorLink;
 

@@ -736,6 +736,9 @@ impl Session {
         );
     }
 
+    // Per command, not per byte: one copy instead of one inlined at each of its callers
+    // (about 0.9 KB of Cortex-M4 flash).
+    #[inline(never)]
     fn send(&mut self, state: State, request: Request, now: u64) {
         self.state = state;
         self.pending = Some(request);
