@@ -1355,7 +1355,7 @@ impl<const Q: usize> Output<'_, Q> {
             .map_or(0, can_wire::IntensityEncoding::from_sensor);
         // A due data frame is built in a new back slot of the queue, not moved into it.
         let mut slots = DataSlots(self.queue);
-        match self.encoder.push_point_to(distance, intensity, &mut slots) {
+        match push_point(self.encoder, distance, intensity, &mut slots) {
             Ok(run) => {
                 self.stats.frames = self.stats.frames.wrapping_add(run.frames);
                 if run.stop == Some(RunStop::NoSlot) {
@@ -1411,6 +1411,18 @@ fn push_readings(
     sink: &mut dyn FrameSink,
 ) -> Result<can_wire::Run, can_wire::Error> {
     encoder.push_run(points, rule, reading_point, sink)
+}
+
+/// One point into the encoder ([`ScanEncoder::push_point_to`]): like [`push_readings`],
+/// compiled here once for every queue.
+#[inline(never)]
+fn push_point(
+    encoder: &mut ScanEncoder,
+    distance: Distance,
+    intensity: u16,
+    sink: &mut dyn FrameSink,
+) -> Result<can_wire::Run, can_wire::Error> {
+    encoder.push_point_to(distance, intensity, sink)
 }
 
 /// A measurement response whose status carries a scan.
