@@ -755,7 +755,7 @@ impl<const Q: usize> Core<Q> {
             if let Some(k) = k {
                 if !*out.overflow {
                     let points = cells.get(..k).unwrap_or_default();
-                    out.encode_run(points, rule, reading_point);
+                    out.encode_run(points, rule);
                 }
                 return;
             }
@@ -780,10 +780,7 @@ impl<const Q: usize> Core<Q> {
             except: [test.exception(), u32::MAX],
             band: test.band(),
         };
-        let (taken, mut invalid) = self
-            .split()
-            .2
-            .encode_run(line.readings, rule, reading_point);
+        let (taken, mut invalid) = self.split().2.encode_run(line.readings, rule);
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = line.readings.get(taken..).unwrap_or(&[]);
@@ -1373,7 +1370,7 @@ impl<const Q: usize> Output<'_, Q> {
             .map_or(0, can_wire::IntensityEncoding::from_sensor);
         // A due data frame is built in a new back slot of the queue, not moved into it.
         let mut slots = DataSlots(self.queue);
-        match self.encoder.push_point_to(distance, intensity, &mut slots) {
+        match push_point(self.encoder, distance, intensity, &mut slots) {
             Ok(run) => {
                 self.stats.frames = self.stats.frames.wrapping_add(run.frames);
                 if run.stop == Some(RunStop::NoSlot) {
@@ -1388,14 +1385,13 @@ impl<const Q: usize> Output<'_, Q> {
     /// Points the pipeline emitted, into the encoder in one run (what [`Output::emit`]
     /// does for each of them); returns how many it took and how many of those were no
     /// range.
-    fn encode_run<T>(
+    fn encode_run(
         &mut self,
-        points: &[T],
+        points: &[scip::Reading],
         rule: can_wire::RangeRule,
-        point: impl Fn(&T) -> (u32, u16),
     ) -> (usize, usize) {
         let mut slots = DataSlots(self.queue);
-        match self.encoder.push_run(points, rule, point, &mut slots) {
+        match push_readings(self.encoder, points, rule, &mut slots) {
             Ok(run) => {
                 self.stats.frames = self.stats.frames.wrapping_add(run.frames);
                 match run.stop {
@@ -1415,6 +1411,33 @@ impl<const Q: usize> Output<'_, Q> {
             }
         }
     }
+}
+
+/// A run of readings into the encoder ([`ScanEncoder::push_run`]), its frames into
+/// `sink`. Not generic (the queue is a `dyn` sink, one call per frame) and never
+/// inlined: the encoder's loops are compiled here, in this crate, at its optimisation
+/// level (the boards build their own crates for size; a copy instantiated there for the
+/// board's queue ran the DL loops about 40 % slower on the Cortex-M4).
+#[inline(never)]
+fn push_readings(
+    encoder: &mut ScanEncoder,
+    points: &[scip::Reading],
+    rule: can_wire::RangeRule,
+    sink: &mut dyn FrameSink,
+) -> Result<can_wire::Run, can_wire::Error> {
+    encoder.push_run(points, rule, reading_point, sink)
+}
+
+/// One point into the encoder ([`ScanEncoder::push_point_to`]): like [`push_readings`],
+/// compiled here once for every queue.
+#[inline(never)]
+fn push_point(
+    encoder: &mut ScanEncoder,
+    distance: Distance,
+    intensity: u16,
+    sink: &mut dyn FrameSink,
+) -> Result<can_wire::Run, can_wire::Error> {
+    encoder.push_point_to(distance, intensity, sink)
 }
 
 /// A measurement response whose status carries a scan.

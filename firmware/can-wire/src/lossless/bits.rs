@@ -44,8 +44,8 @@ impl<'a, S: ?Sized> Out<'a, S> {
 ///
 /// Fields gather in a 32-bit word that goes into the frame when full (32-bit operations
 /// only: the MCU has no 64-bit shifts); the
-/// segment's CRC is taken over a frame's stream bytes in one pass when the frame is sent
-/// (and over the last frame's before the CRC goes in), not byte by byte.
+/// segment's CRC takes each full word from the register, 16 bits at a time, and the
+/// segment's last bytes before the CRC goes in.
 #[derive(Debug, Clone)]
 pub struct Writer {
     /// Bits not yet in the frame (`nbits` of them, fewer than 32 between calls).
@@ -136,7 +136,13 @@ impl Writer {
         if let Some(dst) = self.buf.get_mut(at..end) {
             dst.copy_from_slice(&word.to_le_bytes());
         }
+        // The segment's CRC takes the word's bytes from the register, two at a time
+        // (low first, as they go into the frame): words only follow stream bytes
+        // already in it, and a cut frame's bytes stay in it.
+        self.crc.code(word as u16);
+        self.crc.code((word >> 16) as u16);
         self.len = end;
+        self.crc_from = end;
         if end >= self.full {
             self.cut(out);
         }
@@ -154,13 +160,14 @@ impl Writer {
             if let Some(src) = self.buf.get(full..full.wrapping_add(4)) {
                 next.copy_from_slice(src);
             }
+            // Every byte up to `len` is in the segment's CRC already (`word`).
             self.len = full;
-            self.crc_pending();
             self.emit(out);
             if let Some(dst) = self.buf.get_mut(1..5) {
                 dst.copy_from_slice(&next);
             }
             self.len = rest.wrapping_add(1);
+            self.crc_from = self.len;
         }
     }
 
