@@ -395,6 +395,14 @@ impl Decoder {
     /// bytes consumed.
     #[inline]
     pub fn feed(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
+        #[cfg(not(target_pointer_width = "32"))]
+        if let Some((used, decoded)) = self.full_data_line(input) {
+            let ev = match decoded {
+                Ok(()) => Some(self.data_event()),
+                Err(kind) => self.fail(kind),
+            };
+            return (used, ev);
+        }
         let mut consumed: usize = 0;
         let mut rest = input;
         loop {

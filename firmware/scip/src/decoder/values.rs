@@ -1,6 +1,8 @@
 //! Values: a data line's checks, and its chars decoded into readings, a whole step at
 //! a time on the fast path or char by char.
 
+#[cfg(not(target_pointer_width = "32"))]
+use super::line::sum_and_check;
 use super::*;
 
 impl Decoder {
@@ -24,50 +26,142 @@ impl Decoder {
             self.short_line_seen = true;
         }
         self.n_readings = 0;
-        if let Err(kind) = self.decode_values(n, all_valid) {
+        if let Err(kind) = self.decode_values(None, n, all_valid) {
             return self.fail(kind);
         }
-        Some(Event::Data(DataLine {
+        Some(self.data_event())
+    }
+
+    /// The readings of the data line just decoded, as an event.
+    #[inline]
+    pub(super) fn data_event(&self) -> Event<'_> {
+        Event::Data(DataLine {
             readings: self.readings.get(..self.n_readings).unwrap_or(&[]),
             data: self.shape.data,
             limits: self.limits,
             line: self.line_no,
-        }))
+        })
     }
 
-    /// Decodes the first `n` bytes of the buffer as value chars, carrying partial values;
-    /// `all_valid` tells that all of them are value chars (see [`sum_and_check`]).
-    pub(super) fn decode_values(&mut self, n: usize, all_valid: bool) -> Result<(), ErrorKind> {
+    /// The fast path of [`Self::feed`] on 64-bit hosts: a full data line (64 value
+    /// chars, its sum char and the LF) that ends in `input`, either all of it in `input`
+    /// (decoded from there, not copied) or begun in the line buffer (its rest copied
+    /// there). Returns the bytes of `input` the line took and the outcome of decoding
+    /// it, as [`Self::data_line`] would give them; `None`, having consumed nothing, for
+    /// anything else (another state or line length, a bad sum or char, a partial line
+    /// that overflowed ...), which the general path then handles.
+    ///
+    /// No LF search: the LF must be where a full line puts it, and the value-char check
+    /// of the 64 data chars and the sum char (a value char, as the computed sum is)
+    /// rule out an earlier LF.
+    #[cfg(not(target_pointer_width = "32"))]
+    #[inline]
+    pub(super) fn full_data_line(
+        &mut self,
+        input: &[u8],
+    ) -> Option<(usize, Result<(), ErrorKind>)> {
+        /// Bytes of a full data line, LF excluded.
+        const LINE: usize = DATA_CHARS + 1;
+        if self.state != State::Payload(Payload::Data)
+            || self.overflow
+            || self.short_line_seen
+            || self.shape.multi_echo
+        {
+            return None;
+        }
+        #[cfg(any(test, fuzzing))]
+        if self.char_by_char {
+            return None;
+        }
+        let buffered = self.len;
+        // Bytes of `input` up to the LF, excluded: the line buffer has at most `LINE`.
+        let rest = LINE.checked_sub(buffered)?;
+        if input.get(rest) != Some(&b'\n') {
+            return None;
+        }
+        let line: &[u8; LINE] = if buffered == 0 {
+            input.first_chunk()?
+        } else {
+            let tail = input.get(..rest)?;
+            self.buf.get_mut(buffered..LINE)?.copy_from_slice(tail);
+            self.buf.first_chunk()?
+        };
+        let (data, &[s]) = line.split_first_chunk::<DATA_CHARS>()? else {
+            return None;
+        };
+        let (sum, valid) = sum_and_check(data);
+        if !valid || sum != s {
+            return None;
+        }
+        // The line is taken: the bookkeeping of `feed` and `line_event` for it. `rest`
+        // is below `LINE`, so `used` cannot wrap.
+        let used = rest.wrapping_add(1);
+        self.offset = self.offset.wrapping_add(used as u64);
+        self.stats.bytes = self.stats.bytes.wrapping_add(used as u64);
+        self.current_line = self.line_start;
+        self.line_start = self.offset;
+        self.len = 0;
+        self.line_no = self.line_no.saturating_add(1);
+        self.n_readings = 0;
+        let from_input = if buffered == 0 {
+            input.get(..DATA_CHARS)
+        } else {
+            None
+        };
+        Some((used, self.decode_values(from_input, DATA_CHARS, true)))
+    }
+
+    /// Decodes the first `n` bytes of the buffer (or `input`, when the line is there) as
+    /// value chars, carrying partial values; `all_valid` tells that all of them are value
+    /// chars (see [`sum_and_check`]).
+    pub(super) fn decode_values(
+        &mut self,
+        input: Option<&[u8]>,
+        n: usize,
+        all_valid: bool,
+    ) -> Result<(), ErrorKind> {
         // Fast path: a line of valid value chars only (no `&`, nothing to report by
         // column) is decoded a whole step at a time. Anything else goes char by char.
         #[cfg(any(test, fuzzing))]
         let all_valid = all_valid && !self.char_by_char;
         if !self.shape.multi_echo && all_valid {
             match (self.shape.dist_width, self.shape.aux_width) {
-                (3, 0) => return self.decode_steps::<3, 0>(n),
-                (2, 0) => return self.decode_steps::<2, 0>(n),
-                (3, 3) => return self.decode_steps::<3, 3>(n),
-                (3, 2) => return self.decode_steps::<3, 2>(n),
-                (3, 4) => return self.decode_steps::<3, 4>(n),
+                (3, 0) => return self.decode_steps::<3, 0>(input, n),
+                (2, 0) => return self.decode_steps::<2, 0>(input, n),
+                (3, 3) => return self.decode_steps::<3, 3>(input, n),
+                (3, 2) => return self.decode_steps::<3, 2>(input, n),
+                (3, 4) => return self.decode_steps::<3, 4>(input, n),
                 _ => {}
             }
         }
-        self.decode_chars_copied(n)
+        self.decode_chars_from(input, n)
     }
 
-    /// Decodes the first `n` bytes of the buffer (all valid value chars, see
-    /// [`sum_and_check`]) of a data set
+    /// [`Self::decode_chars`] on `input`, or on the first `n` bytes of the buffer.
+    fn decode_chars_from(&mut self, input: Option<&[u8]>, n: usize) -> Result<(), ErrorKind> {
+        match input {
+            Some(chars) => self.decode_chars(chars, 0),
+            None => self.decode_chars_copied(n),
+        }
+    }
+
+    /// Decodes `input`, or the first `n` bytes of the buffer when it is `None` (all valid
+    /// value chars, see [`sum_and_check`]) of a data set
     /// with `D`-char distances and `A`-char second values, a whole step at a time: the
     /// step begun on the previous line is completed from the carried value, the whole
     /// steps go straight into readings, the partial step at the end is carried. Same
     /// readings, state and errors as [`Self::decode_chars`] on the same chars.
     pub(super) fn decode_steps<const D: usize, const A: usize>(
         &mut self,
+        input: Option<&[u8]>,
         n: usize,
     ) -> Result<(), ErrorKind> {
         // 2..=7 chars: the `D + A` of the data sets dispatched in `decode_values`.
         let width = D.wrapping_add(A);
-        let chars = self.buf.get(..n).unwrap_or(&[]);
+        let chars = match input {
+            Some(chars) => chars,
+            None => self.buf.get(..n).unwrap_or(&[]),
+        };
         let carried = usize::from(self.carry_n);
         // The step begun on the previous line, completed.
         let mut head = None;
@@ -76,7 +170,7 @@ impl Decoder {
             let (distance, aux, used) = if self.in_aux {
                 let need = A.saturating_sub(carried);
                 let Some(a) = chars.get(..need) else {
-                    return self.decode_chars_copied(n);
+                    return self.decode_chars_from(input, n);
                 };
                 (self.pending_distance, continue_valid(self.carry, a), need)
             } else {
@@ -84,7 +178,7 @@ impl Decoder {
                 // At most `D + A`: no wrap.
                 let used = need.wrapping_add(A);
                 let (Some(d), Some(a)) = (chars.get(..need), chars.get(need..used)) else {
-                    return self.decode_chars_copied(n);
+                    return self.decode_chars_from(input, n);
                 };
                 (continue_valid(self.carry, d), continue_valid(0, a), used)
             };
