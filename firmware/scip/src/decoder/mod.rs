@@ -403,6 +403,10 @@ impl Decoder {
             };
             return (used, ev);
         }
+        #[cfg(not(target_pointer_width = "32"))]
+        if self.take_data_chars(input) {
+            return (input.len(), None);
+        }
         let mut consumed: usize = 0;
         let mut rest = input;
         loop {

@@ -220,32 +220,13 @@ impl Decoder {
                 index = index.wrapping_add(1);
             }
         }
-        if A == 0 && self.readings_plain {
+        let slots = slots.into_slice();
+        index = if A == 0 && self.readings_plain {
             // Every slot already has echo 0 and aux 0: the distance and index will do.
-            for (slot, step) in slots.zip(mid.chunks_exact(width)) {
-                if let Some(d) = step.first_chunk::<D>() {
-                    slot.distance = decode_valid(d);
-                    slot.index = index;
-                }
-                index = index.wrapping_add(1);
-            }
+            put_steps::<D, A, true>(slots, mid, index)
         } else {
-            for (slot, step) in slots.zip(mid.chunks_exact(width)) {
-                let Some((d, a)) = step.split_first_chunk::<D>() else {
-                    continue;
-                };
-                let Some(a) = a.first_chunk::<A>() else {
-                    continue;
-                };
-                *slot = Reading {
-                    index,
-                    echo: 0,
-                    distance: decode_valid(d),
-                    aux: decode_valid(a),
-                };
-                index = index.wrapping_add(1);
-            }
-        }
+            put_steps::<D, A, false>(slots, mid, index)
+        };
         if total > 0 {
             self.echo_no = 0;
         }
@@ -372,6 +353,69 @@ impl Decoder {
         self.n_readings = self.n_readings.wrapping_add(1);
         Ok(self.shape.dist_width)
     }
+}
+
+/// Writes the whole steps of `mid` (valid value chars, `D`-char distances and `A`-char
+/// second values) into `slots` with indices from `index`; returns the index after the
+/// last. `PLAIN`: every slot has echo 0 and aux 0 already (`A == 0`), so only the
+/// distance and the index are written. On 64-bit hosts four steps at a time, unrolled
+/// (fewer loop instructions per step); 32-bit targets keep the smaller plain loop.
+#[inline(always)]
+fn put_steps<const D: usize, const A: usize, const PLAIN: bool>(
+    slots: &mut [Reading],
+    mid: &[u8],
+    index: u16,
+) -> u16 {
+    // 2..=7: the `D + A` of the data sets `decode_values` dispatches; no wrap.
+    let width = D.wrapping_add(A);
+    #[cfg(not(target_pointer_width = "32"))]
+    {
+        let mut index = index;
+        let mut slots4 = slots.chunks_exact_mut(4);
+        let mut mid4 = mid.chunks_exact(width.wrapping_mul(4));
+        for (s, m) in (&mut slots4).zip(&mut mid4) {
+            index = put_step_run::<D, A, PLAIN>(s, m, index);
+        }
+        put_step_run::<D, A, PLAIN>(slots4.into_remainder(), mid4.remainder(), index)
+    }
+    #[cfg(target_pointer_width = "32")]
+    {
+        let _ = width;
+        put_step_run::<D, A, PLAIN>(slots, mid, index)
+    }
+}
+
+/// [`put_steps`] one step at a time.
+#[inline(always)]
+fn put_step_run<const D: usize, const A: usize, const PLAIN: bool>(
+    slots: &mut [Reading],
+    mid: &[u8],
+    mut index: u16,
+) -> u16 {
+    let width = D.wrapping_add(A);
+    for (slot, step) in slots.iter_mut().zip(mid.chunks_exact(width)) {
+        if PLAIN {
+            if let Some(d) = step.first_chunk::<D>() {
+                slot.distance = decode_valid(d);
+                slot.index = index;
+            }
+        } else {
+            let Some((d, a)) = step.split_first_chunk::<D>() else {
+                continue;
+            };
+            let Some(a) = a.first_chunk::<A>() else {
+                continue;
+            };
+            *slot = Reading {
+                index,
+                echo: 0,
+                distance: decode_valid(d),
+                aux: decode_valid(a),
+            };
+        }
+        index = index.wrapping_add(1);
+    }
+    index
 }
 
 /// The value of `N` valid value chars (see [`sum_and_check`]), most significant first.
