@@ -108,7 +108,167 @@ impl Decoder {
         } else {
             None
         };
-        Some((used, self.decode_values(from_input, DATA_CHARS, true)))
+        let decoded = match (self.shape.dist_width, self.shape.aux_width) {
+            (3, 0) => self.decode_full::<3, 0, 3>(from_input),
+            (2, 0) => self.decode_full::<2, 0, 2>(from_input),
+            (3, 3) => self.decode_full::<3, 3, 6>(from_input),
+            (3, 2) => self.decode_full::<3, 2, 5>(from_input),
+            (3, 4) => self.decode_full::<3, 4, 7>(from_input),
+            _ => self.decode_values(from_input, DATA_CHARS, true),
+        };
+        Some((used, decoded))
+    }
+
+    /// [`Self::decode_steps`] for a full line (`DATA_CHARS` valid value chars, from
+    /// `input` or the line buffer), `W = D + A`: the step begun on the previous line is
+    /// completed, then the rest goes to [`Self::decode_full_from`] for the offset of the
+    /// first whole step, where every length is a constant. Same readings, state and
+    /// errors.
+    #[cfg(not(target_pointer_width = "32"))]
+    #[inline]
+    fn decode_full<const D: usize, const A: usize, const W: usize>(
+        &mut self,
+        input: Option<&[u8]>,
+    ) -> Result<(), ErrorKind> {
+        let chars = match input {
+            Some(chars) => chars,
+            None => self.buf.get(..DATA_CHARS).unwrap_or(&[]),
+        };
+        let carried = usize::from(self.carry_n);
+        let (head, used) = if self.in_aux {
+            let need = A.saturating_sub(carried);
+            let a = chars.get(..need).unwrap_or(&[]);
+            (
+                Some((self.pending_distance, continue_valid(self.carry, a))),
+                need,
+            )
+        } else if carried != 0 {
+            let need = D.saturating_sub(carried);
+            // At most `D + A`: no wrap.
+            let used = need.wrapping_add(A);
+            let (d, a) = (
+                chars.get(..need).unwrap_or(&[]),
+                chars.get(need..used).unwrap_or(&[]),
+            );
+            (
+                Some((continue_valid(self.carry, d), continue_valid(0, a))),
+                used,
+            )
+        } else {
+            (None, 0)
+        };
+        // `used` is below `W`: the step begun before is part of one step.
+        match used {
+            0 => self.decode_full_from::<D, A, W, 0>(input, head),
+            1 => self.decode_full_from::<D, A, W, 1>(input, head),
+            2 => self.decode_full_from::<D, A, W, 2>(input, head),
+            3 => self.decode_full_from::<D, A, W, 3>(input, head),
+            4 => self.decode_full_from::<D, A, W, 4>(input, head),
+            5 => self.decode_full_from::<D, A, W, 5>(input, head),
+            6 => self.decode_full_from::<D, A, W, 6>(input, head),
+            _ => self.decode_values(input, DATA_CHARS, true),
+        }
+    }
+
+    /// The rest of [`Self::decode_full`]: the whole steps from char `OFF` on, after the
+    /// completed step `head` (present exactly when `OFF > 0`), and the partial step at
+    /// the end carried.
+    #[cfg(not(target_pointer_width = "32"))]
+    #[inline(always)]
+    fn decode_full_from<const D: usize, const A: usize, const W: usize, const OFF: usize>(
+        &mut self,
+        input: Option<&[u8]>,
+        head: Option<(u32, u32)>,
+    ) -> Result<(), ErrorKind> {
+        if OFF >= W || W != D.wrapping_add(A) || (OFF == 0) != head.is_none() {
+            // Not a shape `decode_full` dispatches here.
+            return self.decode_values(input, DATA_CHARS, true);
+        }
+        let chars = match input {
+            Some(chars) => chars.first_chunk::<DATA_CHARS>(),
+            None => self.buf.first_chunk::<DATA_CHARS>(),
+        };
+        let Some(chars) = chars else {
+            return self.decode_values(input, DATA_CHARS, true);
+        };
+        // Constants per instantiation (`OFF < W <= 7`): none of these wraps.
+        let whole = DATA_CHARS.wrapping_sub(OFF) / W;
+        let tail_at = OFF.wrapping_add(whole.wrapping_mul(W));
+        let total = whole.wrapping_add(usize::from(OFF > 0));
+        let too_many = ErrorKind::TooManyValues {
+            expected: self.shape.expected,
+        };
+        if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
+            return Err(too_many);
+        }
+        if A == 0 && !self.readings_plain {
+            // As in `decode_steps`.
+            self.readings = [Reading::default(); MAX_READINGS];
+            self.readings_plain = true;
+        } else if A > 0 {
+            self.readings_plain = false;
+        }
+        let Some(slots) = self.readings.get_mut(..total) else {
+            return Err(too_many);
+        };
+        let mut index = self.values;
+        let mut slots = slots.iter_mut();
+        if let Some((distance, aux)) = head {
+            if let Some(slot) = slots.next() {
+                *slot = Reading {
+                    index,
+                    echo: 0,
+                    distance,
+                    aux,
+                };
+                index = index.wrapping_add(1);
+            }
+        }
+        let mid = chars.get(OFF..tail_at).unwrap_or(&[]);
+        let (steps, _) = mid.as_chunks::<W>();
+        let plain = A == 0 && self.readings_plain;
+        for (slot, step) in slots.zip(steps) {
+            let Some((d, a)) = step.split_first_chunk::<D>() else {
+                continue;
+            };
+            if plain {
+                slot.distance = decode_valid(d);
+                slot.index = index;
+            } else {
+                let Some(a) = a.first_chunk::<A>() else {
+                    continue;
+                };
+                *slot = Reading {
+                    index,
+                    echo: 0,
+                    distance: decode_valid(d),
+                    aux: decode_valid(a),
+                };
+            }
+            index = index.wrapping_add(1);
+        }
+        if total > 0 {
+            self.echo_no = 0;
+        }
+        self.values = index;
+        self.n_readings = total;
+        let tail = chars.get(tail_at..).unwrap_or(&[]);
+        match tail.split_at_checked(D) {
+            Some((d, a)) if A > 0 => {
+                self.pending_distance = continue_valid(0, d);
+                self.in_aux = true;
+                self.carry = continue_valid(0, a);
+                self.carry_n = a.len() as u8;
+                self.want = A as u8;
+            }
+            _ => {
+                self.in_aux = false;
+                self.carry = continue_valid(0, tail);
+                self.carry_n = tail.len() as u8;
+                self.want = D as u8;
+            }
+        }
+        Ok(())
     }
 
     /// Decodes the first `n` bytes of the buffer (or `input`, when the line is there) as
