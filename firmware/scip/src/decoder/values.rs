@@ -111,9 +111,8 @@ impl Decoder {
         let decoded = match (self.shape.dist_width, self.shape.aux_width) {
             (3, 0) => self.decode_full::<3, 0, 3>(from_input),
             (2, 0) => self.decode_full::<2, 0, 2>(from_input),
-            (3, 3) => self.decode_full::<3, 3, 6>(from_input),
-            (3, 2) => self.decode_full::<3, 2, 5>(from_input),
-            (3, 4) => self.decode_full::<3, 4, 7>(from_input),
+            // Lines with second values: the general whole-step loop measured faster
+            // for them (the ME stream) than these per-offset instantiations.
             _ => self.decode_values(from_input, DATA_CHARS, true),
         };
         Some((used, decoded))
@@ -192,7 +191,7 @@ impl Decoder {
             return self.decode_values(input, DATA_CHARS, true);
         };
         // Constants per instantiation (`OFF < W <= 7`): none of these wraps.
-        let whole = DATA_CHARS.wrapping_sub(OFF) / W;
+        let whole = DATA_CHARS.wrapping_sub(OFF).checked_div(W).unwrap_or(0);
         let tail_at = OFF.wrapping_add(whole.wrapping_mul(W));
         let total = whole.wrapping_add(usize::from(OFF > 0));
         let too_many = ErrorKind::TooManyValues {
@@ -208,35 +207,40 @@ impl Decoder {
         } else if A > 0 {
             self.readings_plain = false;
         }
+        let plain = A == 0 && self.readings_plain;
         let Some(slots) = self.readings.get_mut(..total) else {
             return Err(too_many);
         };
         let mut index = self.values;
-        let mut slots = slots.iter_mut();
-        if let Some((distance, aux)) = head {
-            if let Some(slot) = slots.next() {
-                *slot = Reading {
-                    index,
-                    echo: 0,
-                    distance,
-                    aux,
-                };
-                index = index.wrapping_add(1);
-            }
+        let (head_slot, mid_slots) = slots.split_at_mut(usize::from(OFF > 0));
+        if let (Some((distance, aux)), [slot]) = (head, head_slot) {
+            *slot = Reading {
+                index,
+                echo: 0,
+                distance,
+                aux,
+            };
+            index = index.wrapping_add(1);
         }
-        let mid = chars.get(OFF..tail_at).unwrap_or(&[]);
-        let (steps, _) = mid.as_chunks::<W>();
-        let plain = A == 0 && self.readings_plain;
-        for (slot, step) in slots.zip(steps) {
+        // `whole` steps from `OFF` on, `W` chars each, within the line; a constant count
+        // the compiler unrolls.
+        for j in 0..whole {
+            let at = OFF.wrapping_add(j.wrapping_mul(W));
+            let (Some(slot), Some(step)) = (
+                mid_slots.get_mut(j),
+                chars.get(at..).and_then(|r| r.first_chunk::<W>()),
+            ) else {
+                break;
+            };
             let Some((d, a)) = step.split_first_chunk::<D>() else {
-                continue;
+                break;
             };
             if plain {
                 slot.distance = decode_valid(d);
                 slot.index = index;
             } else {
                 let Some(a) = a.first_chunk::<A>() else {
-                    continue;
+                    break;
                 };
                 *slot = Reading {
                     index,
