@@ -523,3 +523,66 @@ fn an_unknown_command_answered_without_payload_ends_intact() {
         ["end", "end", "unknown_echo", "end"]
     );
 }
+
+/// Full data lines whose framing is damaged. The shortcut that takes a full line
+/// without an LF search (64-bit hosts) must leave each to the line rules: the same
+/// events as the char-by-char reference for every chunk size, and the error the SCIP
+/// framing calls for.
+#[test]
+fn full_line_shortcut_leaves_damaged_framing_to_the_line_rules() {
+    let (stream, _) = scan(DataSet::Distance, 100);
+    let lfs: Vec<usize> = (0..stream.len()).filter(|&i| stream[i] == b'\n').collect();
+    // Echo, status, timestamp, then the data lines: the second one starts after the
+    // fourth LF and is full (64 data chars and the sum char).
+    let line = lfs[3] + 1;
+    assert_eq!(lfs[4] - line, 65);
+    let fix_sum = |s: &mut Vec<u8>, start: usize| {
+        let end = start + s[start..].iter().position(|&b| b == b'\n').unwrap();
+        s[end - 1] = checksum(&s[start..end - 1]);
+    };
+    let mut wrong_sum = stream.clone();
+    wrong_sum[line + 64] = if stream[line + 64] == b'0' {
+        b'1'
+    } else {
+        b'0'
+    };
+    let mut long = stream.clone();
+    long.insert(line + 10, b'0');
+    fix_sum(&mut long, line);
+    let mut joined = stream.clone();
+    joined.remove(line + 65);
+    let mut lf_for_sum = stream.clone();
+    lf_for_sum[line + 64] = b'\n';
+    let mut lf_inside = stream.clone();
+    lf_inside[line + 30] = b'\n';
+    let mut bad_char = stream.clone();
+    bad_char[line + 7] = b'~';
+    fix_sum(&mut bad_char, line);
+    let cases: [(&str, Vec<u8>, Option<&str>); 6] = [
+        ("wrong sum", wrong_sum, Some("BadSum")),
+        ("65 data chars", long, Some("BadDataLineLength")),
+        ("LF dropped", joined, Some("LineTooLong")),
+        ("LF for the sum char", lf_for_sum, None),
+        ("LF inside", lf_inside, None),
+        ("bad char", bad_char, Some("BadChar { column: 7 }")),
+    ];
+    for (what, s, kind) in cases {
+        let (reference, _) = decode(Decoder::char_by_char(), &s, s.len());
+        assert!(
+            reference.iter().any(|l| l.starts_with("Error(")),
+            "{what}: no error in {reference:?}"
+        );
+        if let Some(kind) = kind {
+            let first = reference.iter().find(|l| l.starts_with("Error(")).unwrap();
+            // At the damaged line's first byte.
+            assert!(
+                first.contains(kind) && first.contains(&format!("offset: {line},")),
+                "{what}: {first}"
+            );
+        }
+        for chunk in (1..=140).chain([s.len()]) {
+            let (fast, _) = decode(Decoder::new(), &s, chunk);
+            assert_eq!(fast, reference, "{what}, chunk {chunk}");
+        }
+    }
+}
