@@ -393,6 +393,10 @@ impl Decoder {
     ///
     /// Call again with the rest of the input until it is empty. Work is linear in the
     /// bytes consumed.
+    ///
+    /// On 64-bit hosts a full data line (64 value chars, its sum char, the LF) is taken
+    /// without an LF search and, when all of it is in `input`, decoded from there
+    /// without a copy into the line buffer; the events are the same.
     #[inline]
     pub fn feed(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
         #[cfg(not(target_pointer_width = "32"))]
