@@ -1,0 +1,332 @@
+//! Line framing: the LF search, the copy of a line into the line buffer, and the
+//! line's sum and value-char check (taken while copying on 32-bit targets).
+
+use super::*;
+
+impl Decoder {
+    /// Copies `bytes` up to the first LF into the line buffer and returns the LF's
+    /// index, or copies them all and returns `None`. One pass that also takes what
+    /// [`Self::data_line`] needs: the byte sum (mod 64) and whether every byte is a
+    /// value char. Words of value chars go through [`copy_value_words`]; a word with
+    /// anything else in it (the LF, the sum char of some lines, a damaged byte) goes byte
+    /// by byte. Past the buffer's capacity the line is
+    /// marked overflowed and its bytes are not kept.
+    #[inline]
+    pub(super) fn take_line_bytes(&mut self, bytes: &[u8]) -> Option<usize> {
+        #[cfg(target_pointer_width = "32")]
+        {
+            self.take_line_bytes_fused(bytes)
+        }
+        #[cfg(not(target_pointer_width = "32"))]
+        {
+            self.take_line_bytes_plain(bytes)
+        }
+    }
+
+    /// [`Self::take_line_bytes`] as 64-bit hosts do it best: the LF found eight bytes at
+    /// a time, the bytes copied, and the sum and char check left to [`sum_and_check`]
+    /// (vectorised there) by flagging the accumulators as unusable.
+    #[cfg_attr(target_pointer_width = "32", allow(dead_code))]
+    #[inline]
+    pub(super) fn take_line_bytes_plain(&mut self, bytes: &[u8]) -> Option<usize> {
+        self.bad = 0xC0;
+        let lf = find_lf(bytes);
+        let line = bytes.get(..lf.unwrap_or(bytes.len())).unwrap_or(&[]);
+        if !self.overflow {
+            // `self.len <= LINE_CAP` and a slice's length is at most `isize::MAX`: no wrap.
+            let end = self.len.wrapping_add(line.len());
+            match self.buf.get_mut(self.len..end) {
+                Some(dst) => {
+                    dst.copy_from_slice(line);
+                    self.len = end;
+                }
+                None => self.overflow = true,
+            }
+        }
+        lf
+    }
+
+    /// [`Self::take_line_bytes`] as 32-bit MCUs do it best: one pass of
+    /// [`copy_value_words`] and a byte loop for the rest, the sum and char check taken
+    /// on the way.
+    #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+    #[inline]
+    pub(super) fn take_line_bytes_fused(&mut self, bytes: &[u8]) -> Option<usize> {
+        if self.overflow {
+            return find_lf(bytes);
+        }
+        if self.len == 0 {
+            (self.sum, self.bad) = (0, 0);
+        }
+        let (mut len, mut sum, mut bad) = (self.len, self.sum, self.bad);
+        let mut at = 0;
+        let found = loop {
+            // Whole words of value chars, as many as the input and the buffer have.
+            let input = bytes.get(at..).unwrap_or(&[]);
+            let room = self.buf.get_mut(len..).unwrap_or(&mut []);
+            let (taken, add) = copy_value_words(input, room);
+            sum = sum.wrapping_add(add);
+            // `len` stays within the line buffer and `at` within `bytes` (`taken` fits
+            // both), so neither index wraps; nor does any `at + i` below.
+            len = len.wrapping_add(taken);
+            at = at.wrapping_add(taken);
+            // Then up to four bytes one at a time.
+            let Some(next) = bytes.get(at..).filter(|r| !r.is_empty()) else {
+                break None;
+            };
+            let mut lf = None;
+            for (i, &b) in next.iter().take(4).enumerate() {
+                if b == b'\n' {
+                    lf = Some(at.wrapping_add(i));
+                    break;
+                }
+                match self.buf.get_mut(len) {
+                    Some(slot) => *slot = b,
+                    None => {
+                        self.overflow = true;
+                        let from = at.wrapping_add(i);
+                        lf = Some(
+                            find_lf(bytes.get(from..).unwrap_or(&[]))
+                                .map_or(usize::MAX, |j| from.wrapping_add(j)),
+                        );
+                        break;
+                    }
+                }
+                len = len.wrapping_add(1);
+                sum = sum.wrapping_add(u32::from(b));
+                bad |= u32::from(b.wrapping_sub(CHAR_MIN));
+            }
+            match lf {
+                Some(usize::MAX) => break None,
+                Some(i) => break Some(i),
+                None => at = at.wrapping_add(next.len().min(4)),
+            }
+        };
+        (self.len, self.sum, self.bad) = (len, sum, bad);
+        found
+    }
+
+    /// The other fast path of [`Self::feed`] on 64-bit hosts: `input` continues a data
+    /// line and ends before a full data line's LF could come, and all of it is value
+    /// chars (so none is an LF). It is copied into the line buffer eight bytes at a time
+    /// and checked on the way, without an LF search. False, having taken nothing, for
+    /// anything else, which the general path then handles.
+    #[cfg(not(target_pointer_width = "32"))]
+    #[inline]
+    pub(super) fn take_data_chars(&mut self, input: &[u8]) -> bool {
+        if self.state != State::Payload(Payload::Data) || self.overflow {
+            return false;
+        }
+        let start = self.len;
+        // `start` is at most LINE_CAP: no wrap.
+        let end = start.wrapping_add(input.len());
+        // At most the data chars and the sum char of a full line.
+        if end > DATA_CHARS + 1 {
+            return false;
+        }
+        let Some(dst) = self.buf.get_mut(start..end) else {
+            return false;
+        };
+        if !copy_value_chars(input, dst) {
+            return false;
+        }
+        self.len = end;
+        // The stream offset and the byte counter wrap (after 2^64 bytes).
+        self.offset = self.offset.wrapping_add(input.len() as u64);
+        self.stats.bytes = self.stats.bytes.wrapping_add(input.len() as u64);
+        true
+    }
+
+    /// The sum char of the buffered line's first `len - 1` bytes and whether all of them
+    /// are value chars, as [`sum_and_check`] gives them: from what
+    /// [`Self::take_line_bytes`] took when every byte of the line (sum char included) is
+    /// a value char, else computed again.
+    #[inline]
+    pub(super) fn line_sum_and_check(&self, len: usize) -> Option<(u8, u8, bool)> {
+        let [data @ .., s] = self.buf.get(..len)? else {
+            return None;
+        };
+        // The accumulators cover exactly the line just completed (it did not overflow, or
+        // it would not be decoded).
+        if self.bad & 0xC0 == 0 {
+            // 0x30..=0x6F: no wrap.
+            let sum = ((self.sum.wrapping_sub(u32::from(*s)) & 0x3F) as u8).wrapping_add(0x30);
+            return Some((sum, *s, true));
+        }
+        let (sum, valid) = sum_and_check(data);
+        Some((sum, *s, valid))
+    }
+
+    /// True when the buffered line ends with the right sum char.
+    pub(super) fn line_sum_ok(&self) -> bool {
+        match self.buf.get(..self.len) {
+            Some([body @ .., s]) => checksum(body) == *s,
+            _ => false,
+        }
+    }
+}
+
+/// Copies the longest run of whole 4-byte words of value chars (`0x30..=0x6F`) at the
+/// start of `input` into `dst` (as far as `dst` has room); returns the bytes copied and
+/// their sum less `0x30` each (so the same mod 64). A word is tested at once: no byte of
+/// `w - 0x30303030` has bit 6 or 7 set exactly when every byte is a value char (a byte
+/// below 0x30 flags itself, whatever it borrows); its four values below 0x40 are summed
+/// by one multiplication (no partial sum carries).
+#[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+#[inline(always)]
+pub(super) fn copy_value_words(input: &[u8], dst: &mut [u8]) -> (usize, u32) {
+    const FLAGS: u32 = 0xC0C0_C0C0;
+    const CHARS: u32 = 0x3030_3030;
+    let (mut words, mut sum) = (0usize, 0u32);
+    for (src, out) in input.chunks_exact(4).zip(dst.chunks_exact_mut(4)) {
+        let Ok(four) = <[u8; 4]>::try_from(src) else {
+            break;
+        };
+        let v = u32::from_le_bytes(four).wrapping_sub(CHARS);
+        if v & FLAGS != 0 {
+            break;
+        }
+        out.copy_from_slice(&four);
+        // Words of `input`: neither this count nor `4 * words` below wraps.
+        words = words.wrapping_add(1);
+        // The top byte of v·0x01010101 is the sum of v's four bytes.
+        sum = sum.wrapping_add(v.wrapping_mul(0x0101_0101) >> 24);
+    }
+    (words.wrapping_mul(4), sum)
+}
+
+/// Copies `src` into `dst` (of the same length) when every byte is a value char
+/// (`0x30..=0x6F`); false when one is not or the lengths differ (`dst` then holds part
+/// of `src`). Eight bytes at a time, the last eight overlapping the ones before; the
+/// word test is [`copy_value_words`]'. The early exits keep the loop from being turned
+/// into a call of the library's copy, which costs more than the loop for lines.
+#[cfg(not(target_pointer_width = "32"))]
+#[inline]
+pub(super) fn copy_value_chars(src: &[u8], dst: &mut [u8]) -> bool {
+    const CHARS: u64 = u64::from_le_bytes([CHAR_MIN; 8]);
+    const FLAGS: u64 = u64::from_le_bytes([0xC0; 8]);
+    let chars = |w: [u8; 8]| u64::from_le_bytes(w).wrapping_sub(CHARS) & FLAGS == 0;
+    if src.len() != dst.len() {
+        return false;
+    }
+    let (Some(last), Some(last_dst)) = (src.last_chunk::<8>(), dst.last_chunk_mut::<8>()) else {
+        // Fewer than eight bytes.
+        for (d, &c) in dst.iter_mut().zip(src) {
+            if c.wrapping_sub(CHAR_MIN) >= 0x40 {
+                return false;
+            }
+            *d = c;
+        }
+        return true;
+    };
+    if !chars(*last) {
+        return false;
+    }
+    *last_dst = *last;
+    for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
+        let Ok(w) = <[u8; 8]>::try_from(s) else {
+            return false;
+        };
+        if !chars(w) {
+            return false;
+        }
+        d.copy_from_slice(&w);
+    }
+    true
+}
+
+/// The sum char of `bytes` (as [`checksum`]) and whether every byte is a value char
+/// (`0x30..=0x6F`), in one branch-free pass: bytewise where that vectorises, a 32-bit
+/// word at a time on 32-bit targets (a Cortex-M4 has no vectors for it).
+#[inline]
+pub(super) fn sum_and_check(bytes: &[u8]) -> (u8, bool) {
+    #[cfg(target_pointer_width = "32")]
+    {
+        sum_and_check_words(bytes)
+    }
+    #[cfg(not(target_pointer_width = "32"))]
+    {
+        sum_and_check_bytes(bytes)
+    }
+}
+
+/// [`sum_and_check`] a byte at a time.
+#[cfg_attr(target_pointer_width = "32", allow(dead_code))]
+#[inline]
+pub(super) fn sum_and_check_bytes(bytes: &[u8]) -> (u8, bool) {
+    let (sum, chars) = fold_chars(bytes);
+    // 0x30..=0x6F: no wrap.
+    ((sum & 0x3F).wrapping_add(0x30), chars < 0x40)
+}
+
+/// The byte sum and the OR of every `c - 0x30` (below `0x40` iff all are value chars).
+#[inline(always)]
+pub(super) fn fold_chars(bytes: &[u8]) -> (u8, u8) {
+    bytes.iter().fold((0u8, 0u8), |(sum, chars), &c| {
+        (sum.wrapping_add(c), chars | c.wrapping_sub(CHAR_MIN))
+    })
+}
+
+/// [`sum_and_check`] four bytes at a time. The sum goes into two 16-bit lanes (bytes 0
+/// and 2, bytes 1 and 3), kept below `2^12` so no lane carries into the next (only the
+/// sum mod 64 counts). The check tests every byte's top bit after arithmetic that never
+/// carries or borrows across bytes: a value char has its top bit clear, `c + 0x10`
+/// below `0x80` (`c <= 0x6F`) and `(c | 0x80) - 0x30` at least `0x80` (`c >= 0x30`).
+#[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+#[inline]
+pub(super) fn sum_and_check_words(bytes: &[u8]) -> (u8, bool) {
+    const HIGHS: u32 = 0x8080_8080;
+    const LOWS: u32 = 0x7F7F_7F7F;
+    const EVEN: u32 = 0x00FF_00FF;
+    let mut words = bytes.chunks_exact(4);
+    let (mut lanes, mut bad) = (0u32, 0u32);
+    for word in &mut words {
+        let w = u32::from_le_bytes(word.try_into().unwrap_or([0; 4]));
+        lanes = (lanes & 0x0FFF_0FFF)
+            .wrapping_add(w & EVEN)
+            .wrapping_add((w >> 8) & EVEN);
+        let low = w & LOWS;
+        bad |= w | low.wrapping_add(0x1010_1010) | !(low | HIGHS).wrapping_sub(0x3030_3030);
+    }
+    let (rest_sum, rest_chars) = fold_chars(words.remainder());
+    let sum = (lanes & 0xFFFF)
+        .wrapping_add(lanes >> 16)
+        .wrapping_add(u32::from(rest_sum));
+    (
+        // 0x30..=0x6F: no wrap.
+        ((sum & 0x3F) as u8).wrapping_add(0x30),
+        bad & HIGHS == 0 && rest_chars < 0x40,
+    )
+}
+
+/// Index of the first LF in `bytes`, eight bytes at a time: a zero-byte test on the
+/// bytes XOR LF, whose lowest flagged byte is exact (borrows only run upwards).
+#[inline]
+pub(super) fn find_lf(bytes: &[u8]) -> Option<usize> {
+    const ONES: u64 = u64::from_le_bytes([0x01; 8]);
+    const HIGHS: u64 = u64::from_le_bytes([0x80; 8]);
+    const LFS: u64 = u64::from_le_bytes([b'\n'; 8]);
+    let lf_in = |word: [u8; 8]| {
+        let x = u64::from_le_bytes(word) ^ LFS;
+        let hit = x.wrapping_sub(ONES) & !x & HIGHS;
+        (hit != 0).then_some((hit.trailing_zeros() / 8) as usize)
+    };
+    let mut words = bytes.chunks_exact(8);
+    let mut at: usize = 0;
+    for word in &mut words {
+        // Indices within `bytes`: no wrap.
+        if let Some(i) = lf_in(word.try_into().unwrap_or([0; 8])) {
+            return Some(at.wrapping_add(i));
+        }
+        at = at.wrapping_add(8);
+    }
+    if words.remainder().is_empty() {
+        return None;
+    }
+    // The last eight bytes, overlapping bytes already found free of LF.
+    match bytes.last_chunk::<8>() {
+        // `bytes` has at least the eight bytes of `last`: no wrap.
+        Some(last) => lf_in(*last).map(|i| bytes.len().wrapping_sub(8).wrapping_add(i)),
+        None => bytes.iter().position(|&b| b == b'\n'),
+    }
+}

@@ -1,0 +1,588 @@
+//! The decoder's unit tests.
+
+use super::line::*;
+use super::*;
+use crate::command::ScanMode;
+use crate::response::ResponseWriter;
+
+/// The kinds of events a whole input gives, one char each: S start, T status,
+/// F field, E error, N end, other x.
+fn kinds(input: &[u8]) -> String {
+    let mut d = Decoder::new();
+    let mut out = String::new();
+    let mut rest = input;
+    while !rest.is_empty() {
+        let (n, ev) = d.feed(rest);
+        rest = &rest[n..];
+        out.push(match ev {
+            None => continue,
+            Some(Event::Start { .. }) => 'S',
+            Some(Event::Status(_)) => 'T',
+            Some(Event::Field(_)) => 'F',
+            Some(Event::Error(e)) => {
+                assert!(matches!(e.kind, ErrorKind::UnknownEcho(_)), "{e:?}");
+                'E'
+            }
+            Some(Event::End(_)) => 'N',
+            Some(_) => 'x',
+        });
+    }
+    out
+}
+
+#[test]
+fn an_unknown_echo_reports_its_status_before_failing() {
+    // A stream frame whose echo lost a bit: status 99 reported, then the failure.
+    assert_eq!(kinds(b"mD0000000101000\n99b\n0000\n000\n\n"), "STE");
+    // An info answer: 00, then the failure at its first field.
+    assert_eq!(kinds(b"Pp\n00P\nDMIN:20;4\n\n"), "STE");
+    // Or at its end, when it has no payload line.
+    assert_eq!(kinds(b"Pp\n00P\n\n"), "STE");
+    // A status without payload: an answer like any other.
+    assert_eq!(kinds(b"Pp\n0Ee\n\n"), "STN");
+}
+
+#[test]
+fn counters_wrap_at_their_width() {
+    let mut d = Decoder::new();
+    d.stats = DecoderStats {
+        bytes: u64::MAX,
+        responses: u32::MAX,
+        errors: u32::MAX,
+        by_kind: [u32::MAX; ErrorKind::COUNT],
+        resyncs: u32::MAX,
+    };
+    let feed_all = |d: &mut Decoder, mut rest: &[u8]| {
+        while !rest.is_empty() {
+            let (n, _) = d.feed(rest);
+            rest = &rest[n..];
+        }
+    };
+    // An intact QT answer (8 bytes), then an answer to a damaged echo (an error and
+    // a resync, 8 bytes).
+    feed_all(&mut d, b"QT\n00P\n\n");
+    assert_eq!((d.stats.responses, d.stats.bytes), (0, 7));
+    assert_eq!((d.stats.errors, d.stats.resyncs), (u32::MAX, u32::MAX));
+    feed_all(&mut d, b"Pp\n00P\n\n");
+    assert_eq!((d.stats.responses, d.stats.bytes), (0, 15));
+    assert_eq!((d.stats.errors, d.stats.resyncs), (0, 0));
+    let kind = ErrorKind::UnknownEcho(EchoError::UnknownCommand).index();
+    for (i, &c) in d.stats.by_kind.iter().enumerate() {
+        assert_eq!(c, if i == kind { 0 } else { u32::MAX }, "kind {i}");
+    }
+}
+
+#[test]
+fn distance_lines_after_intensity_lines_carry_no_old_intensity() {
+    // Readings of a distance-only scan are written without their echo and aux when
+    // the slots are known clear: after a scan with intensities they must be cleared.
+    let (ge, _) = scan(DataSet::DistanceIntensity, 100);
+    let (gd, values) = scan(DataSet::Distance, 100);
+    let mut both = ge.clone();
+    both.extend_from_slice(&gd);
+    for chunk in [1, 7, 64, 4096] {
+        let (_, after) = decode(Decoder::new(), &both, chunk);
+        let (_, alone) = decode(Decoder::new(), &gd, chunk);
+        assert_eq!(&after[100..], &alone[..], "chunk {chunk}");
+        assert!(alone
+            .iter()
+            .zip(&values)
+            .all(|(r, &(d, _))| r.distance == d && r.aux == 0));
+    }
+}
+
+#[test]
+fn value_words_copied_agree_with_bytes() {
+    let mut x = 0x0BAD_CAFEu32;
+    let mut next = || {
+        x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        x >> 8
+    };
+    for _ in 0..20_000 {
+        let len = next() as usize % 100;
+        let mut input: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
+        if len > 0 && next() % 2 == 0 {
+            let at = next() as usize % len;
+            input[at] = next() as u8;
+        }
+        let room = next() as usize % 110;
+        let mut d = vec![0u8; room];
+        let (taken, sum) = copy_value_words(&input, &mut d);
+        assert_eq!(&d[..taken], &input[..taken]);
+        // The longest whole-word prefix of value chars that fits.
+        let valid = input
+            .iter()
+            .take_while(|&&b| (0x30..=0x6F).contains(&b))
+            .count();
+        assert_eq!(taken, valid.min(room) / 4 * 4, "{input:?} room {room}");
+        let bytes_sum: u32 = input[..taken].iter().map(|&b| u32::from(b) - 0x30).sum();
+        assert_eq!(sum, bytes_sum, "{input:?}");
+    }
+}
+
+#[test]
+fn sum_and_check_taken_while_copying_equals_the_bytewise_one() {
+    // Lines of value chars (some with one arbitrary byte, never LF), their LF, in
+    // pseudo-random pieces: what `take_line_bytes` takes must be what
+    // `sum_and_check_bytes` computes over the line's data.
+    let mut x = 0x9E37_79B9u32;
+    let mut next = || {
+        x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        x >> 8
+    };
+    for _ in 0..20_000 {
+        let len = 1 + next() as usize % 90;
+        let mut line: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
+        if next() % 2 == 0 {
+            let at = next() as usize % len;
+            line[at] = match next() as u8 {
+                b'\n' => 0,
+                b => b,
+            };
+        }
+        let mut stream = line.clone();
+        stream.push(b'\n');
+        let fused = next() % 2 == 0;
+        let mut d = Decoder::new();
+        let mut rest = &stream[..];
+        let mut lf = None;
+        let mut base = 0;
+        while lf.is_none() && !rest.is_empty() {
+            let piece = (1 + next() as usize % 70).min(rest.len());
+            let found = if fused {
+                d.take_line_bytes_fused(&rest[..piece])
+            } else {
+                d.take_line_bytes_plain(&rest[..piece])
+            };
+            lf = found.map(|i| base + i);
+            base += piece;
+            rest = &rest[piece..];
+        }
+        assert_eq!(lf, Some(len), "{line:?}");
+        let expect = sum_and_check_bytes(&line[..len - 1]);
+        let overflow = len > LINE_CAP;
+        if !overflow {
+            let (sum, found, valid) = d.line_sum_and_check(len).unwrap();
+            assert_eq!(found, line[len - 1]);
+            assert_eq!((sum, valid), expect, "{line:?}");
+        }
+    }
+}
+
+#[test]
+fn word_sum_and_check_equals_the_bytewise_one() {
+    let chars: Vec<u8> = (0x30..=0x6F).collect();
+    let check = |line: &[u8]| {
+        let words = sum_and_check_words(line);
+        assert_eq!(words, sum_and_check_bytes(line), "{line:?}");
+        words
+    };
+    // Every byte value at every position of short lines of value chars.
+    for len in 1..=9 {
+        for pos in 0..len {
+            for b in 0..=255u8 {
+                let mut line = chars[..len].to_vec();
+                line[pos] = b;
+                let (_, valid) = check(&line);
+                assert_eq!(valid, (0x30..=0x6F).contains(&b));
+            }
+        }
+    }
+    // Pseudo-random lines of value chars, some with one arbitrary byte.
+    let mut x = 0x1234_5678u32;
+    let mut next = || {
+        x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        x >> 8
+    };
+    for _ in 0..20_000 {
+        let len = next() as usize % 200;
+        let mut line: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
+        if len > 0 && next() % 2 == 0 {
+            let at = next() as usize % len;
+            line[at] = next() as u8;
+        }
+        check(&line);
+    }
+    // Long lines of the largest chars: no lane carries into the next.
+    assert_eq!(check(&[0x6F; 1001]), (checksum(&[0x6F; 1001]), true));
+    assert_eq!(check(&[]), (0x30, true));
+}
+
+const SETS: [DataSet; 5] = [
+    DataSet::Distance,
+    DataSet::ShortDistance,
+    DataSet::DistanceIntensity,
+    DataSet::DistanceReflectance,
+    DataSet::DistanceAux,
+];
+
+/// A single-scan response over steps `0..n` of `data`, with the values written.
+fn scan(data: DataSet, n: u16) -> (Vec<u8>, Vec<(u32, u32)>) {
+    let request = Request::new(Command::Scan(ScanRequest {
+        data,
+        ..ScanRequest::distance(ScanMode::Single, 0, n - 1)
+    }));
+    let dmax = (1u32 << (6 * u32::from(data.distance_width()))) - 1;
+    let amax = (1u64 << (6 * u32::from(data.aux_width()))) as u32 - 1;
+    let values: Vec<(u32, u32)> = (0..u32::from(n))
+        .map(|i| {
+            let x = i.wrapping_mul(2_654_435_761);
+            (x % (dmax + 1), (x >> 7) % amax.saturating_add(1))
+        })
+        .collect();
+    let mut out = Vec::new();
+    let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+    w.echo(&request);
+    w.status(*b"00");
+    w.timestamp(0x00AB_CDEF);
+    for &(d, a) in &values {
+        w.step(d, a);
+    }
+    w.end();
+    (out, values)
+}
+
+/// Every event of `stream` fed in `chunk`-byte pieces, as text, and every reading.
+fn decode(mut dec: Decoder, stream: &[u8], chunk: usize) -> (Vec<String>, Vec<Reading>) {
+    let mut log = Vec::new();
+    let mut readings = Vec::new();
+    for piece in stream.chunks(chunk) {
+        let mut rest = piece;
+        while !rest.is_empty() {
+            let (used, ev) = dec.feed(rest);
+            rest = &rest[used..];
+            if let Some(ev) = ev {
+                if let Event::Data(line) = &ev {
+                    readings.extend_from_slice(line.readings);
+                }
+                log.push(format!("{ev:?}"));
+            }
+        }
+    }
+    if let Some(ev) = dec.finish() {
+        log.push(format!("{ev:?}"));
+    }
+    log.push(format!("{:?}", dec.stats()));
+    (log, readings)
+}
+
+/// The fast path and the char-by-char reference agree on `stream`, whole and in
+/// pieces of sizes around a line's.
+fn assert_same(stream: &[u8]) -> Vec<String> {
+    let whole = stream.len().max(1);
+    let (reference, _) = decode(Decoder::char_by_char(), stream, whole);
+    for chunk in [1, 2, 3, 5, 7, 11, 31, 63, 64, 65, 66, 67, 100, whole] {
+        let (fast, _) = decode(Decoder::new(), stream, chunk);
+        assert_eq!(
+            fast,
+            reference,
+            "chunk {chunk}, stream {:?}",
+            stream.escape_ascii().to_string()
+        );
+    }
+    reference
+}
+
+/// GE over steps 0..=10: distance 1000 + i, intensity 100 i + 7. 66 value chars: the
+/// first line ends with the distance and one intensity char of step 10, whose other
+/// two intensity chars open the second line (sums computed by hand).
+const GE_SPLIT: &[u8] = b"GE0000001001\n00P\nZlg_<\n\
+    0?X0070?Y01[0?Z03?0?[04c0?\\06G0?]07k0?^09O0?_0;30?`0<W0?a0>;0?b0a\n\
+    ?_N\n\n";
+
+#[test]
+fn golden_ge_intensity_split_across_lines() {
+    let mut dec = Decoder::new();
+    let mut rest = GE_SPLIT;
+    let mut lines = Vec::new();
+    let mut end = None;
+    while !rest.is_empty() {
+        let (used, ev) = dec.feed(rest);
+        rest = &rest[used..];
+        match ev {
+            Some(Event::Timestamp(t)) => assert_eq!(t, 0xAB_CDEF),
+            Some(Event::Data(line)) => lines.push((line.line, line.readings.to_vec())),
+            Some(Event::End(summary)) => end = Some(summary),
+            Some(Event::Error(e)) => panic!("{e}"),
+            _ => {}
+        }
+    }
+    let expected = |i: u16| Reading {
+        index: i,
+        echo: 0,
+        distance: 1000 + u32::from(i),
+        aux: 100 * u32::from(i) + 7,
+    };
+    assert_eq!(lines.len(), 2);
+    assert_eq!(lines[0], (3, (0..10).map(expected).collect::<Vec<_>>()));
+    assert_eq!(lines[1], (4, vec![expected(10)]));
+    let end = end.unwrap();
+    assert_eq!(
+        (end.values, end.lines, end.timestamp),
+        (11, 5, Some(0xAB_CDEF))
+    );
+    assert_same(GE_SPLIT);
+}
+
+#[test]
+fn golden_ge_bad_char_column_in_fast_and_reference() {
+    // `p` (0x70) is one past the value chars; the sum is fixed so the decode sees it.
+    let damaged = damage(GE_SPLIT, 17 + 6 + 13, Some(b'p'));
+    let log = assert_same(&damaged);
+    assert!(
+        log.iter().any(|l| l.contains("BadChar { column: 13 }")),
+        "{log:?}"
+    );
+}
+
+#[test]
+fn fast_path_reads_what_the_writer_wrote() {
+    for data in SETS {
+        for n in [1, 2, 10, 11, 21, 22, 23, 32, 33, 100, 682, 1081] {
+            let (stream, values) = scan(data, n);
+            let (log, readings) = decode(Decoder::new(), &stream, 64);
+            assert!(
+                log.iter().any(|l| l.starts_with("End(")),
+                "{data:?} {n}: {log:?}"
+            );
+            let got: Vec<(u32, u32)> = readings.iter().map(|r| (r.distance, r.aux)).collect();
+            assert_eq!(got, values, "{data:?} {n}");
+            let indices: Vec<u16> = readings.iter().map(|r| r.index).collect();
+            assert_eq!(indices, (0..n).collect::<Vec<_>>(), "{data:?} {n}");
+            assert_same(&stream);
+        }
+    }
+}
+
+/// Changes byte `at` of `stream` to `c` and fixes the sum char of its line, so that
+/// the damage reaches the value decoding.
+fn damage(stream: &[u8], at: usize, c: Option<u8>) -> Vec<u8> {
+    let mut s = stream.to_vec();
+    match c {
+        Some(c) => s[at] = c,
+        None => {
+            s.remove(at);
+        }
+    }
+    let start = s[..at]
+        .iter()
+        .rposition(|&b| b == b'\n')
+        .map_or(0, |i| i + 1);
+    if let Some(end) = s[start..]
+        .iter()
+        .position(|&b| b == b'\n')
+        .map(|i| start + i)
+    {
+        if end >= start + 2 {
+            s[end - 1] = checksum(&s[start..end - 1]);
+        }
+    }
+    s
+}
+
+#[test]
+fn fast_path_matches_char_by_char_on_damaged_values() {
+    for data in SETS {
+        let (stream, _) = scan(data, 40);
+        // The data lines start after echo, status and timestamp lines.
+        let first = stream
+            .iter()
+            .enumerate()
+            .filter(|&(_, &b)| b == b'\n')
+            .nth(2)
+            .map(|(i, _)| i + 1)
+            .unwrap();
+        for at in first..stream.len() - 2 {
+            if stream[at] == b'\n' || stream.get(at + 1) == Some(&b'\n') {
+                continue;
+            }
+            for c in [
+                Some(b'/'),
+                Some(b'p'),
+                Some(b'&'),
+                Some(b'o'),
+                Some(0),
+                None,
+            ] {
+                assert_same(&damage(&stream, at, c));
+            }
+        }
+    }
+}
+
+#[test]
+fn fast_path_counts_too_many_values_like_the_reference() {
+    // The echo asks for 5 steps; the line carries 22.
+    let (stream, _) = scan(DataSet::Distance, 22);
+    let text = String::from_utf8(stream).unwrap();
+    let damaged = text.replacen("GD0000002101", "GD0000000401", 1);
+    let log = assert_same(damaged.as_bytes());
+    assert!(
+        log.iter()
+            .any(|l| l.contains("TooManyValues { expected: 5 }")),
+        "{log:?}"
+    );
+}
+
+/// A frame of the stream `MD0000000101cc` (two steps, 1000 and 1001 mm), with
+/// `count` scans remaining, status `status`, timestamp `ts`.
+fn md_frame(count: u8, status: [u8; 2], ts: u32, values: &[u32]) -> Vec<u8> {
+    let request = Request::new(Command::Scan(ScanRequest {
+        count,
+        ..ScanRequest::distance(ScanMode::Continuous, 0, 1)
+    }));
+    let mut out = Vec::new();
+    let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+    w.echo(&request);
+    w.status(status);
+    if status != *b"00" {
+        w.timestamp(ts);
+        for &d in values {
+            w.step(d, 0);
+        }
+    }
+    w.end();
+    out
+}
+
+/// What each response of `stream` came to: `end` or the error's name.
+fn outcomes(stream: &[u8]) -> Vec<&'static str> {
+    let mut dec = Decoder::new();
+    let mut out = Vec::new();
+    let mut rest = stream;
+    while !rest.is_empty() {
+        let (used, ev) = dec.feed(rest);
+        rest = &rest[used..];
+        match ev {
+            Some(Event::End(_)) => out.push("end"),
+            Some(Event::Error(e)) => out.push(e.kind.name()),
+            _ => {}
+        }
+    }
+    out
+}
+
+#[test]
+fn stream_frames_must_count_down_and_move_on_in_time() {
+    let v = [1000, 1001];
+    let frames: Vec<(Vec<u8>, &str)> = vec![
+        (md_frame(5, *b"00", 0, &v), "end"),
+        (md_frame(4, *b"99", 100, &v), "end"),
+        (md_frame(3, *b"99", 200, &v), "end"),
+        // The count did not go down.
+        (md_frame(3, *b"99", 300, &v), "out_of_sequence"),
+        // Checked against nothing after a failure.
+        (md_frame(2, *b"99", 400, &v), "end"),
+        // Back in time.
+        (md_frame(1, *b"99", 350, &v), "out_of_sequence"),
+        (md_frame(0, *b"99", 500, &v), "end"),
+        // A new endless stream: its ack starts over.
+        (md_frame(0, *b"00", 0, &v), "end"),
+        (md_frame(0, *b"99", 0xFF_FFF0, &v), "end"),
+        // The 24-bit clock wraps.
+        (md_frame(0, *b"99", 0x10, &v), "end"),
+        // Same time twice.
+        (md_frame(0, *b"99", 0x10, &v), "out_of_sequence"),
+        (md_frame(0, *b"99", 0x20, &v), "end"),
+        // More than STREAM_GAP_MAX_MS on.
+        (md_frame(0, *b"99", 0x20 + 10_001, &v), "out_of_sequence"),
+        (md_frame(0, *b"99", 0x30 + 10_001, &v), "end"),
+        // An endless stream does not count.
+        (md_frame(7, *b"99", 0x40 + 10_001, &v), "out_of_sequence"),
+        // A damaged frame (one value short) is no reference, and the frame after it
+        // is decoded (the failure at the response's end skips nothing more).
+        (
+            md_frame(0, *b"99", 0x50 + 10_001, &v[..1]),
+            "count_mismatch",
+        ),
+        (md_frame(0, *b"99", 0x60 + 10_001, &v), "end"),
+    ];
+    let stream: Vec<u8> = frames.iter().flat_map(|f| f.0.clone()).collect();
+    let want: Vec<&str> = frames.iter().map(|f| f.1).collect();
+    assert_eq!(outcomes(&stream), want);
+}
+
+#[test]
+fn single_scans_and_other_streams_are_not_sequenced() {
+    // A G* answer between frames, and frames of another request, are not checked
+    // against the stream; a QT answer ends it.
+    let v = [1000, 1001];
+    let mut stream = md_frame(0, *b"99", 500, &v);
+    stream.extend(b"GD0000000101\n00P\n00000\n0?X0?Y?\n\n");
+    stream.extend(md_frame(0, *b"99", 600, &v));
+    stream.extend(b"QT\n00P\n\n");
+    stream.extend(md_frame(0, *b"99", 100, &v));
+    assert_eq!(outcomes(&stream), ["end"; 5]);
+}
+
+#[test]
+fn an_unknown_command_answered_without_payload_ends_intact() {
+    // SCIP 2.2 RB (not a command of this crate) is answered 01, then 00.
+    assert_eq!(
+        outcomes(b"RB\n01Q\n\nRB\n00P\n\nXX\n00P\nabcV\n\nVV\n00P\n\n"),
+        ["end", "end", "unknown_echo", "end"]
+    );
+}
+
+/// Full data lines whose framing is damaged. The shortcut that takes a full line
+/// without an LF search (64-bit hosts) must leave each to the line rules: the same
+/// events as the char-by-char reference for every chunk size, and the error the SCIP
+/// framing calls for.
+#[test]
+fn full_line_shortcut_leaves_damaged_framing_to_the_line_rules() {
+    let (stream, _) = scan(DataSet::Distance, 100);
+    let lfs: Vec<usize> = (0..stream.len()).filter(|&i| stream[i] == b'\n').collect();
+    // Echo, status, timestamp, then the data lines: the second one starts after the
+    // fourth LF and is full (64 data chars and the sum char).
+    let line = lfs[3] + 1;
+    assert_eq!(lfs[4] - line, 65);
+    let fix_sum = |s: &mut Vec<u8>, start: usize| {
+        let end = start + s[start..].iter().position(|&b| b == b'\n').unwrap();
+        s[end - 1] = checksum(&s[start..end - 1]);
+    };
+    let mut wrong_sum = stream.clone();
+    wrong_sum[line + 64] = if stream[line + 64] == b'0' {
+        b'1'
+    } else {
+        b'0'
+    };
+    let mut long = stream.clone();
+    long.insert(line + 10, b'0');
+    fix_sum(&mut long, line);
+    let mut joined = stream.clone();
+    joined.remove(line + 65);
+    let mut lf_for_sum = stream.clone();
+    lf_for_sum[line + 64] = b'\n';
+    let mut lf_inside = stream.clone();
+    lf_inside[line + 30] = b'\n';
+    let mut bad_char = stream.clone();
+    bad_char[line + 7] = b'~';
+    fix_sum(&mut bad_char, line);
+    let cases: [(&str, Vec<u8>, Option<&str>); 6] = [
+        ("wrong sum", wrong_sum, Some("BadSum")),
+        ("65 data chars", long, Some("BadDataLineLength")),
+        ("LF dropped", joined, Some("LineTooLong")),
+        ("LF for the sum char", lf_for_sum, None),
+        ("LF inside", lf_inside, None),
+        ("bad char", bad_char, Some("BadChar { column: 7 }")),
+    ];
+    for (what, s, kind) in cases {
+        let (reference, _) = decode(Decoder::char_by_char(), &s, s.len());
+        assert!(
+            reference.iter().any(|l| l.starts_with("Error(")),
+            "{what}: no error in {reference:?}"
+        );
+        if let Some(kind) = kind {
+            let first = reference.iter().find(|l| l.starts_with("Error(")).unwrap();
+            // At the damaged line's first byte.
+            assert!(
+                first.contains(kind) && first.contains(&format!("offset: {line},")),
+                "{what}: {first}"
+            );
+        }
+        for chunk in (1..=140).chain([s.len()]) {
+            let (fast, _) = decode(Decoder::new(), &s, chunk);
+            assert_eq!(fast, reference, "{what}, chunk {chunk}");
+        }
+    }
+}

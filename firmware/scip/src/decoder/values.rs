@@ -1,0 +1,606 @@
+//! Values: a data line's checks, and its chars decoded into readings, a whole step at
+//! a time on the fast path or char by char.
+
+#[cfg(not(target_pointer_width = "32"))]
+use super::line::sum_and_check;
+use super::*;
+
+impl Decoder {
+    pub(super) fn data_line(&mut self, len: usize) -> Option<Event<'_>> {
+        if len < 2 {
+            return self.fail(ErrorKind::BadDataLineLength);
+        }
+        // Data chars, sum char excluded (`len >= 2`).
+        let n = len.wrapping_sub(1);
+        // One pass for the sum and the value-char check of the fast path.
+        let Some((expected, found, all_valid)) = self.line_sum_and_check(len) else {
+            return self.fail(ErrorKind::BadDataLineLength);
+        };
+        if expected != found {
+            return self.fail(ErrorKind::BadSum { expected, found });
+        }
+        if n > DATA_CHARS || self.short_line_seen {
+            return self.fail(ErrorKind::BadDataLineLength);
+        }
+        if n < DATA_CHARS {
+            self.short_line_seen = true;
+        }
+        self.n_readings = 0;
+        if let Err(kind) = self.decode_values(None, n, all_valid) {
+            return self.fail(kind);
+        }
+        Some(self.data_event())
+    }
+
+    /// The readings of the data line just decoded, as an event.
+    #[inline]
+    pub(super) fn data_event(&self) -> Event<'_> {
+        Event::Data(DataLine {
+            readings: self.readings.get(..self.n_readings).unwrap_or(&[]),
+            data: self.shape.data,
+            limits: self.limits,
+            line: self.line_no,
+        })
+    }
+
+    /// The fast path of [`Self::feed`] on 64-bit hosts: a full data line (64 value
+    /// chars, its sum char and the LF) that ends in `input`, either all of it in `input`
+    /// (decoded from there, not copied) or begun in the line buffer (its rest copied
+    /// there). Returns the bytes of `input` the line took and the outcome of decoding
+    /// it, as [`Self::data_line`] would give them; `None`, having consumed nothing, for
+    /// anything else (another state or line length, a bad sum or char, a partial line
+    /// that overflowed ...), which the general path then handles.
+    ///
+    /// No LF search: the LF must be where a full line puts it, and the value-char check
+    /// of the 64 data chars and the sum char (a value char, as the computed sum is)
+    /// rule out an earlier LF.
+    #[cfg(not(target_pointer_width = "32"))]
+    #[inline]
+    pub(super) fn full_data_line(
+        &mut self,
+        input: &[u8],
+    ) -> Option<(usize, Result<(), ErrorKind>)> {
+        /// Bytes of a full data line, LF excluded.
+        const LINE: usize = DATA_CHARS + 1;
+        if self.state != State::Payload(Payload::Data)
+            || self.overflow
+            || self.short_line_seen
+            || self.shape.multi_echo
+        {
+            return None;
+        }
+        #[cfg(any(test, fuzzing))]
+        if self.char_by_char {
+            return None;
+        }
+        let buffered = self.len;
+        // Bytes of `input` up to the LF, excluded: the line buffer has at most `LINE`.
+        let rest = LINE.checked_sub(buffered)?;
+        if input.get(rest) != Some(&b'\n') {
+            return None;
+        }
+        let line: &[u8; LINE] = if buffered == 0 {
+            input.first_chunk()?
+        } else {
+            let tail = input.get(..rest)?;
+            self.buf.get_mut(buffered..LINE)?.copy_from_slice(tail);
+            self.buf.first_chunk()?
+        };
+        let (data, &[s]) = line.split_first_chunk::<DATA_CHARS>()? else {
+            return None;
+        };
+        let (sum, valid) = sum_and_check(data);
+        if !valid || sum != s {
+            return None;
+        }
+        // The line is taken: the bookkeeping of `feed` and `line_event` for it. `rest`
+        // is below `LINE`, so `used` cannot wrap.
+        let used = rest.wrapping_add(1);
+        self.offset = self.offset.wrapping_add(used as u64);
+        self.stats.bytes = self.stats.bytes.wrapping_add(used as u64);
+        self.current_line = self.line_start;
+        self.line_start = self.offset;
+        self.len = 0;
+        self.line_no = self.line_no.saturating_add(1);
+        self.n_readings = 0;
+        let from_input = if buffered == 0 {
+            input.get(..DATA_CHARS)
+        } else {
+            None
+        };
+        let decoded = match (self.shape.dist_width, self.shape.aux_width) {
+            (3, 0) => self.decode_full::<3, 0, 3>(from_input),
+            (2, 0) => self.decode_full::<2, 0, 2>(from_input),
+            // Lines with second values: the general whole-step loop measured faster
+            // for them (the ME stream) than these per-offset instantiations.
+            _ => self.decode_values(from_input, DATA_CHARS, true),
+        };
+        Some((used, decoded))
+    }
+
+    /// [`Self::decode_steps`] for a full line (`DATA_CHARS` valid value chars, from
+    /// `input` or the line buffer), `W = D + A`: the step begun on the previous line is
+    /// completed, then the rest goes to [`Self::decode_full_from`] for the offset of the
+    /// first whole step, where every length is a constant. Same readings, state and
+    /// errors.
+    #[cfg(not(target_pointer_width = "32"))]
+    #[inline]
+    fn decode_full<const D: usize, const A: usize, const W: usize>(
+        &mut self,
+        input: Option<&[u8]>,
+    ) -> Result<(), ErrorKind> {
+        let chars = match input {
+            Some(chars) => chars,
+            None => self.buf.get(..DATA_CHARS).unwrap_or(&[]),
+        };
+        let carried = usize::from(self.carry_n);
+        let (head, used) = if self.in_aux {
+            let need = A.saturating_sub(carried);
+            let a = chars.get(..need).unwrap_or(&[]);
+            (
+                Some((self.pending_distance, continue_valid(self.carry, a))),
+                need,
+            )
+        } else if carried != 0 {
+            let need = D.saturating_sub(carried);
+            // At most `D + A`: no wrap.
+            let used = need.wrapping_add(A);
+            let (d, a) = (
+                chars.get(..need).unwrap_or(&[]),
+                chars.get(need..used).unwrap_or(&[]),
+            );
+            (
+                Some((continue_valid(self.carry, d), continue_valid(0, a))),
+                used,
+            )
+        } else {
+            (None, 0)
+        };
+        // `used` is below `W`: the step begun before is part of one step.
+        match used {
+            0 => self.decode_full_from::<D, A, W, 0>(input, head),
+            1 => self.decode_full_from::<D, A, W, 1>(input, head),
+            2 => self.decode_full_from::<D, A, W, 2>(input, head),
+            3 => self.decode_full_from::<D, A, W, 3>(input, head),
+            4 => self.decode_full_from::<D, A, W, 4>(input, head),
+            5 => self.decode_full_from::<D, A, W, 5>(input, head),
+            6 => self.decode_full_from::<D, A, W, 6>(input, head),
+            _ => self.decode_values(input, DATA_CHARS, true),
+        }
+    }
+
+    /// The rest of [`Self::decode_full`]: the whole steps from char `OFF` on, after the
+    /// completed step `head` (present exactly when `OFF > 0`), and the partial step at
+    /// the end carried.
+    #[cfg(not(target_pointer_width = "32"))]
+    #[inline(always)]
+    fn decode_full_from<const D: usize, const A: usize, const W: usize, const OFF: usize>(
+        &mut self,
+        input: Option<&[u8]>,
+        head: Option<(u32, u32)>,
+    ) -> Result<(), ErrorKind> {
+        if OFF >= W || W != D.wrapping_add(A) || (OFF == 0) != head.is_none() {
+            // Not a shape `decode_full` dispatches here.
+            return self.decode_values(input, DATA_CHARS, true);
+        }
+        let chars = match input {
+            Some(chars) => chars.first_chunk::<DATA_CHARS>(),
+            None => self.buf.first_chunk::<DATA_CHARS>(),
+        };
+        let Some(chars) = chars else {
+            return self.decode_values(input, DATA_CHARS, true);
+        };
+        // Constants per instantiation (`OFF < W <= 7`): none of these wraps.
+        let whole = DATA_CHARS.wrapping_sub(OFF).checked_div(W).unwrap_or(0);
+        let tail_at = OFF.wrapping_add(whole.wrapping_mul(W));
+        let total = whole.wrapping_add(usize::from(OFF > 0));
+        let too_many = ErrorKind::TooManyValues {
+            expected: self.shape.expected,
+        };
+        if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
+            return Err(too_many);
+        }
+        if A == 0 && !self.readings_plain {
+            // As in `decode_steps`.
+            self.readings = [Reading::default(); MAX_READINGS];
+            self.readings_plain = true;
+        } else if A > 0 {
+            self.readings_plain = false;
+        }
+        let plain = A == 0 && self.readings_plain;
+        let Some(slots) = self.readings.get_mut(..total) else {
+            return Err(too_many);
+        };
+        let mut index = self.values;
+        let (head_slot, mid_slots) = slots.split_at_mut(usize::from(OFF > 0));
+        if let (Some((distance, aux)), [slot]) = (head, head_slot) {
+            *slot = Reading {
+                index,
+                echo: 0,
+                distance,
+                aux,
+            };
+            index = index.wrapping_add(1);
+        }
+        // `whole` steps from `OFF` on, `W` chars each, within the line; a constant count
+        // the compiler unrolls.
+        for j in 0..whole {
+            let at = OFF.wrapping_add(j.wrapping_mul(W));
+            let (Some(slot), Some(step)) = (
+                mid_slots.get_mut(j),
+                chars.get(at..).and_then(|r| r.first_chunk::<W>()),
+            ) else {
+                break;
+            };
+            let Some((d, a)) = step.split_first_chunk::<D>() else {
+                break;
+            };
+            if plain {
+                slot.distance = decode_valid(d);
+                slot.index = index;
+            } else {
+                let Some(a) = a.first_chunk::<A>() else {
+                    break;
+                };
+                *slot = Reading {
+                    index,
+                    echo: 0,
+                    distance: decode_valid(d),
+                    aux: decode_valid(a),
+                };
+            }
+            index = index.wrapping_add(1);
+        }
+        if total > 0 {
+            self.echo_no = 0;
+        }
+        self.values = index;
+        self.n_readings = total;
+        let tail = chars.get(tail_at..).unwrap_or(&[]);
+        match tail.split_at_checked(D) {
+            Some((d, a)) if A > 0 => {
+                self.pending_distance = continue_valid(0, d);
+                self.in_aux = true;
+                self.carry = continue_valid(0, a);
+                self.carry_n = a.len() as u8;
+                self.want = A as u8;
+            }
+            _ => {
+                self.in_aux = false;
+                self.carry = continue_valid(0, tail);
+                self.carry_n = tail.len() as u8;
+                self.want = D as u8;
+            }
+        }
+        Ok(())
+    }
+
+    /// Decodes the first `n` bytes of the buffer (or `input`, when the line is there) as
+    /// value chars, carrying partial values; `all_valid` tells that all of them are value
+    /// chars (see [`sum_and_check`]).
+    pub(super) fn decode_values(
+        &mut self,
+        input: Option<&[u8]>,
+        n: usize,
+        all_valid: bool,
+    ) -> Result<(), ErrorKind> {
+        // Fast path: a line of valid value chars only (no `&`, nothing to report by
+        // column) is decoded a whole step at a time. Anything else goes char by char.
+        #[cfg(any(test, fuzzing))]
+        let all_valid = all_valid && !self.char_by_char;
+        if !self.shape.multi_echo && all_valid {
+            match (self.shape.dist_width, self.shape.aux_width) {
+                (3, 0) => return self.decode_steps::<3, 0>(input, n),
+                (2, 0) => return self.decode_steps::<2, 0>(input, n),
+                (3, 3) => return self.decode_steps::<3, 3>(input, n),
+                (3, 2) => return self.decode_steps::<3, 2>(input, n),
+                (3, 4) => return self.decode_steps::<3, 4>(input, n),
+                _ => {}
+            }
+        }
+        self.decode_chars_from(input, n)
+    }
+
+    /// [`Self::decode_chars`] on `input`, or on the first `n` bytes of the buffer.
+    fn decode_chars_from(&mut self, input: Option<&[u8]>, n: usize) -> Result<(), ErrorKind> {
+        match input {
+            Some(chars) => self.decode_chars(chars, 0),
+            None => self.decode_chars_copied(n),
+        }
+    }
+
+    /// Decodes `input`, or the first `n` bytes of the buffer when it is `None` (all valid
+    /// value chars, see [`sum_and_check`]) of a data set
+    /// with `D`-char distances and `A`-char second values, a whole step at a time: the
+    /// step begun on the previous line is completed from the carried value, the whole
+    /// steps go straight into readings, the partial step at the end is carried. Same
+    /// readings, state and errors as [`Self::decode_chars`] on the same chars.
+    pub(super) fn decode_steps<const D: usize, const A: usize>(
+        &mut self,
+        input: Option<&[u8]>,
+        n: usize,
+    ) -> Result<(), ErrorKind> {
+        // 2..=7 chars: the `D + A` of the data sets dispatched in `decode_values`.
+        let width = D.wrapping_add(A);
+        let chars = match input {
+            Some(chars) => chars,
+            None => self.buf.get(..n).unwrap_or(&[]),
+        };
+        let carried = usize::from(self.carry_n);
+        // The step begun on the previous line, completed.
+        let mut head = None;
+        let mut rest = chars;
+        if carried != 0 || self.in_aux {
+            let (distance, aux, used) = if self.in_aux {
+                let need = A.saturating_sub(carried);
+                let Some(a) = chars.get(..need) else {
+                    return self.decode_chars_from(input, n);
+                };
+                (self.pending_distance, continue_valid(self.carry, a), need)
+            } else {
+                let need = D.saturating_sub(carried);
+                // At most `D + A`: no wrap.
+                let used = need.wrapping_add(A);
+                let (Some(d), Some(a)) = (chars.get(..need), chars.get(need..used)) else {
+                    return self.decode_chars_from(input, n);
+                };
+                (continue_valid(self.carry, d), continue_valid(0, a), used)
+            };
+            head = Some((distance, aux));
+            rest = chars.get(used..).unwrap_or(&[]);
+        }
+        // `width` is a nonzero constant here: the division folds, the `0` is never taken.
+        let whole = rest.len().checked_div(width).unwrap_or(0);
+        // Lengths and counts within one line (at most LINE_CAP): none of these wraps.
+        let (mid, tail) = rest.split_at(whole.wrapping_mul(width));
+        let total = whole.wrapping_add(usize::from(head.is_some()));
+        let too_many = ErrorKind::TooManyValues {
+            expected: self.shape.expected,
+        };
+        if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
+            return Err(too_many);
+        }
+        if A == 0 && !self.readings_plain {
+            // Once per change of data set: clear what readings with echoes or second
+            // values left, so that distance-only lines write less.
+            self.readings = [Reading::default(); MAX_READINGS];
+            self.readings_plain = true;
+        } else if A > 0 {
+            self.readings_plain = false;
+        }
+        let first = self.n_readings;
+        let end = first.wrapping_add(total);
+        let slots = self.readings.get_mut(first..end).ok_or(too_many)?;
+        let mut index = self.values;
+        let mut slots = slots.iter_mut();
+        if let Some((distance, aux)) = head {
+            if let Some(slot) = slots.next() {
+                *slot = Reading {
+                    index,
+                    echo: 0,
+                    distance,
+                    aux,
+                };
+                index = index.wrapping_add(1);
+            }
+        }
+        let slots = slots.into_slice();
+        index = if A == 0 && self.readings_plain {
+            // Every slot already has echo 0 and aux 0: the distance and index will do.
+            put_steps::<D, A, true>(slots, mid, index)
+        } else {
+            put_steps::<D, A, false>(slots, mid, index)
+        };
+        if total > 0 {
+            self.echo_no = 0;
+        }
+        self.values = index;
+        self.n_readings = end;
+        // The partial step at the end: a distance and part of its second value, or part
+        // of a distance.
+        match tail.split_at_checked(D) {
+            Some((d, a)) if A > 0 => {
+                self.pending_distance = continue_valid(0, d);
+                self.in_aux = true;
+                self.carry = continue_valid(0, a);
+                self.carry_n = a.len() as u8;
+                self.want = A as u8;
+            }
+            _ => {
+                self.in_aux = false;
+                self.carry = continue_valid(0, tail);
+                self.carry_n = tail.len() as u8;
+                self.want = D as u8;
+            }
+        }
+        Ok(())
+    }
+
+    /// [`Self::decode_chars`] on the first `n` bytes of the buffer.
+    pub(super) fn decode_chars_copied(&mut self, n: usize) -> Result<(), ErrorKind> {
+        let buf = self.buf;
+        self.decode_chars(buf.get(..n).unwrap_or(&[]), 0)
+    }
+
+    /// Decodes `chars` one by one, carrying partial values; `col0` is the column of the
+    /// first of them in its line.
+    pub(super) fn decode_chars(&mut self, chars: &[u8], col0: usize) -> Result<(), ErrorKind> {
+        let mut carry = self.carry;
+        let mut carry_n = self.carry_n;
+        let mut want = self.want;
+        for (i, &c) in chars.iter().enumerate() {
+            // A column within one line: no wrap.
+            let col = col0.wrapping_add(i);
+            let v = c.wrapping_sub(CHAR_MIN);
+            if v >= 0x40 {
+                if c == b'&' {
+                    self.ampersand(carry_n, col)?;
+                    continue;
+                }
+                return Err(ErrorKind::BadChar { column: col as u8 });
+            }
+            carry = (carry << 6) | u32::from(v);
+            // Below `want` (at most 4) before this char: no wrap.
+            carry_n = carry_n.wrapping_add(1);
+            if carry_n == want {
+                want = self.value_done(carry)?;
+                carry = 0;
+                carry_n = 0;
+            }
+        }
+        self.carry = carry;
+        self.carry_n = carry_n;
+        self.want = want;
+        Ok(())
+    }
+
+    pub(super) fn ampersand(&mut self, carry_n: u8, col: usize) -> Result<(), ErrorKind> {
+        if !self.shape.multi_echo {
+            return Err(ErrorKind::BadChar { column: col as u8 });
+        }
+        if carry_n != 0 || self.in_aux || self.values == 0 || self.next_is_echo {
+            return Err(ErrorKind::MisplacedEcho);
+        }
+        // Below MAX_ECHOES before: the check below fails the response at MAX_ECHOES.
+        self.echo_no = self.echo_no.wrapping_add(1);
+        if self.echo_no >= MAX_ECHOES {
+            return Err(ErrorKind::TooManyEchoes);
+        }
+        self.next_is_echo = true;
+        Ok(())
+    }
+
+    /// A value of `want` chars is complete; returns the width of the next one.
+    #[inline]
+    pub(super) fn value_done(&mut self, value: u32) -> Result<u8, ErrorKind> {
+        if !self.in_aux && self.shape.aux_width != 0 {
+            self.pending_distance = value;
+            self.in_aux = true;
+            return Ok(self.shape.aux_width);
+        }
+        let (distance, aux) = if self.in_aux {
+            (self.pending_distance, value)
+        } else {
+            (value, 0)
+        };
+        self.in_aux = false;
+        let (index, echo) = if self.next_is_echo {
+            self.next_is_echo = false;
+            self.extra_echoes = self.extra_echoes.saturating_add(1);
+            (self.values.saturating_sub(1), self.echo_no)
+        } else {
+            if self.values >= self.shape.expected {
+                return Err(ErrorKind::TooManyValues {
+                    expected: self.shape.expected,
+                });
+            }
+            self.echo_no = 0;
+            // Below `expected` (checked above), so `+ 1` fits.
+            let index = self.values;
+            self.values = index.wrapping_add(1);
+            (index, 0)
+        };
+        let slot = self
+            .readings
+            .get_mut(self.n_readings)
+            .ok_or(ErrorKind::TooManyValues {
+                expected: self.shape.expected,
+            })?;
+        self.readings_plain &= echo == 0 && aux == 0;
+        *slot = Reading {
+            index,
+            echo,
+            distance,
+            aux,
+        };
+        // The slot at `n_readings` exists (above): below MAX_READINGS, no wrap.
+        self.n_readings = self.n_readings.wrapping_add(1);
+        Ok(self.shape.dist_width)
+    }
+}
+
+/// Writes the whole steps of `mid` (valid value chars, `D`-char distances and `A`-char
+/// second values) into `slots` with indices from `index`; returns the index after the
+/// last. `PLAIN`: every slot has echo 0 and aux 0 already (`A == 0`), so only the
+/// distance and the index are written. On 64-bit hosts four steps at a time, unrolled
+/// (fewer loop instructions per step); 32-bit targets keep the smaller plain loop.
+#[inline(always)]
+fn put_steps<const D: usize, const A: usize, const PLAIN: bool>(
+    slots: &mut [Reading],
+    mid: &[u8],
+    index: u16,
+) -> u16 {
+    // 2..=7: the `D + A` of the data sets `decode_values` dispatches; no wrap.
+    let width = D.wrapping_add(A);
+    #[cfg(not(target_pointer_width = "32"))]
+    {
+        let mut index = index;
+        let mut slots4 = slots.chunks_exact_mut(4);
+        let mut mid4 = mid.chunks_exact(width.wrapping_mul(4));
+        for (s, m) in (&mut slots4).zip(&mut mid4) {
+            index = put_step_run::<D, A, PLAIN>(s, m, index);
+        }
+        put_step_run::<D, A, PLAIN>(slots4.into_remainder(), mid4.remainder(), index)
+    }
+    #[cfg(target_pointer_width = "32")]
+    {
+        let _ = width;
+        put_step_run::<D, A, PLAIN>(slots, mid, index)
+    }
+}
+
+/// [`put_steps`] one step at a time.
+#[inline(always)]
+fn put_step_run<const D: usize, const A: usize, const PLAIN: bool>(
+    slots: &mut [Reading],
+    mid: &[u8],
+    mut index: u16,
+) -> u16 {
+    let width = D.wrapping_add(A);
+    for (slot, step) in slots.iter_mut().zip(mid.chunks_exact(width)) {
+        if PLAIN {
+            if let Some(d) = step.first_chunk::<D>() {
+                slot.distance = decode_valid(d);
+                slot.index = index;
+            }
+        } else {
+            let Some((d, a)) = step.split_first_chunk::<D>() else {
+                continue;
+            };
+            let Some(a) = a.first_chunk::<A>() else {
+                continue;
+            };
+            *slot = Reading {
+                index,
+                echo: 0,
+                distance: decode_valid(d),
+                aux: decode_valid(a),
+            };
+        }
+        index = index.wrapping_add(1);
+    }
+    index
+}
+
+/// The value of `N` valid value chars (see [`sum_and_check`]), most significant first.
+///
+/// Sums the raw bytes in base 64, then takes the `0x30` of every char off at once:
+/// `Σ (c - 0x30)·64^k = Σ c·64^k - 0x30·Σ 64^k`, exact in `u32` for up to 4 chars.
+#[inline(always)]
+pub(super) fn decode_valid<const N: usize>(chars: &[u8; N]) -> u32 {
+    let raw = chars
+        .iter()
+        .fold(0u32, |acc, &c| (acc << 6).wrapping_add(u32::from(c)));
+    let offset = chars
+        .iter()
+        .fold(0u32, |acc, _| (acc << 6).wrapping_add(u32::from(CHAR_MIN)));
+    raw.wrapping_sub(offset)
+}
+
+/// `carry` continued by valid value chars (see [`sum_and_check`]).
+#[inline]
+pub(super) fn continue_valid(carry: u32, chars: &[u8]) -> u32 {
+    chars.iter().fold(carry, |acc, &c| {
+        (acc << 6) | u32::from(c.wrapping_sub(CHAR_MIN) & 0x3F)
+    })
+}
