@@ -31,8 +31,8 @@ use scip::{Command, DataLine, Decoder, Event, ScanMode, ScanRequest, Status};
 use crate::governor::{Budget, Governor};
 use crate::link::LinkKind;
 use crate::pipeline::{
-    Decimation, DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo, ScanStart,
-    TemporalDecimation,
+    Decimation, DecimationMode, DirectRun, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo,
+    ScanStart, TemporalDecimation,
 };
 use crate::queue::FrameQueue;
 use crate::session::{Action, Notice, RecoverReason, Session, SessionConfig, SessionError};
@@ -713,8 +713,8 @@ impl<const Q: usize> Core<Q> {
             valid: test.is_range(r.distance),
         };
         if let Some(first) = first.filter(|_| !s.multi_echo) {
-            if self.pipeline.pass_run(first, line.readings.len()) {
-                self.publish_run(line, width);
+            if let Some(run) = self.pipeline.pass_run(first, line.readings.len(), has_aux) {
+                self.publish_run(line, width, run);
                 return;
             }
             // Any other stages: the line's readings, a range or none each, through the
@@ -751,30 +751,43 @@ impl<const Q: usize> Core<Q> {
     }
 
     /// A line's readings, accepted by [`Pipeline::pass_run`], straight into the encoder:
-    /// what [`Output::emit`] does for each of them, in one loop.
-    fn publish_run(&mut self, line: &DataLine<'_>, width: u8) {
+    /// what [`Output::emit`] does for each of the run's points, in one loop; the
+    /// region of interest is a slice, the range window part of the encoder's range
+    /// rule (no work per point).
+    fn publish_run(&mut self, line: &DataLine<'_>, width: u8, run: DirectRun) {
         let test = line.limits.range_test(width);
-        let is_invalid = move |r: &scip::Reading| !test.is_range(r.distance);
+        let [lo, hi] = run.window;
+        let outside = move |d: u32| d < lo || d > hi;
+        let rejects = move |r: &scip::Reading| test.is_range(r.distance) && outside(r.distance);
+        let is_invalid = move |r: &scip::Reading| !test.is_range(r.distance) || rejects(r);
+        let readings = line.readings.get(run.lo..run.hi).unwrap_or_default();
         if self.overflow {
-            let invalid = line.readings.iter().filter(|r| is_invalid(r)).count();
-            self.pipeline.count_invalid(invalid);
+            let invalid = readings.iter().filter(|r| is_invalid(r)).count();
+            let rejected = readings.iter().filter(|r| rejects(r)).count();
+            self.pipeline.count_direct(invalid, rejected);
             return;
         }
         let rule = can_wire::RangeRule {
             min: test.min(),
             except: [test.exception(), u32::MAX],
             band: test.band(),
+            window: run.window,
         };
-        let (taken, mut invalid) = self
-            .split()
-            .2
-            .encode_run(line.readings, rule, reading_point);
+        let lossless = self.encoder.lossless_progress().is_some();
+        let (taken, mut invalid, mut rejected) =
+            self.split().2.encode_run(readings, rule, reading_point);
+        if lossless && run.window != [0, u32::MAX] {
+            // The lossless coding does not count the window's rejections.
+            let taken = readings.get(..taken).unwrap_or_default();
+            rejected = taken.iter().filter(|r| rejects(r)).count();
+        }
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
-        let rest = line.readings.get(taken..).unwrap_or(&[]);
-        // Both at most the line's reading count.
+        let rest = readings.get(taken..).unwrap_or(&[]);
+        // All at most the line's reading count.
         invalid = invalid.wrapping_add(rest.iter().filter(|r| is_invalid(r)).count());
-        self.pipeline.count_invalid(invalid);
+        rejected = rejected.wrapping_add(rest.iter().filter(|r| rejects(r)).count());
+        self.pipeline.count_direct(invalid, rejected);
     }
 
     /// A frame that goes ahead of queued scan frames (control answers, status). It never
@@ -1371,14 +1384,14 @@ impl<const Q: usize> Output<'_, Q> {
     }
 
     /// Points the pipeline emitted, into the encoder in one run (what [`Output::emit`]
-    /// does for each of them); returns how many it took and how many of those were no
-    /// range.
+    /// does for each of them); returns how many it took, how many of those were no
+    /// range and how many of those were ranges outside the rule's window.
     fn encode_run<T>(
         &mut self,
         points: &[T],
         rule: can_wire::RangeRule,
         point: impl Fn(&T) -> (u32, u16),
-    ) -> (usize, usize) {
+    ) -> (usize, usize, usize) {
         let mut slots = DataSlots(self.queue);
         match self.encoder.push_run(points, rule, point, &mut slots) {
             Ok(run) => {
@@ -1392,11 +1405,11 @@ impl<const Q: usize> Output<'_, Q> {
                     None => {}
                 }
                 let n = |x: u32| usize::try_from(x).unwrap_or(usize::MAX);
-                (n(run.points), n(run.invalid))
+                (n(run.points), n(run.invalid), n(run.rejected))
             }
             Err(_) => {
                 *self.filtered = true;
-                (0, 0)
+                (0, 0, 0)
             }
         }
     }

@@ -197,7 +197,9 @@ pub enum RunStop {
 /// that are none of `except` (error codes above `min`; `u32::MAX` fills an unused
 /// place) and not in the band of three values from `band` (the Ethernet models'
 /// 65533..=65535). The others are [`Distance::Invalid`] (in the lossless coding, sensor
-/// error codes by their value: see [`crate::lossless::code::error_code`]).
+/// error codes by their value: see [`crate::lossless::code::error_code`]). A range
+/// outside `window` (a filter's range window) is no range either; the fixed-width
+/// encodings count those apart ([`Run::rejected`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RangeRule {
@@ -207,6 +209,8 @@ pub struct RangeRule {
     pub except: [u32; 2],
     /// The first of three consecutive error codes at or above `min`, if any.
     pub band: Option<u32>,
+    /// The ranges kept, both ends included (`[0, u32::MAX]`: every range).
+    pub window: [u32; 2],
 }
 
 impl RangeRule {
@@ -216,6 +220,7 @@ impl RangeRule {
             min,
             except: [u32::MAX; 2],
             band: None,
+            window: [0, u32::MAX],
         }
     }
 
@@ -240,9 +245,31 @@ impl RangeRule {
 
     #[inline(always)]
     fn is_range(&self, d: u32) -> bool {
+        let [lo, hi] = self.window;
+        self.is_sensor_range(d) && d >= lo && d <= hi
+    }
+
+    /// Whether `d` is a range before the window.
+    #[inline(always)]
+    fn is_sensor_range(&self, d: u32) -> bool {
         let [a, b] = self.except;
         d >= self.min && d != a && d != b && self.band.is_none_or(|s| d.wrapping_sub(s) > 2)
     }
+
+    /// Whether `d` is a range that the window rejects.
+    #[inline(always)]
+    fn rejects(&self, d: u32) -> bool {
+        let [lo, hi] = self.window;
+        self.is_sensor_range(d) && (d < lo || d > hi)
+    }
+}
+
+/// The points of `points` whose distance `rule`'s window rejects (points given back
+/// after a lost frame).
+#[cold]
+fn count_rejected<T, F: Fn(&T) -> (u32, u16)>(rule: &RangeRule, points: &[T], point: &F) -> u32 {
+    let n = points.iter().filter(|p| rule.rejects(point(p).0)).count();
+    u32::try_from(n).unwrap_or(u32::MAX)
 }
 
 /// The lossless distance code of raw distance `d` as `rule` classifies it, ranges in
@@ -252,6 +279,10 @@ impl RangeRule {
 #[inline(never)]
 fn lossless_code(rule: &RangeRule, d: u32, e: u32) -> u32 {
     let e = e & 0xF;
+    if rule.rejects(d) {
+        // A range the window takes away has no sensor value.
+        return code::INVALID;
+    }
     if !rule.is_range(d) {
         return code::error_code(d);
     }
@@ -271,6 +302,9 @@ pub struct Run {
     pub points: u32,
     /// Points taken that were no range.
     pub invalid: u32,
+    /// Points among the `invalid` ones that were ranges outside the rule's window
+    /// (fixed-width encodings; 0 in the lossless coding).
+    pub rejected: u32,
     /// Data frames written into the sink.
     pub frames: u32,
     /// Why the run stopped early, if it did.
@@ -574,7 +608,8 @@ impl ScanEncoder {
                 .min(usize::from(count.wrapping_sub(s.pushed)));
             let (now, later) = rest.split_at(block);
             rest = later;
-            let (mut valid, mut invalid) = code_block_any(ib, now, rule, point, s, codes_buf);
+            let (mut valid, mut invalid, mut rejected) =
+                code_block_any(ib, now, rule, point, s, codes_buf);
             let mut j = 0;
             while j < block {
                 // Points until a frame is due: the frame is full or the scan's last is in.
@@ -625,6 +660,9 @@ impl ScanEncoder {
                     // The untaken points are among the block's counted ones.
                     valid = valid.wrapping_sub(v);
                     invalid = invalid.wrapping_sub(i);
+                    let given_back = now.get(j..).unwrap_or(&[]);
+                    rejected = rejected.wrapping_sub(count_rejected(&rule, given_back, point));
+                    run.rejected = run.rejected.wrapping_add(rejected);
                     s.valid = s.valid.wrapping_add(valid);
                     run.points = run.points.wrapping_add(j as u32);
                     run.invalid = run.invalid.wrapping_add(invalid);
@@ -636,6 +674,7 @@ impl ScanEncoder {
             s.valid = s.valid.wrapping_add(valid);
             run.points = run.points.wrapping_add(block as u32);
             run.invalid = run.invalid.wrapping_add(invalid);
+            run.rejected = run.rejected.wrapping_add(rejected);
         }
         Ok(run)
     }
@@ -695,7 +734,7 @@ impl ScanEncoder {
             let p = s.pending;
             let end = p.wrapping_add(block);
             let fresh = codes_buf.get_mut(p..end).unwrap_or(&mut []);
-            let (valid, invalid) = code_block_any(ib, now, rule, point, s, fresh);
+            let (valid, invalid, rejected) = code_block_any(ib, now, rule, point, s, fresh);
             let codes = codes_buf.get(..end).unwrap_or(&[]);
             // The block is taken; a lost frame gives back what follows it.
             let before = usize::from(s.buffered).wrapping_sub(p);
@@ -704,6 +743,7 @@ impl ScanEncoder {
             s.valid = s.valid.wrapping_add(valid);
             run.points = run.points.wrapping_add(block as u32);
             run.invalid = run.invalid.wrapping_add(invalid);
+            run.rejected = run.rejected.wrapping_add(rejected);
             let mut j = 0;
             let mut lost = false;
             if before > 0 {
@@ -797,6 +837,12 @@ impl ScanEncoder {
                 s.buffered = 0;
                 run.points = run.points.wrapping_sub(untaken.len() as u32);
                 run.invalid = run.invalid.wrapping_sub(i);
+                // The block's points given back (codes pending from the last run that
+                // are given back were counted by it).
+                let given_back = now.get(j.saturating_sub(p)..).unwrap_or(&[]);
+                run.rejected = run
+                    .rejected
+                    .saturating_sub(count_rejected(&rule, given_back, point));
                 s.crc = crc;
                 run.stop = Some(RunStop::NoSlot);
                 return Ok(run);
@@ -835,6 +881,7 @@ impl ScanEncoder {
                 invalid: u32::from(!code::is_range(d)),
                 frames: out.frames,
                 stop: (out.lost > 0).then_some(RunStop::NoSlot),
+                rejected: 0,
             });
         }
         let mut frames = 0;
@@ -855,6 +902,7 @@ impl ScanEncoder {
             invalid: u32::from(!valid),
             frames,
             stop: (due && lost).then_some(RunStop::NoSlot),
+            rejected: 0,
         })
     }
 
@@ -896,10 +944,15 @@ impl ScanEncoder {
             .saturating_sub(u64::from(half))
             .min(u64::from(u32::MAX.wrapping_sub(bias))) as u32; // bias < 2^23
         let first_other = a.min(b).min(rule.band.unwrap_or(u32::MAX));
-        let span = first_other.min(too_long).saturating_sub(min);
+        let [lo, hi] = rule.window;
+        let low = min.max(lo);
+        let span = first_other
+            .min(too_long)
+            .min(hi.saturating_add(1))
+            .saturating_sub(low);
         let code = |p: &T| {
             let (d, i) = point(p);
-            let dc = if d.wrapping_sub(min) < span {
+            let dc = if d.wrapping_sub(low) < span {
                 // d < too_long: d + bias stays below 2^32 and the code below MAX_VALUE.
                 d.wrapping_add(bias) >> e
             } else {
@@ -920,6 +973,7 @@ impl ScanEncoder {
             invalid: invalid as u32,
             frames: out.frames,
             stop,
+            rejected: 0,
         })
     }
 
@@ -1005,7 +1059,7 @@ fn code_block_any<T, F: Fn(&T) -> (u32, u16)>(
     point: &F,
     s: &InProgress,
     codes: &mut [u32],
-) -> (u16, u32) {
+) -> (u16, u32, u32) {
     match ib {
         0 => code_block::<0, T, F>(points, rule, point, s, codes),
         8 => code_block::<8, T, F>(points, rule, point, s, codes),
@@ -1015,8 +1069,9 @@ fn code_block_any<T, F: Fn(&T) -> (u32, u16)>(
 }
 
 /// Codes `points` (at most [`BLOCK`]) into `codes`: per point its distance code in the
-/// low 16 bits and its intensity code (`IB` bits) above. Returns the valid distance codes
-/// and the points that are no range (as `rule` says). Kept out of line: in a function of
+/// low 16 bits and its intensity code (`IB` bits) above. Returns the valid distance codes,
+/// the points that are no range (as `rule` says) and those of them that were ranges
+/// outside the rule's window. Kept out of line: in a function of
 /// its own the loop keeps its counters and constants in registers; the usual cases (no
 /// error code above DMIN, 1 mm units) get loops of their own.
 #[inline(never)]
@@ -1026,7 +1081,7 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     point: &F,
     s: &InProgress,
     codes: &mut [u32],
-) -> (u16, u32) {
+) -> (u16, u32, u32) {
     let simple = rule.except == [u32::MAX; 2];
     if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() && simple {
         if let Some(band) = rule.band {
@@ -1072,10 +1127,11 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
     point: &F,
     s: &InProgress,
     codes: &mut [u32],
-) -> (u16, u32) {
+) -> (u16, u32, u32) {
     let max = s.coder.max_code();
     let (min, [a, b]) = (rule.min, rule.except);
-    let (mut invalid, mut over, mut n) = (0u32, 0u32, 0u32);
+    let [lo, hi] = rule.window;
+    let (mut invalid, mut over, mut n, mut rejected) = (0u32, 0u32, 0u32, 0u32);
     // The distances from `min` below the first error code (or band) and below `max` are
     // ranges coded as they are, found by one test; the others (below `min`, an error
     // code, the band, at or past `max`) take the full one. An empty span sends every
@@ -1085,10 +1141,12 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
         2 => a.min(b).min(max),
         _ => a.min(max),
     };
-    let plain = first.saturating_sub(min);
+    // The window narrows the span (and costs nothing more per point in it).
+    let low = min.max(lo);
+    let plain = first.min(hi.saturating_add(1)).saturating_sub(low);
     for (code, p) in codes.iter_mut().zip(points) {
         let (d, intensity) = point(p);
-        if d.wrapping_sub(min) < plain {
+        if d.wrapping_sub(low) < plain {
             n = n.wrapping_add(1);
             *code = if IB > 0 {
                 // IB is an intensity code width, 8..=16 here.
@@ -1098,20 +1156,19 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
             };
             continue;
         }
-        let is_range = match EXC {
+        let sensor = match EXC {
             0 => d >= min,
             1 => d >= min && d != a,
             2 => d >= min && d != a && d != b,
             // A band of three error codes from `a`, which may reach the out-of-range code.
             _ => d >= min && d.wrapping_sub(a) > 2,
         };
+        let outside = d < lo || d > hi;
+        let is_range = sensor && !outside;
         // Counts of at most a block's points: no wrap.
         invalid = invalid.wrapping_add(u32::from(!is_range));
-        over = over.wrapping_add(if EXC == 3 {
-            u32::from(d >= max && is_range)
-        } else {
-            u32::from(d >= max)
-        });
+        rejected = rejected.wrapping_add(u32::from(sensor && outside));
+        over = over.wrapping_add(u32::from(d >= max && is_range));
         n = n.wrapping_add(1);
         // Ranges (at least `min`, so never 0 mm) at or past the out-of-range code are
         // coded so.
@@ -1123,8 +1180,9 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
             dc
         };
     }
-    // n <= BLOCK; the points at or past the out-of-range code are all ranges.
-    (n.wrapping_sub(invalid).wrapping_sub(over) as u16, invalid)
+    // n <= BLOCK; the points at or past the out-of-range code counted are ranges.
+    let valid = n.wrapping_sub(invalid).wrapping_sub(over) as u16;
+    (valid, invalid, rejected)
 }
 
 /// The loop of [`code_block`] for any rule and unit.
@@ -1135,15 +1193,18 @@ fn code_points<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     point: &F,
     s: &InProgress,
     codes: &mut [u32],
-) -> (u16, u32) {
+) -> (u16, u32, u32) {
     let coder = s.coder;
-    let (mut valid, mut invalid) = (0u16, 0u32);
+    let (mut valid, mut invalid, mut rejected) = (0u16, 0u32, 0u32);
     for (code, p) in codes.iter_mut().zip(points) {
         let (raw, intensity) = point(p);
         let distance = rule.distance(raw);
         let (dc, is_valid) = coder.code_valid(distance);
         // Counts of at most a block's points: no wrap.
         invalid = invalid.wrapping_add(u32::from(distance == Distance::Invalid));
+        rejected = rejected.wrapping_add(u32::from(
+            distance == Distance::Invalid && rule.rejects(raw),
+        ));
         valid = valid.wrapping_add(u16::from(is_valid));
         *code = if IB > 0 {
             // IB is an intensity code width, 8..=16 here.
@@ -1152,7 +1213,7 @@ fn code_points<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
             u32::from(dc)
         };
     }
-    (valid, invalid)
+    (valid, invalid, rejected)
 }
 
 /// The valid distance codes and the points that were no range among `codes` (of points
@@ -1382,6 +1443,7 @@ mod tests {
             rule_min in 0u32..40,
             rule_except in 0usize..4,
             band in proptest::prelude::any::<bool>(),
+            window in proptest::option::of((0u32..3000, 0u32..70_000)),
         ) {
             let enc = Encoding {
                 distance: DistanceEncoding::ALL[d],
@@ -1398,6 +1460,7 @@ mod tests {
                     [65533, 4095],
                 ][rule_except],
                 band: band.then_some(65533),
+                window: window.map_or([0, u32::MAX], |(lo, hi)| [lo, hi]),
             };
             // Raw distances: some below the minimum, some exactly an exception.
             let points: Vec<(u32, u16)> = seed
@@ -1437,6 +1500,8 @@ mod tests {
             let mut sink = VecSink { frames: Vec::new(), room };
             let mut rest = &points[..];
             let (mut run_stop, mut run_lost, mut frames) = (None, 0, 0);
+            // The window's rejections among the points the runs took, as the rule says.
+            let (mut rejected, mut expected_rejected) = (0, 0);
             for (n, &cut) in cuts.iter().cycle().enumerate() {
                 if rest.is_empty() || run_stop.is_some() {
                     break;
@@ -1464,6 +1529,9 @@ mod tests {
                 } else {
                     let run = two.push_run(now, rule, raw, &mut sink).unwrap();
                     frames += run.frames;
+                    rejected += run.rejected;
+                    let taken = &now[..run.points as usize];
+                    expected_rejected += taken.iter().filter(|p| rule.rejects(p.0)).count();
                     match run.stop {
                         Some(RunStop::NoSlot) => {
                             run_lost += 1;
@@ -1478,6 +1546,7 @@ mod tests {
             }
             proptest::prop_assert_eq!(run_stop, stop);
             proptest::prop_assert_eq!(run_lost, lost);
+            proptest::prop_assert_eq!(rejected as usize, expected_rejected);
             proptest::prop_assert_eq!(frames as usize, sink.frames.len());
             proptest::prop_assert_eq!(&sink.frames, &expected);
             let t1 = one.finish(TrailerFlags::default()).unwrap();

@@ -326,24 +326,52 @@ impl Pipeline {
 
     /// The direct path for a run of `n` consecutive points from `first_step` (each one
     /// cluster after the last, like one data line's readings), for a caller that can
-    /// publish points faster than a [`PointSink`] call each. When every stage is off
-    /// and the run continues the open scan in sequence, the points are counted as
-    /// [`Pipeline::push_iter`] counts them and `true` is returned: the caller publishes
-    /// them unchanged (a point is valid when its reading is a range) and reports the
-    /// invalid ones with [`Pipeline::count_invalid`]. Otherwise nothing changes and
-    /// `false` is returned: push the points instead.
+    /// publish points faster than a [`PointSink`] call each. It takes the settings
+    /// without a window or decimation: a region of interest, a range window, and an
+    /// intensity threshold when the points carry no intensity (`intensity` false; it
+    /// then changes nothing). When the settings are such and the run continues the
+    /// open scan in sequence, the points are counted as pushing them counts them and
+    /// the part to publish is returned ([`DirectRun`]): the caller publishes those
+    /// points unchanged except that a range outside the window is no range (a point is
+    /// valid when its reading is a range inside it), and reports the invalid ones with
+    /// [`Pipeline::count_direct`]. Otherwise nothing changes and `None` is returned:
+    /// use [`Pipeline::filter_line`] or push the points instead.
     #[inline]
-    pub fn pass_run(&mut self, first_step: u16, n: usize) -> bool {
-        if !self.config.is_passthrough() {
-            return false;
+    pub fn pass_run(&mut self, first_step: u16, n: usize, intensity: bool) -> Option<DirectRun> {
+        let cfg = &self.config;
+        let direct = cfg.is_passthrough()
+            || (cfg.speckle.is_none()
+                && cfg.median.is_none()
+                && cfg.decimation.is_none_or(|d| d.factor <= 1)
+                && (cfg.min_intensity.is_none() || !intensity));
+        if !direct {
+            return None;
         }
-        let Some(scan) = self.take_run(first_step, n) else {
-            return false;
-        };
-        scan.emitted = scan.emitted.saturating_add(n);
+        let window = cfg
+            .range_window
+            .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
+        let cluster = self.take_run(first_step, n)?.cluster;
+        let (lo, hi) = self.roi_slice(first_step, n, cluster);
+        // The slice is at most the run.
+        let m = hi.wrapping_sub(lo);
+        if let Open::Active(scan) = &mut self.open {
+            scan.emitted = scan.emitted.saturating_add(m);
+        }
         add(&mut self.stats.points_in, n);
-        add(&mut self.stats.points_out, n);
-        true
+        add(&mut self.stats.points_outside_roi, n.wrapping_sub(m));
+        add(&mut self.stats.points_out, m);
+        Some(DirectRun { lo, hi, window })
+    }
+
+    /// Counts the points of a [`Pipeline::pass_run`] run that had no range: `invalid`
+    /// in all, `rejected` of them ranges outside the range window.
+    #[inline]
+    pub fn count_direct(&mut self, invalid: usize, rejected: usize) {
+        let st = &mut self.stats;
+        add(&mut st.invalid_error_code, invalid.saturating_sub(rejected));
+        add(&mut st.invalid_out_of_range, rejected);
+        add(&mut st.points_out_invalid, invalid);
+        self.filtered |= rejected > 0;
     }
 
     /// The block path for every stage but the direct one: `n` consecutive points from
@@ -427,75 +455,94 @@ impl Pipeline {
         );
         let cfg = self.config;
         let mut c = Counts::default();
-        // Error codes, range window and intensity threshold: one pass.
         let (min, max) = cfg
             .range_window
             .map_or((0, u32::MAX), |w| (w.min_mm, w.max_mm));
         let min_intensity = cfg.min_intensity.filter(|_| intensity).unwrap_or(0);
-        for (cell, r) in buf.iter_mut().zip(input) {
+        let jump = cfg.speckle.map(|f| f.max_jump_mm);
+        let median = cfg.median.is_some();
+        let decimate = self.decimator.is_active();
+        // The windows' state in registers for the line.
+        let mut sp = self.speckle.load(none);
+        let mut md = self.median.load(none);
+        let (mut w, mut invalid, mut changed) = (0usize, 0usize, false);
+        // One loop over the line: error codes, range window and intensity threshold as
+        // one classification, then speckle and median as windows carried in registers,
+        // the output point written in the form the encoder takes (or, when decimating,
+        // in the loop's form for the decimation pass).
+        for r in input {
             let d = r.distance;
-            cell.aux = r.aux;
-            cell.distance = if !is_range(d) || d == NONE {
+            let mut x = (d, r.aux);
+            if !is_range(d) || d == NONE {
                 c.error_code = c.error_code.wrapping_add(1);
-                NONE
+                x.0 = NONE;
             } else if d < min || d > max {
                 c.out_of_range = c.out_of_range.wrapping_add(1);
-                NONE
+                x.0 = NONE;
             } else if r.aux < min_intensity {
                 c.low_intensity = c.low_intensity.wrapping_add(1);
-                NONE
-            } else {
-                d
-            };
+                x.0 = NONE;
+            }
+            if let Some(jump) = jump {
+                let Some((centre, nb)) = sp.push(x, none) else {
+                    continue;
+                };
+                let (out, removed) = window::speckle_line(centre.0, nb, none, jump);
+                c.speckle = c.speckle.wrapping_add(usize::from(removed));
+                x = (out, centre.1);
+            }
+            if median {
+                let Some((centre, nb)) = md.push(x, none) else {
+                    continue;
+                };
+                let out = window::median_line(centre.0, nb, none);
+                changed |= out != centre.0;
+                x = (out, centre.1);
+            }
+            if !decimate {
+                // At most the line's points.
+                invalid = invalid.wrapping_add(usize::from(x.0 == NONE));
+                x.0 = if x.0 == NONE { out_none } else { x.0.max(1) };
+            }
+            if let Some(slot) = buf.get_mut(w) {
+                slot.distance = x.0;
+                slot.aux = x.1;
+            }
+            // At most the line's points.
+            w = w.wrapping_add(1);
         }
-        let mut m = buf.len();
-        // Points held back by the windows so far (steps count back from `last_step`).
+        c.filtered = changed;
+        // Points held back by the windows (steps count back from `last_step`).
         let mut lag = 0u32;
-        if let Some(f) = cfg.speckle {
-            let part = buf.get_mut(..m).unwrap_or_default();
-            let filter = window::LineFilter::Speckle {
-                max_jump_mm: f.max_jump_mm,
-            };
-            m = self.speckle.run_line(
-                part,
-                none,
-                intensity,
-                (last_step, cluster),
-                filter,
-                &mut c.speckle,
-            );
-            lag = u32::try_from(self.speckle.pending()).unwrap_or(0);
+        if jump.is_some() {
+            self.speckle
+                .store(&sp, none, intensity, (last_step, cluster));
+            lag = u32::try_from(sp.np).unwrap_or(0);
         }
-        if cfg.median.is_some() {
-            let part = buf.get_mut(..m).unwrap_or_default();
+        if median {
             let at = last_step.saturating_sub(lag.saturating_mul(cluster));
-            let mut changed = 0usize;
-            let filter = window::LineFilter::Median;
-            m = self
-                .median
-                .run_line(part, none, intensity, (at, cluster), filter, &mut changed);
-            c.filtered |= changed > 0;
-            lag = lag.saturating_add(u32::try_from(self.median.pending()).unwrap_or(0));
+            self.median.store(&md, none, intensity, (at, cluster));
+            lag = lag.saturating_add(u32::try_from(md.np).unwrap_or(0));
         }
-        let part = buf.get_mut(..m).unwrap_or_default();
-        if self.decimator.is_active() {
+        let mut m = w;
+        if decimate {
+            let part = buf.get_mut(..m).unwrap_or_default();
             // Step of the first point the decimator gets.
             let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
             let step = last_step.saturating_sub(back.saturating_mul(cluster));
             m = self
                 .decimator
                 .run_line(part, none, intensity, step, cluster);
-        }
-        let out = part.get_mut(..m).unwrap_or_default();
-        let mut invalid = 0usize;
-        for r in out.iter_mut() {
-            r.distance = if r.distance == NONE {
-                // At most `m`.
-                invalid = invalid.wrapping_add(1);
-                out_none
-            } else {
-                r.distance.max(1)
-            };
+            let out = part.get_mut(..m).unwrap_or_default();
+            for r in out.iter_mut() {
+                r.distance = if r.distance == NONE {
+                    // At most `m`.
+                    invalid = invalid.wrapping_add(1);
+                    out_none
+                } else {
+                    r.distance.max(1)
+                };
+            }
         }
         c.emitted = m;
         c.invalid_out = invalid;
@@ -609,11 +656,11 @@ impl Pipeline {
         Some(scan)
     }
 
-    /// Counts `n` points of a [`Pipeline::pass_run`] run that had no range.
+    /// Counts `n` points of a [`Pipeline::pass_run`] run that had no range, none of
+    /// them a range outside the window.
     #[inline]
     pub fn count_invalid(&mut self, n: usize) {
-        add(&mut self.stats.invalid_error_code, n);
-        add(&mut self.stats.points_out_invalid, n);
+        self.count_direct(n, 0);
     }
 
     /// Ends the scan. When `intact` and every announced point arrived in sequence, the
@@ -691,6 +738,18 @@ impl Pipeline {
         self.median.clear();
         self.decimator.clear();
     }
+}
+
+/// The part of a run that [`Pipeline::pass_run`] leaves to publish directly.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DirectRun {
+    /// The first point of the run to publish (the region of interest's first).
+    pub lo: usize,
+    /// One past the last point to publish.
+    pub hi: usize,
+    /// The ranges kept, both ends included (`[0, u32::MAX]` with no range window):
+    /// a range outside is published as no range.
+    pub window: [u32; 2],
 }
 
 /// What one loop of the stages did, counted in locals (each at most the points the
@@ -1481,7 +1540,7 @@ mod tests {
                     while !rest.is_empty() {
                         let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
                         let consecutive = a.windows(2).all(|w| w[1].step == w[0].step + cluster);
-                        if mode == 2 && consecutive && p.pass_run(a[0].step, a.len()) {
+                        if mode == 2 && consecutive && p.pass_run(a[0].step, a.len(), true).is_some() {
                             out.extend(a.iter().map(|x| Point {
                                 step: x.step,
                                 range_mm: x.valid.then_some(x.distance),
@@ -1724,10 +1783,12 @@ mod tests {
     }
 
     proptest::proptest! {
-        /// Any configuration: pushing points one by one, `filter_run` and `filter_line`
-        /// (in runs of any size, each continuing the scan) give the points, counters and
-        /// `filtered` flag of the whole-scan reference above. `filter_line` gives
-        /// readings: no range as the caller's value, a range of 0 as 1.
+        /// Any configuration: pushing points one by one, `filter_run`, `filter_line` and
+        /// the direct path `pass_run` (published as the engine does, with `filter_run`
+        /// where it declines) (in runs of any size, each continuing the scan) give the
+        /// points, counters and `filtered` flag of the whole-scan reference above.
+        /// `filter_line` gives readings: no range as the caller's value, a range of 0
+        /// as 1.
         #[test]
         fn every_path_matches_the_reference(
             inputs in proptest::collection::vec(
@@ -1770,8 +1831,8 @@ mod tests {
                 })
                 .collect();
             let (want, want_k, want_filtered) = reference(&config, &points);
-            // 0: one by one; 1: filter_run; 2: filter_line.
-            for mode in 0..3 {
+            // 0: one by one; 1: filter_run; 2: filter_line; 3: pass_run.
+            for mode in 0..4 {
                 let mut p = Pipeline::new(config).unwrap();
                 let ScanStart::Publish { points: announced } = p.begin_scan(info) else {
                     panic!("not published");
@@ -1781,9 +1842,32 @@ mod tests {
                 let mut i = 0;
                 while !rest.is_empty() {
                     let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
+                    let direct = if mode == 3 {
+                        p.pass_run(a[0].step, a.len(), with_intensity)
+                    } else {
+                        None
+                    };
+                    if let Some(run) = direct {
+                        // The engine's publishing: the slice, a point a range when it
+                        // is one inside the window.
+                        let [lo, hi] = run.window;
+                        let part = &a[run.lo..run.hi];
+                        let inside = |r: &RawPoint| r.valid && lo <= r.distance && r.distance <= hi;
+                        out.extend(part.iter().map(|r| Point {
+                            step: r.step,
+                            range_mm: inside(r).then_some(r.distance),
+                            intensity: r.intensity,
+                        }));
+                        let invalid = part.iter().filter(|r| !inside(r)).count();
+                        let rejected = part.iter().filter(|r| r.valid && !inside(r)).count();
+                        p.count_direct(invalid, rejected);
+                        rest = b;
+                        i += 1;
+                        continue;
+                    }
                     match mode {
                         0 => p.push_batch(a, &mut |x| out.push(x)),
-                        1 => {
+                        1 | 3 => {
                             let mut buf = Vec::new();
                             let k = p.filter_run(a[0].step, a, |r| *r, |x| buf.push(x));
                             match k {
