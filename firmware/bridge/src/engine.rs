@@ -734,9 +734,14 @@ impl<const Q: usize> Core<Q> {
             } else {
                 (0, can_wire::RangeRule::at_least(1))
             };
+            let sensor = can_wire::RangeRule {
+                min: test.min(),
+                except: [test.exception(), u32::MAX],
+                band: test.band(),
+                window: [0, u32::MAX],
+            };
             let (pipeline, cells, mut out) = self.split();
-            let is_range = |d: u32| test.is_range(d);
-            let k = pipeline.filter_line(first, line.readings, cells, is_range, has_aux, none);
+            let k = pipeline.filter_line(first, line.readings, cells, sensor, has_aux, none);
             if let Some(k) = k {
                 if !*out.overflow {
                     let points = cells.get(..k).unwrap_or_default();

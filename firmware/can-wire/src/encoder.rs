@@ -243,15 +243,16 @@ impl RangeRule {
         }
     }
 
+    /// Whether the raw distance `d` is a range (inside the window).
     #[inline(always)]
-    fn is_range(&self, d: u32) -> bool {
+    pub fn is_range(&self, d: u32) -> bool {
         let [lo, hi] = self.window;
         self.is_sensor_range(d) && d >= lo && d <= hi
     }
 
-    /// Whether `d` is a range before the window.
+    /// Whether the raw distance `d` is a range before the window.
     #[inline(always)]
-    fn is_sensor_range(&self, d: u32) -> bool {
+    pub fn is_sensor_range(&self, d: u32) -> bool {
         let [a, b] = self.except;
         d >= self.min && d != a && d != b && self.band.is_none_or(|s| d.wrapping_sub(s) > 2)
     }

@@ -423,13 +423,10 @@ impl Pipeline {
         first_step: u16,
         input: &[scip::Reading],
         cells: &mut [scip::Reading],
-        is_range: impl Fn(u32) -> bool,
+        sensor: can_wire::RangeRule,
         intensity: bool,
         out_none: u32,
     ) -> Option<usize> {
-        // No range, inside the line.
-        const NONE: u32 = u32::MAX;
-        let none = NONE;
         let n = input.len();
         if self.config.is_passthrough() || cells.len() < n {
             return None;
@@ -455,62 +452,25 @@ impl Pipeline {
         );
         let cfg = self.config;
         let mut c = Counts::default();
-        let (min, max) = cfg
+        let window = cfg
             .range_window
-            .map_or((0, u32::MAX), |w| (w.min_mm, w.max_mm));
-        let min_intensity = cfg.min_intensity.filter(|_| intensity).unwrap_or(0);
-        let jump = cfg.speckle.map(|f| f.max_jump_mm);
-        let median = cfg.median.is_some();
-        let decimate = self.decimator.is_active();
+            .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
+        let line = LineConsts {
+            rule: can_wire::RangeRule { window, ..sensor },
+            min_intensity: cfg.min_intensity.filter(|_| intensity).unwrap_or(0),
+            jump: cfg.speckle.map(|f| f.max_jump_mm),
+            median: cfg.median,
+            decimate: self.decimator.is_active(),
+            out_none,
+        };
         // The windows' state in registers for the line.
-        let mut sp = self.speckle.load(none);
-        let mut md = self.median.load(none);
-        let (mut w, mut invalid, mut changed) = (0usize, 0usize, false);
-        // One loop over the line: error codes, range window and intensity threshold as
-        // one classification, then speckle and median as windows carried in registers,
-        // the output point written in the form the encoder takes (or, when decimating,
-        // in the loop's form for the decimation pass).
-        for r in input {
-            let d = r.distance;
-            let mut x = (d, r.aux);
-            if !is_range(d) || d == NONE {
-                c.error_code = c.error_code.wrapping_add(1);
-                x.0 = NONE;
-            } else if d < min || d > max {
-                c.out_of_range = c.out_of_range.wrapping_add(1);
-                x.0 = NONE;
-            } else if r.aux < min_intensity {
-                c.low_intensity = c.low_intensity.wrapping_add(1);
-                x.0 = NONE;
-            }
-            if let Some(jump) = jump {
-                let Some((centre, nb)) = sp.push(x, none) else {
-                    continue;
-                };
-                let (out, removed) = window::speckle_line(centre.0, nb, none, jump);
-                c.speckle = c.speckle.wrapping_add(usize::from(removed));
-                x = (out, centre.1);
-            }
-            if median {
-                let Some((centre, nb)) = md.push(x, none) else {
-                    continue;
-                };
-                let out = window::median_line(centre.0, nb, none);
-                changed |= out != centre.0;
-                x = (out, centre.1);
-            }
-            if !decimate {
-                // At most the line's points.
-                invalid = invalid.wrapping_add(usize::from(x.0 == NONE));
-                x.0 = if x.0 == NONE { out_none } else { x.0.max(1) };
-            }
-            if let Some(slot) = buf.get_mut(w) {
-                slot.distance = x.0;
-                slot.aux = x.1;
-            }
-            // At most the line's points.
-            w = w.wrapping_add(1);
-        }
+        let mut sp = self.speckle.load(NONE);
+        let mut md = self.median.load(NONE);
+        let (w, mut invalid, changed) = fused_line(input, buf, &line, &mut sp, &mut md, &mut c);
+        let none = NONE;
+        let jump = line.jump;
+        let median = line.median.is_some();
+        let decimate = line.decimate;
         c.filtered = changed;
         // Points held back by the windows (steps count back from `last_step`).
         let mut lag = 0u32;
@@ -738,6 +698,122 @@ impl Pipeline {
         self.median.clear();
         self.decimator.clear();
     }
+}
+
+/// No range, inside a line.
+const NONE: u32 = u32::MAX;
+
+/// What [`fused_line`] needs of the settings, worked out once per line.
+struct LineConsts {
+    /// The sensor's range test with the range window.
+    rule: can_wire::RangeRule,
+    /// The intensity threshold (0: none, or no intensities).
+    min_intensity: u32,
+    /// Speckle removal's threshold, when on.
+    jump: Option<u32>,
+    /// The median, when on.
+    median: Option<MedianWidth>,
+    /// Whether decimation follows (the output then stays in the loop's form).
+    decimate: bool,
+    /// The encoder's value for no range.
+    out_none: u32,
+}
+
+/// The stages of [`Pipeline::filter_line`] up to the median, in one loop over the
+/// line's readings `input`; the output points go to the front of `buf` (at least as
+/// long). Returns their number, how many have no range (when not decimating) and
+/// whether the median changed a range. Kept out of line so that its state stays in
+/// registers; one copy for every configuration (the stages are chosen per point by
+/// flags that do not change within the line).
+#[inline(never)]
+fn fused_line(
+    input: &[scip::Reading],
+    buf: &mut [scip::Reading],
+    k: &LineConsts,
+    sp: &mut window::Regs,
+    md: &mut window::Regs,
+    c: &mut Counts,
+) -> (usize, usize, bool) {
+    let rule = &k.rule;
+    let [wmin, wmax] = rule.window;
+    // The distances from `low` up to (not including) `low + span` are ranges inside
+    // the window, found by one test (as the encoder's runs do); the others take the
+    // full one. The sensor's error codes at or above its minimum end the span (which
+    // never holds NONE, `u32::MAX`).
+    let [a, b] = rule.except;
+    let first = a
+        .min(b)
+        .min(rule.band.unwrap_or(NONE))
+        .min(wmax.saturating_add(1));
+    let low = rule.min.max(wmin);
+    let span = first.saturating_sub(low);
+    let min_intensity = k.min_intensity;
+    let three = k.median == Some(MedianWidth::Three);
+    let five = k.median == Some(MedianWidth::Five);
+    let (mut w, mut invalid, mut changed) = (0usize, 0usize, false);
+    // The counts in registers, added to `c` once.
+    let (mut error_code, mut out_of_range, mut low_intensity, mut speckle) =
+        (0usize, 0usize, 0usize, 0usize);
+    let (mut s1, mut m) = (*sp, *md);
+    for r in input {
+        let d = r.distance;
+        let mut x = (d, r.aux);
+        if d.wrapping_sub(low) >= span {
+            // Counts of at most the line's points: no wrap.
+            if !rule.is_range(d) || d == NONE {
+                if d != NONE && rule.is_sensor_range(d) {
+                    out_of_range = out_of_range.wrapping_add(1);
+                } else {
+                    error_code = error_code.wrapping_add(1);
+                }
+                x.0 = NONE;
+            }
+        }
+        if x.0 != NONE && r.aux < min_intensity {
+            low_intensity = low_intensity.wrapping_add(1);
+            x.0 = NONE;
+        }
+        if let Some(jump) = k.jump {
+            let Some((centre, before, after)) = s1.push1(x) else {
+                continue;
+            };
+            let (out, removed) = window::speckle3_line(centre.0, before, after, NONE, jump);
+            speckle = speckle.wrapping_add(usize::from(removed));
+            x = (out, centre.1);
+        }
+        if three {
+            let Some((centre, before, after)) = m.push1(x) else {
+                continue;
+            };
+            let out = window::median3_line(centre.0, before, after, NONE);
+            changed |= out != centre.0;
+            x = (out, centre.1);
+        } else if five {
+            let Some((centre, nb)) = m.push2(x) else {
+                continue;
+            };
+            let out = window::median_line(centre.0, nb, NONE);
+            changed |= out != centre.0;
+            x = (out, centre.1);
+        }
+        if !k.decimate {
+            invalid = invalid.wrapping_add(usize::from(x.0 == NONE));
+            x.0 = if x.0 == NONE { k.out_none } else { x.0.max(1) };
+        }
+        if let Some(slot) = buf.get_mut(w) {
+            slot.distance = x.0;
+            slot.aux = x.1;
+        }
+        // At most the line's points.
+        w = w.wrapping_add(1);
+    }
+    *sp = s1;
+    *md = m;
+    c.error_code = c.error_code.wrapping_add(error_code);
+    c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
+    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
+    c.speckle = c.speckle.wrapping_add(speckle);
+    (w, invalid, changed)
 }
 
 /// The part of a run that [`Pipeline::pass_run`] leaves to publish directly.
@@ -1887,7 +1963,7 @@ mod tests {
                                 .map(|r| scip::Reading { index: 0, echo: 0, distance: r.distance, aux: r.intensity.unwrap_or(0) })
                                 .collect();
                             let mut cells = input.clone();
-                            let k = p.filter_line(a[0].step, &input, &mut cells, |d| d != 0, with_intensity, 7_777_777);
+                            let k = p.filter_line(a[0].step, &input, &mut cells, can_wire::RangeRule::at_least(1), with_intensity, 7_777_777);
                             match k {
                                 Some(k) => {
                                     let base = out.len();

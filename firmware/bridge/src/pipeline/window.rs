@@ -116,40 +116,56 @@ impl CentredWindow {
 /// value instead of options, intensities as plain values.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Regs {
-    /// The pending points (distance, intensity), oldest first.
-    pub pend: [(u32, u32); 2],
+    /// The oldest pending point (distance, intensity).
+    pub p0: (u32, u32),
+    /// The next pending point (half-width 2 only).
+    pub p1: (u32, u32),
     /// Points pending.
     pub np: usize,
     /// Distance of the point just before the oldest pending one.
     pub b1: u32,
     /// Distance of the point before that.
     pub b2: u32,
-    /// Neighbours on each side (1 or 2).
-    pub half: usize,
 }
 
 impl Regs {
-    /// Adds the next point `x`; returns the point that became complete (its distance
-    /// and intensity) with its neighbours' distances (`[second before, before, after,
-    /// second after]`, `none` where invalid or absent), as [`CentredWindow::push`].
+    /// [`CentredWindow::push`] for a window of half-width 1: the point that became
+    /// complete (distance, intensity) and the distances before and after it (`none`
+    /// where invalid or absent).
     #[inline(always)]
-    pub fn push(&mut self, x: (u32, u32), none: u32) -> Option<((u32, u32), [u32; 4])> {
-        if self.np < self.half {
-            if let Some(slot) = self.pend.get_mut(self.np) {
-                *slot = x;
+    pub fn push1(&mut self, x: (u32, u32)) -> Option<((u32, u32), u32, u32)> {
+        if self.np == 0 {
+            // Only a scan's first point.
+            self.p0 = x;
+            self.np = 1;
+            return None;
+        }
+        let c = self.p0;
+        let b = self.b1;
+        self.p0 = x;
+        self.b1 = c.0;
+        Some((c, b, x.0))
+    }
+
+    /// [`CentredWindow::push`] for a window of half-width 2: the point that became
+    /// complete and its neighbours' distances (`[second before, before, after, second
+    /// after]`, `none` where invalid or absent).
+    #[inline(always)]
+    pub fn push2(&mut self, x: (u32, u32)) -> Option<((u32, u32), [u32; 4])> {
+        if self.np < 2 {
+            // Only a scan's first two points.
+            if self.np == 0 {
+                self.p0 = x;
+            } else {
+                self.p1 = x;
             }
             self.np = self.np.wrapping_add(1);
             return None;
         }
-        let c = self.pend[0];
-        let nb = if self.half >= 2 {
-            let nb = [self.b2, self.b1, self.pend[1].0, x.0];
-            self.pend = [self.pend[1], x];
-            nb
-        } else {
-            self.pend[0] = x;
-            [none, self.b1, x.0, none]
-        };
+        let c = self.p0;
+        let nb = [self.b2, self.b1, self.p1.0, x.0];
+        self.p0 = self.p1;
+        self.p1 = x;
         self.b2 = self.b1;
         self.b1 = c.0;
         Some((c, nb))
@@ -163,14 +179,11 @@ impl CentredWindow {
         let [p0, p1] = self.pending;
         let [b1, b2] = self.before;
         Regs {
-            pend: [
-                (d(&p0), p0.intensity.unwrap_or(0)),
-                (d(&p1), p1.intensity.unwrap_or(0)),
-            ],
+            p0: (d(&p0), p0.intensity.unwrap_or(0)),
+            p1: (d(&p1), p1.intensity.unwrap_or(0)),
             np: usize::from(self.n),
             b1: b1.unwrap_or(none),
             b2: b2.unwrap_or(none),
-            half: usize::from(self.half),
         }
     }
 
@@ -194,10 +207,7 @@ impl CentredWindow {
         };
         // The pending points are the last `np` of the stream.
         let last = r.np.saturating_sub(1);
-        self.pending = [
-            point(r.pend[0], last),
-            point(r.pend[1], last.saturating_sub(1)),
-        ];
+        self.pending = [point(r.p0, last), point(r.p1, last.saturating_sub(1))];
         self.n = u8::try_from(r.np).unwrap_or(0);
         self.before = [
             (r.b1 != none).then_some(r.b1),
@@ -206,18 +216,28 @@ impl CentredWindow {
     }
 }
 
-/// Speckle removal on distances with a "no range" value `none` (as [`speckle`]): the
-/// centre's new distance and whether it was removed.
+/// Speckle removal on distances with a "no range" value `none` (as [`speckle`]) for
+/// the centre `c` and the distances before (`b`) and after (`a`) it: the centre's new
+/// distance and whether it was removed.
 #[inline(always)]
-pub(crate) fn speckle_line(c: u32, nb: [u32; 4], none: u32, max_jump_mm: u32) -> (u32, bool) {
-    if c == none {
-        return (c, false);
-    }
+pub(crate) fn speckle3_line(c: u32, b: u32, a: u32, none: u32, max_jump_mm: u32) -> (u32, bool) {
     let supports = |n: u32| n != none && n.abs_diff(c) <= max_jump_mm;
-    if supports(nb[1]) || supports(nb[2]) {
+    if c == none || supports(b) || supports(a) {
         (c, false)
     } else {
         (none, true)
+    }
+}
+
+/// The median of a window of 3 on distances with a "no range" value `none` (as
+/// [`median`]): the centre `c`, the distances before (`b`) and after (`a`) it.
+#[inline(always)]
+pub(crate) fn median3_line(c: u32, b: u32, a: u32, none: u32) -> u32 {
+    if c == none || b == none || a == none {
+        // No range, or a window of at most 2 ranges: the centre is one of the middle.
+        c
+    } else {
+        c.min(b).max(c.max(b).min(a))
     }
 }
 
