@@ -761,37 +761,34 @@ impl<const Q: usize> Core<Q> {
     /// rule (no work per point).
     fn publish_run(&mut self, line: &DataLine<'_>, width: u8, run: DirectRun) {
         let test = line.limits.range_test(width);
-        let [lo, hi] = run.window;
-        let outside = move |d: u32| d < lo || d > hi;
-        let rejects = move |r: &scip::Reading| test.is_range(r.distance) && outside(r.distance);
-        let is_invalid = move |r: &scip::Reading| !test.is_range(r.distance) || rejects(r);
-        let readings = line.readings.get(run.lo..run.hi).unwrap_or_default();
-        if self.overflow {
-            let invalid = readings.iter().filter(|r| is_invalid(r)).count();
-            let rejected = readings.iter().filter(|r| rejects(r)).count();
-            self.pipeline.count_direct(invalid, rejected);
-            return;
-        }
         let rule = can_wire::RangeRule {
             min: test.min(),
             except: [test.exception(), u32::MAX],
             band: test.band(),
             window: run.window,
         };
+        let readings = line.readings.get(run.lo..run.hi).unwrap_or_default();
+        if self.overflow {
+            let (invalid, rejected) = count_no_range(&rule, readings);
+            self.pipeline.count_direct(invalid, rejected);
+            return;
+        }
         let lossless = self.encoder.lossless_progress().is_some();
         let (taken, mut invalid, mut rejected) =
             self.split().2.encode_run(readings, rule, reading_point);
         if lossless && run.window != [0, u32::MAX] {
             // The lossless coding does not count the window's rejections.
-            let taken = readings.get(..taken).unwrap_or_default();
-            rejected = taken.iter().filter(|r| rejects(r)).count();
+            rejected = count_no_range(&rule, readings.get(..taken).unwrap_or_default()).1;
         }
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = readings.get(taken..).unwrap_or(&[]);
-        // All at most the line's reading count.
-        invalid = invalid.wrapping_add(rest.iter().filter(|r| is_invalid(r)).count());
-        rejected = rejected.wrapping_add(rest.iter().filter(|r| rejects(r)).count());
+        if !rest.is_empty() {
+            let (i, r) = count_no_range(&rule, rest);
+            // All at most the line's reading count.
+            invalid = invalid.wrapping_add(i);
+            rejected = rejected.wrapping_add(r);
+        }
         self.pipeline.count_direct(invalid, rejected);
     }
 
@@ -1418,6 +1415,21 @@ impl<const Q: usize> Output<'_, Q> {
             }
         }
     }
+}
+
+/// The readings that `rule` finds no range, and those of them that are ranges its
+/// window rejects (the points a run did not code).
+#[cold]
+#[inline(never)]
+fn count_no_range(rule: &can_wire::RangeRule, readings: &[scip::Reading]) -> (usize, usize) {
+    let (mut invalid, mut rejected) = (0usize, 0usize);
+    for r in readings {
+        let d = r.distance;
+        // At most the readings' count.
+        invalid = invalid.wrapping_add(usize::from(!rule.is_range(d)));
+        rejected = rejected.wrapping_add(usize::from(rule.is_sensor_range(d) && !rule.is_range(d)));
+    }
+    (invalid, rejected)
 }
 
 /// A measurement response whose status carries a scan.

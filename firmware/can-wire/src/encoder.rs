@@ -234,15 +234,6 @@ impl RangeRule {
         }
     }
 
-    /// The same rule with its two error codes in the other order.
-    fn swapped(self) -> RangeRule {
-        let [a, b] = self.except;
-        RangeRule {
-            except: [b, a],
-            ..self
-        }
-    }
-
     /// Whether the raw distance `d` is a range (inside the window).
     #[inline(always)]
     pub fn is_range(&self, d: u32) -> bool {
@@ -1083,46 +1074,20 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     s: &InProgress,
     codes: &mut [u32],
 ) -> (u16, u32, u32) {
-    let simple = rule.except == [u32::MAX; 2];
-    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() && simple {
-        if let Some(band) = rule.band {
-            // The Ethernet models' rule: DMIN and the band of three codes.
-            let rule = RangeRule {
-                except: [band, u32::MAX],
-                ..rule
-            };
-            return code_mm::<IB, 3, T, F>(points, rule, point, s, codes);
-        }
-    }
-    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() && rule.band.is_none() {
-        // The counting loops need every exception to be a range otherwise and below
-        // the out-of-range code (or unused).
-        let max = s.coder.max_code();
-        let fits = |e: u32| e == u32::MAX || (rule.min <= e && e < max);
-        let [a, b] = rule.except;
-        if simple {
-            return code_mm::<IB, 0, T, F>(points, rule, point, s, codes);
-        }
-        if fits(a) && fits(b) {
-            // One error code (the other place unused) or two.
-            return match (a == u32::MAX, b == u32::MAX) {
-                (true, _) => code_mm::<IB, 1, T, F>(points, rule.swapped(), point, s, codes),
-                (_, true) => code_mm::<IB, 1, T, F>(points, rule, point, s, codes),
-                _ => code_mm::<IB, 2, T, F>(points, rule, point, s, codes),
-            };
-        }
+    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() {
+        return code_mm::<IB, T, F>(points, rule, point, s, codes);
     }
     code_points::<IB, T, F>(points, rule, point, s, codes)
 }
 
-/// The loop of [`code_block`] for the usual cases: the unit is 1 mm, `rule.min` is not
-/// 0 and below the out-of-range code, and the rule's first `EXC` error codes above DMIN (the
-/// only ones it has) are ranges otherwise, below the out-of-range code; or, for `EXC` 3,
-/// the rule's only exceptions are the band of three codes from `except[0]`. Then the valid codes are the points less
-/// those below DMIN, those that are an error code and those at or past the out-of-range
-/// code: counted, not tested point by point.
+/// The loop of [`code_block`] for the usual cases: the unit is 1 mm and `rule.min` is
+/// not 0 and below the out-of-range code. The distances from DMIN (and the window's
+/// start) below the rule's first error code, band, the window's end and the
+/// out-of-range code are ranges coded as they are, found by one test; the others take
+/// the full one ([`slow_code`], out of line: one copy for every loop). An empty span
+/// sends every distance that way.
 #[inline(always)]
-fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
+fn code_mm<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     points: &[T],
     rule: RangeRule,
     point: &F,
@@ -1130,50 +1095,29 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
     codes: &mut [u32],
 ) -> (u16, u32, u32) {
     let max = s.coder.max_code();
-    let (min, [a, b]) = (rule.min, rule.except);
+    let [a, b] = rule.except;
     let [lo, hi] = rule.window;
-    let (mut invalid, mut over, mut n, mut rejected) = (0u32, 0u32, 0u32, 0u32);
-    // The distances from `min` below the first error code (or band) and below `max` are
-    // ranges coded as they are, found by one test; the others (below `min`, an error
-    // code, the band, at or past `max`) take the full one. An empty span sends every
-    // distance that way.
-    let first = match EXC {
-        0 => max,
-        2 => a.min(b).min(max),
-        _ => a.min(max),
-    };
-    // The window narrows the span (and costs nothing more per point in it).
-    let low = min.max(lo);
-    let plain = first.min(hi.saturating_add(1)).saturating_sub(low);
+    let first = a
+        .min(b)
+        .min(rule.band.unwrap_or(u32::MAX))
+        .min(max)
+        .min(hi.saturating_add(1));
+    let low = rule.min.max(lo);
+    let plain = first.saturating_sub(low);
+    let (mut flags, mut n) = ([0u32; 3], 0u32);
     for (code, p) in codes.iter_mut().zip(points) {
         let (d, intensity) = point(p);
-        if d.wrapping_sub(low) < plain {
-            n = n.wrapping_add(1);
-            *code = if IB > 0 {
-                // IB is an intensity code width, 8..=16 here.
-                d | (u32::from(intensity) >> 16u32.wrapping_sub(IB)) << 16
-            } else {
-                d
-            };
-            continue;
-        }
-        let sensor = match EXC {
-            0 => d >= min,
-            1 => d >= min && d != a,
-            2 => d >= min && d != a && d != b,
-            // A band of three error codes from `a`, which may reach the out-of-range code.
-            _ => d >= min && d.wrapping_sub(a) > 2,
+        let dc = if d.wrapping_sub(low) < plain {
+            d
+        } else {
+            let (dc, k) = slow_code(&rule, d, max);
+            // Counts of at most a block's points: no wrap.
+            for (f, bit) in flags.iter_mut().zip(0u32..) {
+                *f = f.wrapping_add((k >> bit) & 1);
+            }
+            dc
         };
-        let outside = d < lo || d > hi;
-        let is_range = sensor && !outside;
-        // Counts of at most a block's points: no wrap.
-        invalid = invalid.wrapping_add(u32::from(!is_range));
-        rejected = rejected.wrapping_add(u32::from(sensor && outside));
-        over = over.wrapping_add(u32::from(d >= max && is_range));
         n = n.wrapping_add(1);
-        // Ranges (at least `min`, so never 0 mm) at or past the out-of-range code are
-        // coded so.
-        let dc = if is_range { d.min(max) } else { 0 };
         *code = if IB > 0 {
             // IB is an intensity code width, 8..=16 here.
             dc | (u32::from(intensity) >> 16u32.wrapping_sub(IB)) << 16
@@ -1181,9 +1125,28 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
             dc
         };
     }
+    let [invalid, over, rejected] = flags;
     // n <= BLOCK; the points at or past the out-of-range code counted are ranges.
     let valid = n.wrapping_sub(invalid).wrapping_sub(over) as u16;
     (valid, invalid, rejected)
+}
+
+/// The distance code (1 mm units) of a raw distance `d` outside [`code_mm`]'s span, and
+/// what it is: bit 0 no range, bit 1 a range at or past the out-of-range code `max`,
+/// bit 2 a range the window rejects.
+#[inline(never)]
+fn slow_code(rule: &RangeRule, d: u32, max: u32) -> (u32, u32) {
+    let [lo, hi] = rule.window;
+    let sensor = rule.is_sensor_range(d);
+    let outside = d < lo || d > hi;
+    let is_range = sensor && !outside;
+    // Ranges (at least `min`, so never 0 mm) at or past the out-of-range code are
+    // coded so.
+    let dc = if is_range { d.min(max) } else { 0 };
+    let k = u32::from(!is_range)
+        | u32::from(is_range && d >= max) << 1
+        | u32::from(sensor && outside) << 2;
+    (dc, k)
 }
 
 /// The loop of [`code_block`] for any rule and unit.
