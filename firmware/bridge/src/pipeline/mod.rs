@@ -78,9 +78,11 @@
 //! with every stage on; BENCHMARKS.md has the M4 counts of every configuration. With every
 //! stage off, `push_batch` and `push_iter` skip the stages altogether (a sequence check
 //! and the sink call per point, the counters added once per call), and
-//! [`Pipeline::pass_run`] lets the bridge engine publish a data line directly. With any
-//! stage on, [`Pipeline::filter_line`] runs the engine's data line through every stage
-//! in place, one pass per stage (the windows' state carried from line to line), and
+//! [`Pipeline::pass_run`] lets the bridge engine publish a data line directly, also with
+//! a region of interest (a slice of the line) and a range window (part of the encoder's
+//! range rule). With a window stage or decimation on, [`Pipeline::filter_line`] runs the
+//! engine's data line through every stage: classification, speckle and median in one
+//! loop (the windows' state carried from line to line), decimation in a pass after it; and
 //! [`Pipeline::filter_run`] does the same for a run of points in one loop without a
 //! sink call per point; both give exactly what pushing the points one by one gives.
 
@@ -405,13 +407,13 @@ impl Pipeline {
 
     /// The block path of a data line, for the bridge engine: `input` holds `n`
     /// consecutive points from `first_step` (as for [`Pipeline::pass_run`]) as the
-    /// sensor's readings: a `distance` is a range when `is_range` says so (and is not
-    /// `u32::MAX`), an error code otherwise; `aux` is the intensity when `intensity`
-    /// (the `index` and `echo` fields are not used). Every stage runs in place in
-    /// `cells` (at least `n` long), one pass over the line each: the region of interest
-    /// as a slice, error codes, range window and intensity threshold as one
-    /// classification pass, speckle and median as sliding windows carried from line to
-    /// line, decimation as a block reduction. The output points are left at the front
+    /// sensor's readings: a `distance` is a range when the `sensor` rule says so (its
+    /// window is not used; `u32::MAX` is never a range), an error code otherwise; `aux`
+    /// is the intensity when `intensity` (the `index` and `echo` fields are not used).
+    /// The stages write into `cells` (at least `n` long): the region of interest as a
+    /// slice; error codes, range window and intensity threshold as one classification,
+    /// speckle and median as sliding windows carried from line to line, all in one loop
+    /// over the line; decimation as a block reduction after it. The output points are left at the front
     /// of `cells` as readings for the CAN encoder: `out_none` for no range, a range of
     /// 0 mm as 1 (the encodings code it so), `aux` the intensity (0 for none); their
     /// number is returned. Counters, the `filtered` flag and what
