@@ -31,8 +31,8 @@ use scip::{Command, DataLine, Decoder, Event, ScanMode, ScanRequest, Status};
 use crate::governor::{Budget, Governor};
 use crate::link::LinkKind;
 use crate::pipeline::{
-    Decimation, DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo, ScanStart,
-    TemporalDecimation,
+    Decimation, DecimationMode, DirectRun, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo,
+    ScanStart, TemporalDecimation,
 };
 use crate::queue::FrameQueue;
 use crate::session::{Action, Notice, RecoverReason, Session, SessionConfig, SessionError};
@@ -728,8 +728,8 @@ impl<const Q: usize> Core<Q> {
             valid: test.is_range(r.distance),
         };
         if let Some(first) = first.filter(|_| !s.multi_echo) {
-            if self.pipeline.pass_run(first, line.readings.len()) {
-                self.publish_run(line, width);
+            if let Some(run) = self.pipeline.pass_run(first, line.readings.len(), has_aux) {
+                self.publish_run(line, width, run);
                 return;
             }
             // Any other stages: the line's readings, a range or none each, through the
@@ -749,9 +749,14 @@ impl<const Q: usize> Core<Q> {
             } else {
                 (0, can_wire::RangeRule::at_least(1))
             };
+            let sensor = can_wire::RangeRule {
+                min: test.min(),
+                except: [test.exception(), u32::MAX],
+                band: test.band(),
+                window: [0, u32::MAX],
+            };
             let (pipeline, cells, mut out) = self.split();
-            let is_range = |d: u32| test.is_range(d);
-            let k = pipeline.filter_line(first, line.readings, cells, is_range, has_aux, none);
+            let k = pipeline.filter_line(first, line.readings, cells, sensor, has_aux, none);
             if let Some(k) = k {
                 if !*out.overflow {
                     let points = cells.get(..k).unwrap_or_default();
@@ -766,27 +771,39 @@ impl<const Q: usize> Core<Q> {
     }
 
     /// A line's readings, accepted by [`Pipeline::pass_run`], straight into the encoder:
-    /// what [`Output::emit`] does for each of them, in one loop.
-    fn publish_run(&mut self, line: &DataLine<'_>, width: u8) {
+    /// what [`Output::emit`] does for each of the run's points, in one loop; the
+    /// region of interest is a slice, the range window part of the encoder's range
+    /// rule (no work per point).
+    fn publish_run(&mut self, line: &DataLine<'_>, width: u8, run: DirectRun) {
         let test = line.limits.range_test(width);
-        let is_invalid = move |r: &scip::Reading| !test.is_range(r.distance);
-        if self.overflow {
-            let invalid = line.readings.iter().filter(|r| is_invalid(r)).count();
-            self.pipeline.count_invalid(invalid);
-            return;
-        }
         let rule = can_wire::RangeRule {
             min: test.min(),
             except: [test.exception(), u32::MAX],
             band: test.band(),
+            window: run.window,
         };
-        let (taken, mut invalid) = self.split().2.encode_run(line.readings, rule);
+        let readings = line.readings.get(run.lo..run.hi).unwrap_or_default();
+        if self.overflow {
+            let (invalid, rejected) = count_no_range(&rule, readings);
+            self.pipeline.count_direct(invalid, rejected);
+            return;
+        }
+        let lossless = self.encoder.lossless_progress().is_some();
+        let (taken, mut invalid, mut rejected) = self.split().2.encode_run(readings, rule);
+        if lossless && run.window != [0, u32::MAX] {
+            // The lossless coding does not count the window's rejections.
+            rejected = count_no_range(&rule, readings.get(..taken).unwrap_or_default()).1;
+        }
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
-        let rest = line.readings.get(taken..).unwrap_or(&[]);
-        // Both at most the line's reading count.
-        invalid = invalid.wrapping_add(rest.iter().filter(|r| is_invalid(r)).count());
-        self.pipeline.count_invalid(invalid);
+        let rest = readings.get(taken..).unwrap_or(&[]);
+        if !rest.is_empty() {
+            let (i, r) = count_no_range(&rule, rest);
+            // All at most the line's reading count.
+            invalid = invalid.wrapping_add(i);
+            rejected = rejected.wrapping_add(r);
+        }
+        self.pipeline.count_direct(invalid, rejected);
     }
 
     /// A frame that goes ahead of queued scan frames (control answers, status). It never
@@ -1383,13 +1400,13 @@ impl<const Q: usize> Output<'_, Q> {
     }
 
     /// Points the pipeline emitted, into the encoder in one run (what [`Output::emit`]
-    /// does for each of them); returns how many it took and how many of those were no
-    /// range.
+    /// does for each of them); returns how many it took, how many of those were no
+    /// range and how many of those were ranges outside the rule's window.
     fn encode_run(
         &mut self,
         points: &[scip::Reading],
         rule: can_wire::RangeRule,
-    ) -> (usize, usize) {
+    ) -> (usize, usize, usize) {
         let mut slots = DataSlots(self.queue);
         match push_readings(self.encoder, points, rule, &mut slots) {
             Ok(run) => {
@@ -1403,11 +1420,11 @@ impl<const Q: usize> Output<'_, Q> {
                     None => {}
                 }
                 let n = |x: u32| usize::try_from(x).unwrap_or(usize::MAX);
-                (n(run.points), n(run.invalid))
+                (n(run.points), n(run.invalid), n(run.rejected))
             }
             Err(_) => {
                 *self.filtered = true;
-                (0, 0)
+                (0, 0, 0)
             }
         }
     }
@@ -1438,6 +1455,21 @@ fn push_point(
     sink: &mut dyn FrameSink,
 ) -> Result<can_wire::Run, can_wire::Error> {
     encoder.push_point_to(distance, intensity, sink)
+}
+
+/// The readings that `rule` finds no range, and those of them that are ranges its
+/// window rejects (the points a run did not code).
+#[cold]
+#[inline(never)]
+fn count_no_range(rule: &can_wire::RangeRule, readings: &[scip::Reading]) -> (usize, usize) {
+    let (mut invalid, mut rejected) = (0usize, 0usize);
+    for r in readings {
+        let d = r.distance;
+        // At most the readings' count.
+        invalid = invalid.wrapping_add(usize::from(!rule.is_range(d)));
+        rejected = rejected.wrapping_add(usize::from(rule.is_sensor_range(d) && !rule.is_range(d)));
+    }
+    (invalid, rejected)
 }
 
 /// A measurement response whose status carries a scan.

@@ -197,7 +197,9 @@ pub enum RunStop {
 /// that are none of `except` (error codes above `min`; `u32::MAX` fills an unused
 /// place) and not in the band of three values from `band` (the Ethernet models'
 /// 65533..=65535). The others are [`Distance::Invalid`] (in the lossless coding, sensor
-/// error codes by their value: see [`crate::lossless::code::error_code`]).
+/// error codes by their value: see [`crate::lossless::code::error_code`]). A range
+/// outside `window` (a filter's range window) is no range either; the fixed-width
+/// encodings count those apart ([`Run::rejected`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RangeRule {
@@ -207,6 +209,8 @@ pub struct RangeRule {
     pub except: [u32; 2],
     /// The first of three consecutive error codes at or above `min`, if any.
     pub band: Option<u32>,
+    /// The ranges kept, both ends included (`[0, u32::MAX]`: every range).
+    pub window: [u32; 2],
 }
 
 impl RangeRule {
@@ -216,6 +220,7 @@ impl RangeRule {
             min,
             except: [u32::MAX; 2],
             band: None,
+            window: [0, u32::MAX],
         }
     }
 
@@ -229,20 +234,34 @@ impl RangeRule {
         }
     }
 
-    /// The same rule with its two error codes in the other order.
-    fn swapped(self) -> RangeRule {
-        let [a, b] = self.except;
-        RangeRule {
-            except: [b, a],
-            ..self
-        }
+    /// Whether the raw distance `d` is a range (inside the window).
+    #[inline(always)]
+    pub fn is_range(&self, d: u32) -> bool {
+        let [lo, hi] = self.window;
+        self.is_sensor_range(d) && d >= lo && d <= hi
     }
 
+    /// Whether the raw distance `d` is a range before the window.
     #[inline(always)]
-    fn is_range(&self, d: u32) -> bool {
+    pub fn is_sensor_range(&self, d: u32) -> bool {
         let [a, b] = self.except;
         d >= self.min && d != a && d != b && self.band.is_none_or(|s| d.wrapping_sub(s) > 2)
     }
+
+    /// Whether `d` is a range that the window rejects.
+    #[inline(always)]
+    fn rejects(&self, d: u32) -> bool {
+        let [lo, hi] = self.window;
+        self.is_sensor_range(d) && (d < lo || d > hi)
+    }
+}
+
+/// The points of `points` whose distance `rule`'s window rejects (points given back
+/// after a lost frame).
+#[cold]
+fn count_rejected<T, F: Fn(&T) -> (u32, u16)>(rule: &RangeRule, points: &[T], point: &F) -> u32 {
+    let n = points.iter().filter(|p| rule.rejects(point(p).0)).count();
+    u32::try_from(n).unwrap_or(u32::MAX)
 }
 
 /// The lossless distance code of raw distance `d` as `rule` classifies it, ranges in
@@ -252,6 +271,10 @@ impl RangeRule {
 #[inline(never)]
 fn lossless_code(rule: &RangeRule, d: u32, e: u32) -> u32 {
     let e = e & 0xF;
+    if rule.rejects(d) {
+        // A range the window takes away has no sensor value.
+        return code::INVALID;
+    }
     if !rule.is_range(d) {
         return code::error_code(d);
     }
@@ -271,6 +294,9 @@ pub struct Run {
     pub points: u32,
     /// Points taken that were no range.
     pub invalid: u32,
+    /// Points among the `invalid` ones that were ranges outside the rule's window
+    /// (fixed-width encodings; 0 in the lossless coding).
+    pub rejected: u32,
     /// Data frames written into the sink.
     pub frames: u32,
     /// Why the run stopped early, if it did.
@@ -574,7 +600,8 @@ impl ScanEncoder {
                 .min(usize::from(count.wrapping_sub(s.pushed)));
             let (now, later) = rest.split_at(block);
             rest = later;
-            let (mut valid, mut invalid) = code_block_any(ib, now, rule, point, s, codes_buf);
+            let (mut valid, mut invalid, mut rejected) =
+                code_block_any(ib, now, rule, point, s, codes_buf);
             let mut j = 0;
             while j < block {
                 // Points until a frame is due: the frame is full or the scan's last is in.
@@ -625,6 +652,9 @@ impl ScanEncoder {
                     // The untaken points are among the block's counted ones.
                     valid = valid.wrapping_sub(v);
                     invalid = invalid.wrapping_sub(i);
+                    let given_back = now.get(j..).unwrap_or(&[]);
+                    rejected = rejected.wrapping_sub(count_rejected(&rule, given_back, point));
+                    run.rejected = run.rejected.wrapping_add(rejected);
                     s.valid = s.valid.wrapping_add(valid);
                     run.points = run.points.wrapping_add(j as u32);
                     run.invalid = run.invalid.wrapping_add(invalid);
@@ -636,6 +666,7 @@ impl ScanEncoder {
             s.valid = s.valid.wrapping_add(valid);
             run.points = run.points.wrapping_add(block as u32);
             run.invalid = run.invalid.wrapping_add(invalid);
+            run.rejected = run.rejected.wrapping_add(rejected);
         }
         Ok(run)
     }
@@ -695,7 +726,7 @@ impl ScanEncoder {
             let p = s.pending;
             let end = p.wrapping_add(block);
             let fresh = codes_buf.get_mut(p..end).unwrap_or(&mut []);
-            let (valid, invalid) = code_block_any(ib, now, rule, point, s, fresh);
+            let (valid, invalid, rejected) = code_block_any(ib, now, rule, point, s, fresh);
             let codes = codes_buf.get(..end).unwrap_or(&[]);
             // The block is taken; a lost frame gives back what follows it.
             let before = usize::from(s.buffered).wrapping_sub(p);
@@ -704,6 +735,7 @@ impl ScanEncoder {
             s.valid = s.valid.wrapping_add(valid);
             run.points = run.points.wrapping_add(block as u32);
             run.invalid = run.invalid.wrapping_add(invalid);
+            run.rejected = run.rejected.wrapping_add(rejected);
             let mut j = 0;
             let mut lost = false;
             if before > 0 {
@@ -797,6 +829,12 @@ impl ScanEncoder {
                 s.buffered = 0;
                 run.points = run.points.wrapping_sub(untaken.len() as u32);
                 run.invalid = run.invalid.wrapping_sub(i);
+                // The block's points given back (codes pending from the last run that
+                // are given back were counted by it).
+                let given_back = now.get(j.saturating_sub(p)..).unwrap_or(&[]);
+                run.rejected = run
+                    .rejected
+                    .saturating_sub(count_rejected(&rule, given_back, point));
                 s.crc = crc;
                 run.stop = Some(RunStop::NoSlot);
                 return Ok(run);
@@ -835,6 +873,7 @@ impl ScanEncoder {
                 invalid: u32::from(!code::is_range(d)),
                 frames: out.frames,
                 stop: (out.lost > 0).then_some(RunStop::NoSlot),
+                rejected: 0,
             });
         }
         let mut frames = 0;
@@ -855,6 +894,7 @@ impl ScanEncoder {
             invalid: u32::from(!valid),
             frames,
             stop: (due && lost).then_some(RunStop::NoSlot),
+            rejected: 0,
         })
     }
 
@@ -896,10 +936,15 @@ impl ScanEncoder {
             .saturating_sub(u64::from(half))
             .min(u64::from(u32::MAX.wrapping_sub(bias))) as u32; // bias < 2^23
         let first_other = a.min(b).min(rule.band.unwrap_or(u32::MAX));
-        let span = first_other.min(too_long).saturating_sub(min);
+        let [lo, hi] = rule.window;
+        let low = min.max(lo);
+        let span = first_other
+            .min(too_long)
+            .min(hi.saturating_add(1))
+            .saturating_sub(low);
         let code = |p: &T| {
             let (d, i) = point(p);
-            let dc = if d.wrapping_sub(min) < span {
+            let dc = if d.wrapping_sub(low) < span {
                 // d < too_long: d + bias stays below 2^32 and the code below MAX_VALUE.
                 d.wrapping_add(bias) >> e
             } else {
@@ -920,6 +965,7 @@ impl ScanEncoder {
             invalid: invalid as u32,
             frames: out.frames,
             stop,
+            rejected: 0,
         })
     }
 
@@ -1005,7 +1051,7 @@ fn code_block_any<T, F: Fn(&T) -> (u32, u16)>(
     point: &F,
     s: &InProgress,
     codes: &mut [u32],
-) -> (u16, u32) {
+) -> (u16, u32, u32) {
     match ib {
         0 => code_block::<0, T, F>(points, rule, point, s, codes),
         8 => code_block::<8, T, F>(points, rule, point, s, codes),
@@ -1015,8 +1061,9 @@ fn code_block_any<T, F: Fn(&T) -> (u32, u16)>(
 }
 
 /// Codes `points` (at most [`BLOCK`]) into `codes`: per point its distance code in the
-/// low 16 bits and its intensity code (`IB` bits) above. Returns the valid distance codes
-/// and the points that are no range (as `rule` says). Kept out of line: in a function of
+/// low 16 bits and its intensity code (`IB` bits) above. Returns the valid distance codes,
+/// the points that are no range (as `rule` says) and those of them that were ranges
+/// outside the rule's window. Kept out of line: in a function of
 /// its own the loop keeps its counters and constants in registers; the usual cases (no
 /// error code above DMIN, 1 mm units) get loops of their own.
 #[inline(never)]
@@ -1026,96 +1073,51 @@ fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     point: &F,
     s: &InProgress,
     codes: &mut [u32],
-) -> (u16, u32) {
-    let simple = rule.except == [u32::MAX; 2];
-    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() && simple {
-        if let Some(band) = rule.band {
-            // The Ethernet models' rule: DMIN and the band of three codes.
-            let rule = RangeRule {
-                except: [band, u32::MAX],
-                ..rule
-            };
-            return code_mm::<IB, 3, T, F>(points, rule, point, s, codes);
-        }
-    }
-    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() && rule.band.is_none() {
-        // The counting loops need every exception to be a range otherwise and below
-        // the out-of-range code (or unused).
-        let max = s.coder.max_code();
-        let fits = |e: u32| e == u32::MAX || (rule.min <= e && e < max);
-        let [a, b] = rule.except;
-        if simple {
-            return code_mm::<IB, 0, T, F>(points, rule, point, s, codes);
-        }
-        if fits(a) && fits(b) {
-            // One error code (the other place unused) or two.
-            return match (a == u32::MAX, b == u32::MAX) {
-                (true, _) => code_mm::<IB, 1, T, F>(points, rule.swapped(), point, s, codes),
-                (_, true) => code_mm::<IB, 1, T, F>(points, rule, point, s, codes),
-                _ => code_mm::<IB, 2, T, F>(points, rule, point, s, codes),
-            };
-        }
+) -> (u16, u32, u32) {
+    if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() {
+        return code_mm::<IB, T, F>(points, rule, point, s, codes);
     }
     code_points::<IB, T, F>(points, rule, point, s, codes)
 }
 
-/// The loop of [`code_block`] for the usual cases: the unit is 1 mm, `rule.min` is not
-/// 0 and below the out-of-range code, and the rule's first `EXC` error codes above DMIN (the
-/// only ones it has) are ranges otherwise, below the out-of-range code; or, for `EXC` 3,
-/// the rule's only exceptions are the band of three codes from `except[0]`. Then the valid codes are the points less
-/// those below DMIN, those that are an error code and those at or past the out-of-range
-/// code: counted, not tested point by point.
+/// The loop of [`code_block`] for the usual cases: the unit is 1 mm and `rule.min` is
+/// not 0 and below the out-of-range code. The distances from DMIN (and the window's
+/// start) below the rule's first error code, band, the window's end and the
+/// out-of-range code are ranges coded as they are, found by one test; the others take
+/// the full one ([`slow_code`], out of line: one copy for every loop). An empty span
+/// sends every distance that way.
 #[inline(always)]
-fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
+fn code_mm<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     points: &[T],
     rule: RangeRule,
     point: &F,
     s: &InProgress,
     codes: &mut [u32],
-) -> (u16, u32) {
+) -> (u16, u32, u32) {
     let max = s.coder.max_code();
-    let (min, [a, b]) = (rule.min, rule.except);
-    let (mut invalid, mut over, mut n) = (0u32, 0u32, 0u32);
-    // The distances from `min` below the first error code (or band) and below `max` are
-    // ranges coded as they are, found by one test; the others (below `min`, an error
-    // code, the band, at or past `max`) take the full one. An empty span sends every
-    // distance that way.
-    let first = match EXC {
-        0 => max,
-        2 => a.min(b).min(max),
-        _ => a.min(max),
-    };
-    let plain = first.saturating_sub(min);
+    let [a, b] = rule.except;
+    let [lo, hi] = rule.window;
+    let first = a
+        .min(b)
+        .min(rule.band.unwrap_or(u32::MAX))
+        .min(max)
+        .min(hi.saturating_add(1));
+    let low = rule.min.max(lo);
+    let plain = first.saturating_sub(low);
+    let (mut flags, mut n) = ([0u32; 3], 0u32);
     for (code, p) in codes.iter_mut().zip(points) {
         let (d, intensity) = point(p);
-        if d.wrapping_sub(min) < plain {
-            n = n.wrapping_add(1);
-            *code = if IB > 0 {
-                // IB is an intensity code width, 8..=16 here.
-                d | (u32::from(intensity) >> 16u32.wrapping_sub(IB)) << 16
-            } else {
-                d
-            };
-            continue;
-        }
-        let is_range = match EXC {
-            0 => d >= min,
-            1 => d >= min && d != a,
-            2 => d >= min && d != a && d != b,
-            // A band of three error codes from `a`, which may reach the out-of-range code.
-            _ => d >= min && d.wrapping_sub(a) > 2,
-        };
-        // Counts of at most a block's points: no wrap.
-        invalid = invalid.wrapping_add(u32::from(!is_range));
-        over = over.wrapping_add(if EXC == 3 {
-            u32::from(d >= max && is_range)
+        let dc = if d.wrapping_sub(low) < plain {
+            d
         } else {
-            u32::from(d >= max)
-        });
+            let (dc, k) = slow_code(&rule, d, max);
+            // Counts of at most a block's points: no wrap.
+            for (f, bit) in flags.iter_mut().zip(0u32..) {
+                *f = f.wrapping_add((k >> bit) & 1);
+            }
+            dc
+        };
         n = n.wrapping_add(1);
-        // Ranges (at least `min`, so never 0 mm) at or past the out-of-range code are
-        // coded so.
-        let dc = if is_range { d.min(max) } else { 0 };
         *code = if IB > 0 {
             // IB is an intensity code width, 8..=16 here.
             dc | (u32::from(intensity) >> 16u32.wrapping_sub(IB)) << 16
@@ -1123,8 +1125,28 @@ fn code_mm<const IB: u32, const EXC: usize, T, F: Fn(&T) -> (u32, u16)>(
             dc
         };
     }
-    // n <= BLOCK; the points at or past the out-of-range code are all ranges.
-    (n.wrapping_sub(invalid).wrapping_sub(over) as u16, invalid)
+    let [invalid, over, rejected] = flags;
+    // n <= BLOCK; the points at or past the out-of-range code counted are ranges.
+    let valid = n.wrapping_sub(invalid).wrapping_sub(over) as u16;
+    (valid, invalid, rejected)
+}
+
+/// The distance code (1 mm units) of a raw distance `d` outside [`code_mm`]'s span, and
+/// what it is: bit 0 no range, bit 1 a range at or past the out-of-range code `max`,
+/// bit 2 a range the window rejects.
+#[inline(never)]
+fn slow_code(rule: &RangeRule, d: u32, max: u32) -> (u32, u32) {
+    let [lo, hi] = rule.window;
+    let sensor = rule.is_sensor_range(d);
+    let outside = d < lo || d > hi;
+    let is_range = sensor && !outside;
+    // Ranges (at least `min`, so never 0 mm) at or past the out-of-range code are
+    // coded so.
+    let dc = if is_range { d.min(max) } else { 0 };
+    let k = u32::from(!is_range)
+        | u32::from(is_range && d >= max) << 1
+        | u32::from(sensor && outside) << 2;
+    (dc, k)
 }
 
 /// The loop of [`code_block`] for any rule and unit.
@@ -1135,15 +1157,18 @@ fn code_points<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     point: &F,
     s: &InProgress,
     codes: &mut [u32],
-) -> (u16, u32) {
+) -> (u16, u32, u32) {
     let coder = s.coder;
-    let (mut valid, mut invalid) = (0u16, 0u32);
+    let (mut valid, mut invalid, mut rejected) = (0u16, 0u32, 0u32);
     for (code, p) in codes.iter_mut().zip(points) {
         let (raw, intensity) = point(p);
         let distance = rule.distance(raw);
         let (dc, is_valid) = coder.code_valid(distance);
         // Counts of at most a block's points: no wrap.
         invalid = invalid.wrapping_add(u32::from(distance == Distance::Invalid));
+        rejected = rejected.wrapping_add(u32::from(
+            distance == Distance::Invalid && rule.rejects(raw),
+        ));
         valid = valid.wrapping_add(u16::from(is_valid));
         *code = if IB > 0 {
             // IB is an intensity code width, 8..=16 here.
@@ -1152,7 +1177,7 @@ fn code_points<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
             u32::from(dc)
         };
     }
-    (valid, invalid)
+    (valid, invalid, rejected)
 }
 
 /// The valid distance codes and the points that were no range among `codes` (of points
@@ -1382,6 +1407,7 @@ mod tests {
             rule_min in 0u32..40,
             rule_except in 0usize..4,
             band in proptest::prelude::any::<bool>(),
+            window in proptest::option::of((0u32..3000, 0u32..70_000)),
         ) {
             let enc = Encoding {
                 distance: DistanceEncoding::ALL[d],
@@ -1398,6 +1424,7 @@ mod tests {
                     [65533, 4095],
                 ][rule_except],
                 band: band.then_some(65533),
+                window: window.map_or([0, u32::MAX], |(lo, hi)| [lo, hi]),
             };
             // Raw distances: some below the minimum, some exactly an exception.
             let points: Vec<(u32, u16)> = seed
@@ -1437,6 +1464,8 @@ mod tests {
             let mut sink = VecSink { frames: Vec::new(), room };
             let mut rest = &points[..];
             let (mut run_stop, mut run_lost, mut frames) = (None, 0, 0);
+            // The window's rejections among the points the runs took, as the rule says.
+            let (mut rejected, mut expected_rejected) = (0, 0);
             for (n, &cut) in cuts.iter().cycle().enumerate() {
                 if rest.is_empty() || run_stop.is_some() {
                     break;
@@ -1464,6 +1493,9 @@ mod tests {
                 } else {
                     let run = two.push_run(now, rule, raw, &mut sink).unwrap();
                     frames += run.frames;
+                    rejected += run.rejected;
+                    let taken = &now[..run.points as usize];
+                    expected_rejected += taken.iter().filter(|p| rule.rejects(p.0)).count();
                     match run.stop {
                         Some(RunStop::NoSlot) => {
                             run_lost += 1;
@@ -1478,6 +1510,7 @@ mod tests {
             }
             proptest::prop_assert_eq!(run_stop, stop);
             proptest::prop_assert_eq!(run_lost, lost);
+            proptest::prop_assert_eq!(rejected as usize, expected_rejected);
             proptest::prop_assert_eq!(frames as usize, sink.frames.len());
             proptest::prop_assert_eq!(&sink.frames, &expected);
             let t1 = one.finish(TrailerFlags::default()).unwrap();

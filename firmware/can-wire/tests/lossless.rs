@@ -297,7 +297,7 @@ proptest! {
         format in format(),
         ienc in intensity(),
     ) {
-        let rule = RangeRule { min: 20, except: [4095, u32::MAX], band: Some(65533) };
+        let rule = RangeRule { min: 20, except: [4095, u32::MAX], band: Some(65533), window: [0, u32::MAX] };
         let h = header(raw.len(), ienc, 0, 3);
         let points: Vec<(Distance, u16)> = raw
             .iter()
@@ -337,6 +337,7 @@ fn a_run_codes_the_edges_of_the_rule() {
         min: 20,
         except: [4095, u32::MAX],
         band: Some(65533),
+        window: [0, u32::MAX],
     };
     let first: [(u32, Distance); 11] = [
         (0, Distance::SensorError(0)),

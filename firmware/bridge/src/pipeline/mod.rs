@@ -78,9 +78,11 @@
 //! with every stage on; BENCHMARKS.md has the M4 counts of every configuration. With every
 //! stage off, `push_batch` and `push_iter` skip the stages altogether (a sequence check
 //! and the sink call per point, the counters added once per call), and
-//! [`Pipeline::pass_run`] lets the bridge engine publish a data line directly. With any
-//! stage on, [`Pipeline::filter_line`] runs the engine's data line through every stage
-//! in place, one pass per stage (the windows' state carried from line to line), and
+//! [`Pipeline::pass_run`] lets the bridge engine publish a data line directly, also with
+//! a region of interest (a slice of the line) and a range window (part of the encoder's
+//! range rule). With a window stage or decimation on, [`Pipeline::filter_line`] runs the
+//! engine's data line through every stage: classification, speckle and median in one
+//! loop (the windows' state carried from line to line), decimation in a pass after it; and
 //! [`Pipeline::filter_run`] does the same for a run of points in one loop without a
 //! sink call per point; both give exactly what pushing the points one by one gives.
 
@@ -326,24 +328,52 @@ impl Pipeline {
 
     /// The direct path for a run of `n` consecutive points from `first_step` (each one
     /// cluster after the last, like one data line's readings), for a caller that can
-    /// publish points faster than a [`PointSink`] call each. When every stage is off
-    /// and the run continues the open scan in sequence, the points are counted as
-    /// [`Pipeline::push_iter`] counts them and `true` is returned: the caller publishes
-    /// them unchanged (a point is valid when its reading is a range) and reports the
-    /// invalid ones with [`Pipeline::count_invalid`]. Otherwise nothing changes and
-    /// `false` is returned: push the points instead.
+    /// publish points faster than a [`PointSink`] call each. It takes the settings
+    /// without a window or decimation: a region of interest, a range window, and an
+    /// intensity threshold when the points carry no intensity (`intensity` false; it
+    /// then changes nothing). When the settings are such and the run continues the
+    /// open scan in sequence, the points are counted as pushing them counts them and
+    /// the part to publish is returned ([`DirectRun`]): the caller publishes those
+    /// points unchanged except that a range outside the window is no range (a point is
+    /// valid when its reading is a range inside it), and reports the invalid ones with
+    /// [`Pipeline::count_direct`]. Otherwise nothing changes and `None` is returned:
+    /// use [`Pipeline::filter_line`] or push the points instead.
     #[inline]
-    pub fn pass_run(&mut self, first_step: u16, n: usize) -> bool {
-        if !self.config.is_passthrough() {
-            return false;
+    pub fn pass_run(&mut self, first_step: u16, n: usize, intensity: bool) -> Option<DirectRun> {
+        let cfg = &self.config;
+        let direct = cfg.is_passthrough()
+            || (cfg.speckle.is_none()
+                && cfg.median.is_none()
+                && cfg.decimation.is_none_or(|d| d.factor <= 1)
+                && (cfg.min_intensity.is_none() || !intensity));
+        if !direct {
+            return None;
         }
-        let Some(scan) = self.take_run(first_step, n) else {
-            return false;
-        };
-        scan.emitted = scan.emitted.saturating_add(n);
+        let window = cfg
+            .range_window
+            .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
+        let cluster = self.take_run(first_step, n)?.cluster;
+        let (lo, hi) = self.roi_slice(first_step, n, cluster);
+        // The slice is at most the run.
+        let m = hi.wrapping_sub(lo);
+        if let Open::Active(scan) = &mut self.open {
+            scan.emitted = scan.emitted.saturating_add(m);
+        }
         add(&mut self.stats.points_in, n);
-        add(&mut self.stats.points_out, n);
-        true
+        add(&mut self.stats.points_outside_roi, n.wrapping_sub(m));
+        add(&mut self.stats.points_out, m);
+        Some(DirectRun { lo, hi, window })
+    }
+
+    /// Counts the points of a [`Pipeline::pass_run`] run that had no range: `invalid`
+    /// in all, `rejected` of them ranges outside the range window.
+    #[inline]
+    pub fn count_direct(&mut self, invalid: usize, rejected: usize) {
+        let st = &mut self.stats;
+        add(&mut st.invalid_error_code, invalid.saturating_sub(rejected));
+        add(&mut st.invalid_out_of_range, rejected);
+        add(&mut st.points_out_invalid, invalid);
+        self.filtered |= rejected > 0;
     }
 
     /// The block path for every stage but the direct one: `n` consecutive points from
@@ -377,13 +407,13 @@ impl Pipeline {
 
     /// The block path of a data line, for the bridge engine: `input` holds `n`
     /// consecutive points from `first_step` (as for [`Pipeline::pass_run`]) as the
-    /// sensor's readings: a `distance` is a range when `is_range` says so (and is not
-    /// `u32::MAX`), an error code otherwise; `aux` is the intensity when `intensity`
-    /// (the `index` and `echo` fields are not used). Every stage runs in place in
-    /// `cells` (at least `n` long), one pass over the line each: the region of interest
-    /// as a slice, error codes, range window and intensity threshold as one
-    /// classification pass, speckle and median as sliding windows carried from line to
-    /// line, decimation as a block reduction. The output points are left at the front
+    /// sensor's readings: a `distance` is a range when the `sensor` rule says so (its
+    /// window is not used; `u32::MAX` is never a range), an error code otherwise; `aux`
+    /// is the intensity when `intensity` (the `index` and `echo` fields are not used).
+    /// The stages write into `cells` (at least `n` long): the region of interest as a
+    /// slice; error codes, range window and intensity threshold as one classification,
+    /// speckle and median as sliding windows carried from line to line, all in one loop
+    /// over the line; decimation as a block reduction after it. The output points are left at the front
     /// of `cells` as readings for the CAN encoder: `out_none` for no range, a range of
     /// 0 mm as 1 (the encodings code it so), `aux` the intensity (0 for none); their
     /// number is returned. Counters, the `filtered` flag and what
@@ -395,13 +425,10 @@ impl Pipeline {
         first_step: u16,
         input: &[scip::Reading],
         cells: &mut [scip::Reading],
-        is_range: impl Fn(u32) -> bool,
+        sensor: can_wire::RangeRule,
         intensity: bool,
         out_none: u32,
     ) -> Option<usize> {
-        // No range, inside the line.
-        const NONE: u32 = u32::MAX;
-        let none = NONE;
         let n = input.len();
         if self.config.is_passthrough() || cells.len() < n {
             return None;
@@ -427,58 +454,49 @@ impl Pipeline {
         );
         let cfg = self.config;
         let mut c = Counts::default();
-        // Error codes, range window and intensity threshold: one pass.
-        let (min, max) = cfg
+        let window = cfg
             .range_window
-            .map_or((0, u32::MAX), |w| (w.min_mm, w.max_mm));
-        let min_intensity = cfg.min_intensity.filter(|_| intensity).unwrap_or(0);
-        for (cell, r) in buf.iter_mut().zip(input) {
-            let d = r.distance;
-            cell.aux = r.aux;
-            cell.distance = if !is_range(d) || d == NONE {
-                c.error_code = c.error_code.wrapping_add(1);
-                NONE
-            } else if d < min || d > max {
-                c.out_of_range = c.out_of_range.wrapping_add(1);
-                NONE
-            } else if r.aux < min_intensity {
-                c.low_intensity = c.low_intensity.wrapping_add(1);
-                NONE
-            } else {
-                d
-            };
-        }
-        let mut m = buf.len();
-        // Points held back by the windows so far (steps count back from `last_step`).
+            .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
+        let line = LineConsts {
+            rule: can_wire::RangeRule { window, ..sensor },
+            min_intensity: cfg.min_intensity.filter(|_| intensity).unwrap_or(0),
+            jump: cfg.speckle.map(|f| f.max_jump_mm),
+            median: cfg.median,
+            decimate: self.decimator.is_active(),
+            out_none,
+        };
+        // The windows' state in registers for the line.
+        let mut sp = self.speckle.load(NONE);
+        let mut md = self.median.load(NONE);
+        // Without a window stage, a plain classification pass (cheaper than the fused
+        // loop's stage flags); the output is converted after decimation, or below.
+        let windows = line.jump.is_some() || line.median.is_some();
+        let (w, mut invalid, changed) = if windows {
+            fused_line(input, buf, &line, &mut sp, &mut md, &mut c)
+        } else {
+            classify_line(input, buf, &line, &mut c);
+            (buf.len(), 0, false)
+        };
+        let none = NONE;
+        let jump = line.jump;
+        let median = line.median.is_some();
+        let decimate = line.decimate;
+        c.filtered = changed;
+        // Points held back by the windows (steps count back from `last_step`).
         let mut lag = 0u32;
-        if let Some(f) = cfg.speckle {
-            let part = buf.get_mut(..m).unwrap_or_default();
-            let filter = window::LineFilter::Speckle {
-                max_jump_mm: f.max_jump_mm,
-            };
-            m = self.speckle.run_line(
-                part,
-                none,
-                intensity,
-                (last_step, cluster),
-                filter,
-                &mut c.speckle,
-            );
-            lag = u32::try_from(self.speckle.pending()).unwrap_or(0);
+        if jump.is_some() {
+            self.speckle
+                .store(&sp, none, intensity, (last_step, cluster));
+            lag = u32::try_from(sp.np).unwrap_or(0);
         }
-        if cfg.median.is_some() {
-            let part = buf.get_mut(..m).unwrap_or_default();
+        if median {
             let at = last_step.saturating_sub(lag.saturating_mul(cluster));
-            let mut changed = 0usize;
-            let filter = window::LineFilter::Median;
-            m = self
-                .median
-                .run_line(part, none, intensity, (at, cluster), filter, &mut changed);
-            c.filtered |= changed > 0;
-            lag = lag.saturating_add(u32::try_from(self.median.pending()).unwrap_or(0));
+            self.median.store(&md, none, intensity, (at, cluster));
+            lag = lag.saturating_add(u32::try_from(md.np).unwrap_or(0));
         }
-        let part = buf.get_mut(..m).unwrap_or_default();
-        if self.decimator.is_active() {
+        let mut m = w;
+        if decimate {
+            let part = buf.get_mut(..m).unwrap_or_default();
             // Step of the first point the decimator gets.
             let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
             let step = last_step.saturating_sub(back.saturating_mul(cluster));
@@ -486,16 +504,17 @@ impl Pipeline {
                 .decimator
                 .run_line(part, none, intensity, step, cluster);
         }
-        let out = part.get_mut(..m).unwrap_or_default();
-        let mut invalid = 0usize;
-        for r in out.iter_mut() {
-            r.distance = if r.distance == NONE {
-                // At most `m`.
-                invalid = invalid.wrapping_add(1);
-                out_none
-            } else {
-                r.distance.max(1)
-            };
+        if decimate || !windows {
+            let out = buf.get_mut(..m).unwrap_or_default();
+            for r in out.iter_mut() {
+                r.distance = if r.distance == NONE {
+                    // At most `m`.
+                    invalid = invalid.wrapping_add(1);
+                    out_none
+                } else {
+                    r.distance.max(1)
+                };
+            }
         }
         c.emitted = m;
         c.invalid_out = invalid;
@@ -609,11 +628,11 @@ impl Pipeline {
         Some(scan)
     }
 
-    /// Counts `n` points of a [`Pipeline::pass_run`] run that had no range.
+    /// Counts `n` points of a [`Pipeline::pass_run`] run that had no range, none of
+    /// them a range outside the window.
     #[inline]
     pub fn count_invalid(&mut self, n: usize) {
-        add(&mut self.stats.invalid_error_code, n);
-        add(&mut self.stats.points_out_invalid, n);
+        self.count_direct(n, 0);
     }
 
     /// Ends the scan. When `intact` and every announced point arrived in sequence, the
@@ -691,6 +710,167 @@ impl Pipeline {
         self.median.clear();
         self.decimator.clear();
     }
+}
+
+/// No range, inside a line.
+const NONE: u32 = u32::MAX;
+
+/// What [`fused_line`] needs of the settings, worked out once per line.
+struct LineConsts {
+    /// The sensor's range test with the range window.
+    rule: can_wire::RangeRule,
+    /// The intensity threshold (0: none, or no intensities).
+    min_intensity: u32,
+    /// Speckle removal's threshold, when on.
+    jump: Option<u32>,
+    /// The median, when on.
+    median: Option<MedianWidth>,
+    /// Whether decimation follows (the output then stays in the loop's form).
+    decimate: bool,
+    /// The encoder's value for no range.
+    out_none: u32,
+}
+
+/// The stages of [`Pipeline::filter_line`] up to the median, in one loop over the
+/// line's readings `input`; the output points go to the front of `buf` (at least as
+/// long). Returns their number, how many have no range (when not decimating) and
+/// whether the median changed a range. Kept out of line so that its state stays in
+/// registers; one copy for every configuration (the stages are chosen per point by
+/// flags that do not change within the line).
+#[inline(never)]
+fn fused_line(
+    input: &[scip::Reading],
+    buf: &mut [scip::Reading],
+    k: &LineConsts,
+    sp: &mut window::Regs,
+    md: &mut window::Regs,
+    c: &mut Counts,
+) -> (usize, usize, bool) {
+    let rule = &k.rule;
+    let [wmin, wmax] = rule.window;
+    // The distances from `low` up to (not including) `low + span` are ranges inside
+    // the window, found by one test (as the encoder's runs do); the others take the
+    // full one. The sensor's error codes at or above its minimum end the span (which
+    // never holds NONE, `u32::MAX`).
+    let [a, b] = rule.except;
+    let first = a
+        .min(b)
+        .min(rule.band.unwrap_or(NONE))
+        .min(wmax.saturating_add(1));
+    let low = rule.min.max(wmin);
+    let span = first.saturating_sub(low);
+    let min_intensity = k.min_intensity;
+    let three = k.median == Some(MedianWidth::Three);
+    let five = k.median == Some(MedianWidth::Five);
+    let (mut w, mut invalid, mut changed) = (0usize, 0usize, false);
+    // The counts in registers, added to `c` once.
+    let (mut error_code, mut out_of_range, mut low_intensity, mut speckle) =
+        (0usize, 0usize, 0usize, 0usize);
+    let (mut s1, mut m) = (*sp, *md);
+    for r in input {
+        let d = r.distance;
+        let mut x = (d, r.aux);
+        if d.wrapping_sub(low) >= span {
+            // Counts of at most the line's points: no wrap.
+            if !rule.is_range(d) || d == NONE {
+                if d != NONE && rule.is_sensor_range(d) {
+                    out_of_range = out_of_range.wrapping_add(1);
+                } else {
+                    error_code = error_code.wrapping_add(1);
+                }
+                x.0 = NONE;
+            }
+        }
+        if x.0 != NONE && r.aux < min_intensity {
+            low_intensity = low_intensity.wrapping_add(1);
+            x.0 = NONE;
+        }
+        if let Some(jump) = k.jump {
+            let Some((centre, before, after)) = s1.push1(x) else {
+                continue;
+            };
+            let (out, removed) = window::speckle3_line(centre.0, before, after, NONE, jump);
+            speckle = speckle.wrapping_add(usize::from(removed));
+            x = (out, centre.1);
+        }
+        if three {
+            let Some((centre, before, after)) = m.push1(x) else {
+                continue;
+            };
+            let out = window::median3_line(centre.0, before, after, NONE);
+            changed |= out != centre.0;
+            x = (out, centre.1);
+        } else if five {
+            let Some((centre, nb)) = m.push2(x) else {
+                continue;
+            };
+            let out = window::median_line(centre.0, nb, NONE);
+            changed |= out != centre.0;
+            x = (out, centre.1);
+        }
+        if !k.decimate {
+            invalid = invalid.wrapping_add(usize::from(x.0 == NONE));
+            x.0 = if x.0 == NONE { k.out_none } else { x.0.max(1) };
+        }
+        if let Some(slot) = buf.get_mut(w) {
+            slot.distance = x.0;
+            slot.aux = x.1;
+        }
+        // At most the line's points.
+        w = w.wrapping_add(1);
+    }
+    *sp = s1;
+    *md = m;
+    c.error_code = c.error_code.wrapping_add(error_code);
+    c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
+    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
+    c.speckle = c.speckle.wrapping_add(speckle);
+    (w, invalid, changed)
+}
+
+/// The classification of [`fused_line`] alone (error codes, range window, intensity
+/// threshold), `input` into `buf` (as long), no range as [`NONE`].
+#[inline(never)]
+fn classify_line(
+    input: &[scip::Reading],
+    buf: &mut [scip::Reading],
+    k: &LineConsts,
+    c: &mut Counts,
+) {
+    let rule = &k.rule;
+    let (mut error_code, mut out_of_range, mut low_intensity) = (0usize, 0usize, 0usize);
+    for (cell, r) in buf.iter_mut().zip(input) {
+        let d = r.distance;
+        cell.aux = r.aux;
+        // Counts of at most the line's points: no wrap.
+        cell.distance = if !rule.is_sensor_range(d) || d == NONE {
+            error_code = error_code.wrapping_add(1);
+            NONE
+        } else if !rule.is_range(d) {
+            out_of_range = out_of_range.wrapping_add(1);
+            NONE
+        } else if r.aux < k.min_intensity {
+            low_intensity = low_intensity.wrapping_add(1);
+            NONE
+        } else {
+            d
+        };
+    }
+    c.error_code = c.error_code.wrapping_add(error_code);
+    c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
+    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
+}
+
+/// The part of a run that [`Pipeline::pass_run`] leaves to publish directly.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DirectRun {
+    /// The first point of the run to publish (the region of interest's first).
+    pub lo: usize,
+    /// One past the last point to publish.
+    pub hi: usize,
+    /// The ranges kept, both ends included (`[0, u32::MAX]` with no range window):
+    /// a range outside is published as no range.
+    pub window: [u32; 2],
 }
 
 /// What one loop of the stages did, counted in locals (each at most the points the
@@ -1481,7 +1661,7 @@ mod tests {
                     while !rest.is_empty() {
                         let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
                         let consecutive = a.windows(2).all(|w| w[1].step == w[0].step + cluster);
-                        if mode == 2 && consecutive && p.pass_run(a[0].step, a.len()) {
+                        if mode == 2 && consecutive && p.pass_run(a[0].step, a.len(), true).is_some() {
                             out.extend(a.iter().map(|x| Point {
                                 step: x.step,
                                 range_mm: x.valid.then_some(x.distance),
@@ -1724,10 +1904,12 @@ mod tests {
     }
 
     proptest::proptest! {
-        /// Any configuration: pushing points one by one, `filter_run` and `filter_line`
-        /// (in runs of any size, each continuing the scan) give the points, counters and
-        /// `filtered` flag of the whole-scan reference above. `filter_line` gives
-        /// readings: no range as the caller's value, a range of 0 as 1.
+        /// Any configuration: pushing points one by one, `filter_run`, `filter_line` and
+        /// the direct path `pass_run` (published as the engine does, with `filter_run`
+        /// where it declines) (in runs of any size, each continuing the scan) give the
+        /// points, counters and `filtered` flag of the whole-scan reference above.
+        /// `filter_line` gives readings: no range as the caller's value, a range of 0
+        /// as 1.
         #[test]
         fn every_path_matches_the_reference(
             inputs in proptest::collection::vec(
@@ -1770,8 +1952,8 @@ mod tests {
                 })
                 .collect();
             let (want, want_k, want_filtered) = reference(&config, &points);
-            // 0: one by one; 1: filter_run; 2: filter_line.
-            for mode in 0..3 {
+            // 0: one by one; 1: filter_run; 2: filter_line; 3: pass_run.
+            for mode in 0..4 {
                 let mut p = Pipeline::new(config).unwrap();
                 let ScanStart::Publish { points: announced } = p.begin_scan(info) else {
                     panic!("not published");
@@ -1781,9 +1963,32 @@ mod tests {
                 let mut i = 0;
                 while !rest.is_empty() {
                     let (a, b) = rest.split_at(sizes[i % sizes.len()].min(rest.len()));
+                    let direct = if mode == 3 {
+                        p.pass_run(a[0].step, a.len(), with_intensity)
+                    } else {
+                        None
+                    };
+                    if let Some(run) = direct {
+                        // The engine's publishing: the slice, a point a range when it
+                        // is one inside the window.
+                        let [lo, hi] = run.window;
+                        let part = &a[run.lo..run.hi];
+                        let inside = |r: &RawPoint| r.valid && lo <= r.distance && r.distance <= hi;
+                        out.extend(part.iter().map(|r| Point {
+                            step: r.step,
+                            range_mm: inside(r).then_some(r.distance),
+                            intensity: r.intensity,
+                        }));
+                        let invalid = part.iter().filter(|r| !inside(r)).count();
+                        let rejected = part.iter().filter(|r| r.valid && !inside(r)).count();
+                        p.count_direct(invalid, rejected);
+                        rest = b;
+                        i += 1;
+                        continue;
+                    }
                     match mode {
                         0 => p.push_batch(a, &mut |x| out.push(x)),
-                        1 => {
+                        1 | 3 => {
                             let mut buf = Vec::new();
                             let k = p.filter_run(a[0].step, a, |r| *r, |x| buf.push(x));
                             match k {
@@ -1803,7 +2008,7 @@ mod tests {
                                 .map(|r| scip::Reading { index: 0, echo: 0, distance: r.distance, aux: r.intensity.unwrap_or(0) })
                                 .collect();
                             let mut cells = input.clone();
-                            let k = p.filter_line(a[0].step, &input, &mut cells, |d| d != 0, with_intensity, 7_777_777);
+                            let k = p.filter_line(a[0].step, &input, &mut cells, can_wire::RangeRule::at_least(1), with_intensity, 7_777_777);
                             match k {
                                 Some(k) => {
                                     let base = out.len();

@@ -111,82 +111,92 @@ impl CentredWindow {
     }
 }
 
-/// The state of a [`CentredWindow`] in the form [`CentredWindow::run_line`] works on:
-/// distances with a "no range" value instead of options.
+/// The state of a [`CentredWindow`] in the form the fused line loop
+/// ([`super::Pipeline::filter_line`]) carries in registers: distances with a "no range"
+/// value instead of options, intensities as plain values.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Regs {
+    /// The oldest pending point (distance, intensity).
+    pub p0: (u32, u32),
+    /// The next pending point (half-width 2 only).
+    pub p1: (u32, u32),
+    /// Points pending.
+    pub np: usize,
+    /// Distance of the point just before the oldest pending one.
+    pub b1: u32,
+    /// Distance of the point before that.
+    pub b2: u32,
+}
+
+impl Regs {
+    /// [`CentredWindow::push`] for a window of half-width 1: the point that became
+    /// complete (distance, intensity) and the distances before and after it (`none`
+    /// where invalid or absent).
+    #[inline(always)]
+    pub fn push1(&mut self, x: (u32, u32)) -> Option<((u32, u32), u32, u32)> {
+        if self.np == 0 {
+            // Only a scan's first point.
+            self.p0 = x;
+            self.np = 1;
+            return None;
+        }
+        let c = self.p0;
+        let b = self.b1;
+        self.p0 = x;
+        self.b1 = c.0;
+        Some((c, b, x.0))
+    }
+
+    /// [`CentredWindow::push`] for a window of half-width 2: the point that became
+    /// complete and its neighbours' distances (`[second before, before, after, second
+    /// after]`, `none` where invalid or absent).
+    #[inline(always)]
+    pub fn push2(&mut self, x: (u32, u32)) -> Option<((u32, u32), [u32; 4])> {
+        if self.np < 2 {
+            // Only a scan's first two points.
+            if self.np == 0 {
+                self.p0 = x;
+            } else {
+                self.p1 = x;
+            }
+            self.np = self.np.wrapping_add(1);
+            return None;
+        }
+        let c = self.p0;
+        let nb = [self.b2, self.b1, self.p1.0, x.0];
+        self.p0 = self.p1;
+        self.p1 = x;
+        self.b2 = self.b1;
+        self.b1 = c.0;
+        Some((c, nb))
+    }
+}
+
 impl CentredWindow {
-    /// Runs the window over `buf` in place, as [`CentredWindow::push`] for each point:
-    /// a distance equal to `none` has no range, `aux` is the intensity (when
-    /// `intensity`). `f` gives a centre's new distance from its own and its neighbours'
-    /// (`[second before, before, after, second after]`, `none` where invalid or absent).
-    /// The points that leave the window are written to the front of `buf`; their number
-    /// is returned. The points left pending get steps counted back from `last_step`
-    /// (the step of `buf`'s last point), `cluster` apart. `changed` counts the centres
-    /// whose distance the filter changed.
-    /// One function for both filters (`filter` says which), so that the firmware holds
-    /// one copy of the loop.
-    #[inline(never)]
-    pub fn run_line(
+    /// The window's state as [`Regs`] (`none` for no range).
+    pub fn load(&self, none: u32) -> Regs {
+        let d = |p: &Point| p.range_mm.unwrap_or(none);
+        let [p0, p1] = self.pending;
+        let [b1, b2] = self.before;
+        Regs {
+            p0: (d(&p0), p0.intensity.unwrap_or(0)),
+            p1: (d(&p1), p1.intensity.unwrap_or(0)),
+            np: usize::from(self.n),
+            b1: b1.unwrap_or(none),
+            b2: b2.unwrap_or(none),
+        }
+    }
+
+    /// Takes the state back from [`Regs`] after a line: the points left pending get
+    /// steps counted back from `last_step` (the step of the last point the window
+    /// took), `cluster` apart; intensities only when `intensity`.
+    pub fn store(
         &mut self,
-        buf: &mut [scip::Reading],
+        r: &Regs,
         none: u32,
         intensity: bool,
         (last_step, cluster): (u32, u32),
-        filter: LineFilter,
-        changed: &mut usize,
-    ) -> usize {
-        let mut f = |c: u32, nb: [u32; 4]| {
-            let out = match filter {
-                LineFilter::Speckle { max_jump_mm } => speckle_line(c, nb, none, max_jump_mm).0,
-                LineFilter::Median => median_line(c, nb, none),
-            };
-            // At most the line's points.
-            *changed = changed.wrapping_add(usize::from(out != c));
-            out
-        };
-        let d = |p: &Point| p.range_mm.unwrap_or(none);
-        let [p0, p1] = self.pending;
-        let mut pend = [
-            (d(&p0), p0.intensity.unwrap_or(0)),
-            (d(&p1), p1.intensity.unwrap_or(0)),
-        ];
-        let mut np = usize::from(self.n);
-        let [b1, b2] = self.before;
-        let (mut b1, mut b2) = (b1.unwrap_or(none), b2.unwrap_or(none));
-        let two = self.half >= 2;
-        let half = if two { 2 } else { 1 };
-        let mut w = 0usize;
-        for i in 0..buf.len() {
-            let Some(x) = buf.get(i).map(|r| (r.distance, r.aux)) else {
-                break;
-            };
-            if np < half {
-                if let Some(slot) = pend.get_mut(np) {
-                    *slot = x;
-                }
-                np = np.wrapping_add(1);
-                continue;
-            }
-            let c = pend[0];
-            let nb = if two {
-                [b2, b1, pend[1].0, x.0]
-            } else {
-                [none, b1, x.0, none]
-            };
-            let out = f(c.0, nb);
-            if let Some(slot) = buf.get_mut(w) {
-                slot.distance = out;
-                slot.aux = c.1;
-            }
-            // At most `i`.
-            w = w.wrapping_add(1);
-            b2 = b1;
-            b1 = c.0;
-            if two {
-                pend = [pend[1], x];
-            } else {
-                pend[0] = x;
-            }
-        }
+    ) {
         let point = |(dist, aux): (u32, u32), back: usize| Point {
             step: u16::try_from(
                 last_step.saturating_sub(u32::try_from(back).unwrap_or(0).saturating_mul(cluster)),
@@ -196,38 +206,38 @@ impl CentredWindow {
             intensity: intensity.then_some(aux),
         };
         // The pending points are the last `np` of the stream.
-        let last = np.saturating_sub(1);
-        self.pending = [point(pend[0], last), point(pend[1], last.saturating_sub(1))];
-        self.n = u8::try_from(np).unwrap_or(0);
-        self.before = [(b1 != none).then_some(b1), (b2 != none).then_some(b2)];
-        w
+        let last = r.np.saturating_sub(1);
+        self.pending = [point(r.p0, last), point(r.p1, last.saturating_sub(1))];
+        self.n = u8::try_from(r.np).unwrap_or(0);
+        self.before = [
+            (r.b1 != none).then_some(r.b1),
+            (r.b2 != none).then_some(r.b2),
+        ];
     }
 }
 
-/// The filter a [`CentredWindow::run_line`] applies.
-#[derive(Debug, Clone, Copy)]
-pub(crate) enum LineFilter {
-    /// Speckle removal with this threshold.
-    Speckle {
-        /// See [`super::SpeckleFilter`].
-        max_jump_mm: u32,
-    },
-    /// The median.
-    Median,
-}
-
-/// Speckle removal on distances with a "no range" value `none` (as [`speckle`]): the
-/// centre's new distance and whether it was removed.
+/// Speckle removal on distances with a "no range" value `none` (as [`speckle`]) for
+/// the centre `c` and the distances before (`b`) and after (`a`) it: the centre's new
+/// distance and whether it was removed.
 #[inline(always)]
-pub(crate) fn speckle_line(c: u32, nb: [u32; 4], none: u32, max_jump_mm: u32) -> (u32, bool) {
-    if c == none {
-        return (c, false);
-    }
+pub(crate) fn speckle3_line(c: u32, b: u32, a: u32, none: u32, max_jump_mm: u32) -> (u32, bool) {
     let supports = |n: u32| n != none && n.abs_diff(c) <= max_jump_mm;
-    if supports(nb[1]) || supports(nb[2]) {
+    if c == none || supports(b) || supports(a) {
         (c, false)
     } else {
         (none, true)
+    }
+}
+
+/// The median of a window of 3 on distances with a "no range" value `none` (as
+/// [`median`]): the centre `c`, the distances before (`b`) and after (`a`) it.
+#[inline(always)]
+pub(crate) fn median3_line(c: u32, b: u32, a: u32, none: u32) -> u32 {
+    if c == none || b == none || a == none {
+        // No range, or a window of at most 2 ranges: the centre is one of the middle.
+        c
+    } else {
+        c.min(b).max(c.max(b).min(a))
     }
 }
 
