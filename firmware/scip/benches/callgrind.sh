@@ -22,7 +22,8 @@ for which in gd me; do
         label=$([ "$chunk" = 0 ] && echo slice || echo "chunk$chunk")
         for k in "$n" "$((2 * n))"; do
             valgrind --tool=callgrind --callgrind-out-file="$out/$which.$chunk.$k" \
-                "$bin" "$which" "$repeats" "$k" "$chunk" > "$out/$which.$chunk.$k.txt" 2> /dev/null
+                "$bin" "$which" "$repeats" "$k" "$chunk" > "$out/$which.$chunk.$k.txt" 2> "$out/err" \
+                || { cat "$out/err" >&2; exit 1; }
         done
         bytes=$(sed -n 's/.*(\([0-9]*\) bytes,.*/\1/p' "$out/$which.$chunk.$n.txt")
         total() { callgrind_annotate "$1" | sed -n 's/^ *\([0-9,]*\) .*PROGRAM TOTALS.*/\1/p' | tr -d ,; }

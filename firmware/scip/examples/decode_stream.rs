@@ -47,4 +47,9 @@ fn main() {
         n,
         last
     );
+    // A stream the decoder finds damaged measures its error paths, not decoding.
+    if last.errors != 0 || last.responses != repeats as u64 {
+        eprintln!("decode_stream: the stream did not decode intact: {last:?}");
+        std::process::exit(1);
+    }
 }

@@ -120,10 +120,39 @@ fn written(which: Which) -> Vec<u8> {
     out
 }
 
-/// `response(which)` repeated `times` times.
+/// `response(which)` repeated `times` times. The copies of a stream frame (`ME`) carry
+/// timestamps 25 ms apart (a UTM-30LX's scan period), as a sensor sends them: the same
+/// timestamp again fails the decoder's sequence check, which would leave every other
+/// frame's lines undecoded (sum-checked and skipped) and the measure flattering.
 pub fn stream(which: Which, times: usize) -> (Vec<u8>, usize, bool) {
     let (one, real) = response(which);
-    (one.repeat(times), one.len(), real)
+    let mut out = Vec::with_capacity(one.len() * times);
+    for i in 0..times {
+        match which {
+            Which::Gd => out.extend_from_slice(&one),
+            Which::Me => out.extend_from_slice(&retimed(&one, 25 * i as u32)),
+        }
+    }
+    (out, one.len(), real)
+}
+
+/// A stream frame with `later_ms` added to its timestamp (third line: 4 chars of 6 bits
+/// and the line's sum char).
+fn retimed(frame: &[u8], later_ms: u32) -> Vec<u8> {
+    let mut out = frame.to_vec();
+    let mut lines = frame.split(|&b| b == b'\n');
+    let start = lines.next().map_or(0, |l| l.len() + 1) + lines.next().map_or(0, |l| l.len() + 1);
+    let t = &mut out[start..start + 5];
+    let ts = t[..4]
+        .iter()
+        .fold(0u32, |acc, &c| (acc << 6) | u32::from(c - 0x30));
+    let ts = ts.wrapping_add(later_ms) & 0xFF_FFFF;
+    for (k, c) in t[..4].iter_mut().enumerate() {
+        *c = ((ts >> (6 * (3 - k))) & 0x3F) as u8 + 0x30;
+    }
+    let sum = t[..4].iter().fold(0u32, |acc, &c| acc + u32::from(c));
+    t[4] = (sum & 0x3F) as u8 + 0x30;
+    out
 }
 
 /// What decoding a stream yielded, so that none of the work can be optimised away.
