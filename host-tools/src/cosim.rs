@@ -62,21 +62,16 @@ pub const BUILD_COMMAND: &str = "(cd firmware/boards && CARGO_TARGET_DIR=target 
 /// Builds the co-simulation firmware in the board workspace (its own target folder, as
 /// [`crate::emulate::build_firmware`]); returns the ELF's path.
 pub fn build_firmware() -> anyhow::Result<PathBuf> {
-    let dir = crate::emulate::boards_dir();
-    let status = Process::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-        .args(["build", "--release", "-p", "scip2can-qemu"])
-        .args(["--features", "time-estimate", "--bin", FIRMWARE])
-        .current_dir(&dir)
-        .env("CARGO_TARGET_DIR", dir.join("target"))
-        .env_remove("RUSTFLAGS")
-        .env_remove("CARGO_BUILD_TARGET")
-        .env_remove("CARGO_ENCODED_RUSTFLAGS")
-        .status()
-        .with_context(|| format!("running cargo in {}", dir.display()))?;
-    if !status.success() {
-        bail!("building the co-simulation firmware failed; try {BUILD_COMMAND}");
-    }
-    Ok(dir
+    let args = [
+        "-p",
+        "scip2can-qemu",
+        "--features",
+        "time-estimate",
+        "--bin",
+        FIRMWARE,
+    ];
+    crate::emulate::build_in_boards(&args, "the co-simulation firmware", BUILD_COMMAND)?;
+    Ok(crate::emulate::boards_dir()
         .join("target/thumbv7em-none-eabihf/release")
         .join(FIRMWARE))
 }

@@ -86,9 +86,17 @@ pub const BUILD_COMMAND: &str =
 /// folder (a nested cargo with its own target folder cannot wait on the lock of the
 /// cargo that runs us). Returns the ELF's path.
 pub fn build_firmware() -> anyhow::Result<PathBuf> {
+    build_in_boards(&["-p", FIRMWARE], "the firmware", BUILD_COMMAND)?;
+    Ok(default_firmware())
+}
+
+/// Runs `cargo build --release ARGS` in the board workspace, into its own `target`
+/// folder; on failure says that building `what` failed and which command to try.
+pub fn build_in_boards(args: &[&str], what: &str, hint: &str) -> anyhow::Result<()> {
     let dir = boards_dir();
     let status = Process::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-        .args(["build", "--release", "-p", FIRMWARE])
+        .args(["build", "--release"])
+        .args(args)
         .current_dir(&dir)
         .env("CARGO_TARGET_DIR", dir.join("target"))
         .env_remove("RUSTFLAGS")
@@ -97,9 +105,9 @@ pub fn build_firmware() -> anyhow::Result<PathBuf> {
         .status()
         .with_context(|| format!("running cargo in {}", dir.display()))?;
     if !status.success() {
-        bail!("building the firmware failed; try {BUILD_COMMAND}");
+        bail!("building {what} failed; try {hint}");
     }
-    Ok(default_firmware())
+    Ok(())
 }
 
 /// [`build_firmware`], returning the Ethernet binary's path.

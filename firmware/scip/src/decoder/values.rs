@@ -257,22 +257,20 @@ impl Decoder {
         self.values = index;
         self.n_readings = total;
         let tail = chars.get(tail_at..).unwrap_or(&[]);
-        match tail.split_at_checked(D) {
-            Some((d, a)) if A > 0 => {
-                self.pending_distance = continue_valid(0, d);
-                self.in_aux = true;
-                self.carry = continue_valid(0, a);
-                self.carry_n = a.len() as u8;
-                self.want = A as u8;
-            }
-            _ => {
-                self.in_aux = false;
-                self.carry = continue_valid(0, tail);
-                self.carry_n = tail.len() as u8;
-                self.want = D as u8;
-            }
-        }
+        self.set_carry(Carry::of::<D, A>(tail));
         Ok(())
+    }
+
+    /// Carries the partial step at the end of a line's whole steps into the next line.
+    #[inline(always)]
+    fn set_carry(&mut self, c: Carry) {
+        if let Some(d) = c.pending_distance {
+            self.pending_distance = d;
+        }
+        self.in_aux = c.in_aux;
+        self.carry = c.carry;
+        self.carry_n = c.carry_n;
+        self.want = c.want;
     }
 
     /// Decodes the first `n` bytes of the buffer (or `input`, when the line is there) as
@@ -396,23 +394,7 @@ impl Decoder {
         }
         self.values = index;
         self.n_readings = end;
-        // The partial step at the end: a distance and part of its second value, or part
-        // of a distance.
-        match tail.split_at_checked(D) {
-            Some((d, a)) if A > 0 => {
-                self.pending_distance = continue_valid(0, d);
-                self.in_aux = true;
-                self.carry = continue_valid(0, a);
-                self.carry_n = a.len() as u8;
-                self.want = A as u8;
-            }
-            _ => {
-                self.in_aux = false;
-                self.carry = continue_valid(0, tail);
-                self.carry_n = tail.len() as u8;
-                self.want = D as u8;
-            }
-        }
+        self.set_carry(Carry::of::<D, A>(tail));
         Ok(())
     }
 
@@ -603,4 +585,40 @@ pub(super) fn continue_valid(carry: u32, chars: &[u8]) -> u32 {
     chars.iter().fold(carry, |acc, &c| {
         (acc << 6) | u32::from(c.wrapping_sub(CHAR_MIN) & 0x3F)
     })
+}
+
+/// The partial step at the end of a line's whole steps, carried into the next line.
+struct Carry {
+    /// The step's distance, complete (with a second value begun), or none.
+    pending_distance: Option<u32>,
+    /// The carried chars belong to the second value.
+    in_aux: bool,
+    /// The carried chars' value so far, how many there are and how many the value has.
+    carry: u32,
+    carry_n: u8,
+    want: u8,
+}
+
+impl Carry {
+    /// The carry of `tail`, fewer chars than a step of `D` + `A` chars: a distance and
+    /// part of its second value, or part of a distance.
+    #[inline(always)]
+    fn of<const D: usize, const A: usize>(tail: &[u8]) -> Self {
+        match tail.split_at_checked(D) {
+            Some((d, a)) if A > 0 => Carry {
+                pending_distance: Some(continue_valid(0, d)),
+                in_aux: true,
+                carry: continue_valid(0, a),
+                carry_n: a.len() as u8,
+                want: A as u8,
+            },
+            _ => Carry {
+                pending_distance: None,
+                in_aux: false,
+                carry: continue_valid(0, tail),
+                carry_n: tail.len() as u8,
+                want: D as u8,
+            },
+        }
+    }
 }
