@@ -130,11 +130,9 @@ struct Stream {
     /// Start of the last scan, sensor µs.
     phase: Span,
     /// First scan's index and start interval (the period fit's reference).
-    ref_k: i64,
-    ref_phase: Span,
+    reference: Mark,
     /// The narrowest start seen since the reference.
-    best_k: i64,
-    best_phase: Span,
+    best: Mark,
     /// Sensor µs per scan, Q16; 0 until two scans were seen.
     period_s: i64,
     /// Uncertainty of `period_s`, Q16.
@@ -196,17 +194,25 @@ impl Default for ScanClock {
     }
 }
 
-/// The period (Q16) and its uncertainty between the starts `p0` of scan `k0` and `p1`
-/// of scan `k1` (not inlined: called three times a scan, small next to its callers).
+/// A scan's index and its start interval, sensor µs.
+#[derive(Debug, Clone, Copy)]
+struct Mark {
+    k: i64,
+    phase: Span,
+}
+
+/// The period (Q16) and its uncertainty between the starts of scans `a` and `b`; the
+/// uncertainty is `i64::MAX` (no period) unless `b` comes after `a`.
 #[inline(never)]
-fn pair(k0: i64, p0: Span, k1: i64, p1: Span) -> Option<(i64, i64)> {
-    let dk = k1.sat_sub(k0);
+fn pair(a: &Mark, b: &Mark) -> (i64, i64) {
+    let dk = b.k.sat_sub(a.k);
     if dk <= 0 {
-        return None;
+        return (0, i64::MAX);
     }
-    let span = p1.mid().sat_sub(p0.mid());
-    let err = q(p1.width().sat_add(p0.width()) / 2).checked_div(dk)?;
-    Some((q(span).checked_div(dk)?, err))
+    let span = b.phase.mid().sat_sub(a.phase.mid());
+    // `dk` > 0 and `q` within ±2^62: the divisions cannot fail.
+    let err = q(b.phase.width().sat_add(a.phase.width()) / 2).div_or(dk, 0);
+    (q(span).div_or(dk, 0), err)
 }
 
 /// Saturating `i64` arithmetic, out of line: on the M4 every inlined 64-bit
@@ -358,14 +364,14 @@ impl ScanClock {
         if self.latency.is_some()
             || s.tm_asks >= TM_ASKS
             || s.period_s <= 0
-            || s.best_k != s.k
-            || s.best_phase.width() > NARROW_US
+            || s.best.k != s.k
+            || s.best.phase.width() > NARROW_US
         {
             return false;
         }
         let stale = self
             .tm
-            .is_none_or(|tm| s.best_phase.lo.sat_sub(tm.sensor_us).saturating_abs() > TM_FRESH_US);
+            .is_none_or(|tm| s.best.phase.lo.sat_sub(tm.sensor_us).saturating_abs() > TM_FRESH_US);
         // Only a clock that runs at about the bridge's rate (within 2^-8, as the
         // calibration needs) is worth a TM: before the fit, the mean arrival period
         // stands in for the bridge period (2 ms of jitter over the stream's scans).
@@ -470,10 +476,8 @@ impl Stream {
             last_ms: ms,
             k: 0,
             phase: stamp,
-            ref_k: 0,
-            ref_phase: stamp,
-            best_k: 0,
-            best_phase: stamp,
+            reference: Mark { k: 0, phase: stamp },
+            best: Mark { k: 0, phase: stamp },
             period_s: 0,
             period_s_err: 0,
             env: arrival,
@@ -533,23 +537,21 @@ impl Stream {
         // the narrowest start seen and this one: the narrower pair becomes the
         // reference (two narrow starts many scans apart pin the period to a fraction
         // of a µs).
-        if phase.width() < s.best_phase.width() {
-            s.best_k = s.k;
-            s.best_phase = phase;
+        if phase.width() < s.best.phase.width() {
+            s.best.k = s.k;
+            s.best.phase = phase;
         }
-        let better = |a: Option<(i64, i64)>, b: Option<(i64, i64)>| match (a, b) {
-            (Some(x), Some(y)) if y.1 < x.1 => Some(y),
-            (x, y) => x.or(y),
-        };
-        let from_ref = pair(s.ref_k, s.ref_phase, s.k, phase);
-        let from_best = pair(s.best_k, s.best_phase, s.k, phase);
-        let ref_best = pair(s.ref_k, s.ref_phase, s.best_k, s.best_phase);
-        if from_best.is_some_and(|b| from_ref.is_none_or(|r| b.1 < r.1)) {
-            s.ref_k = s.best_k;
-            s.ref_phase = s.best_phase;
+        // The lower uncertainty wins (`i64::MAX`: no period).
+        let better = |a: (i64, i64), b: (i64, i64)| if b.1 < a.1 { b } else { a };
+        let now = Mark { k: s.k, phase };
+        let from_ref = pair(&s.reference, &now);
+        let from_best = pair(&s.best, &now);
+        let ref_best = pair(&s.reference, &s.best);
+        if from_best.1 < from_ref.1 {
+            s.reference = s.best;
         }
-        let chosen = better(better(from_ref, from_best), ref_best);
-        if let Some((p, err)) = chosen {
+        let (p, err) = better(better(from_ref, from_best), ref_best);
+        if err < i64::MAX {
             s.period_s = p;
             s.period_s_err = err;
         }
@@ -626,27 +628,33 @@ impl Stream {
                 return;
             }
             x_max = x_max.max(x);
-            // Within the ranges above none of these wraps.
+            // Within the ranges above none of these wraps (`x` fits `i32`: a 32-bit
+            // multiply for `x²`).
+            let x32 = i64::from(i32::try_from(x).unwrap_or(0));
             n = n.wrapping_add(1);
             sx = sx.wrapping_add(x);
             sy = sy.wrapping_add(y);
-            sxx = sxx.wrapping_add(x.wrapping_mul(x));
-            sxy = sxy.wrapping_add(x.wrapping_mul(y));
+            sxx = sxx.wrapping_add(x32.wrapping_mul(x32));
+            sxy = sxy.wrapping_add(x32.wrapping_mul(y));
         }
-        let num = n.sat_mul(sxy).sat_sub(sx.sat_mul(sy));
-        let den = n.sat_mul(sxx).sat_sub(sx.sat_mul(sx));
+        // With n ≤ 16 points, `n·Σxy`, `n·Σx²`, `(Σx)²` and `Σx·Σy` stay below 2^60.
+        let num = n.wrapping_mul(sxy).wrapping_sub(sx.wrapping_mul(sy));
+        let den = n.wrapping_mul(sxx).wrapping_sub(sx.wrapping_mul(sx));
         if den <= 0 || num <= 0 {
             return;
         }
-        // num / den in Q16: |num / den| < 2^36 (a slope of µs per scan), the
-        // remainder below den < 2^41.
+        // num / den in Q16: a whole part above MAX_PERIOD_Q's is out of range; below
+        // it the Q16 value fits, and the remainder (below den < 2^41) scales within 2^57.
         let whole = num.div_or(den, 0);
+        if whole > MAX_PERIOD_Q >> Q {
+            return;
+        }
         let frac = num
             .checked_rem(den)
             .unwrap_or(0)
             .wrapping_shl(Q)
             .div_or(den, 0);
-        let p = whole.sat_mul(1 << Q).sat_add(frac);
+        let p = whole.wrapping_shl(Q).wrapping_add(frac);
         if p <= 0 || p > MAX_PERIOD_Q {
             return;
         }
@@ -659,7 +667,7 @@ impl Stream {
             lo = lo.min(r);
             hi = hi.max(r);
         }
-        let spread = hi.sat_sub(lo);
+        let spread = hi.wrapping_sub(lo);
         if s.period_b == 0 {
             s.env = arrival;
             s.env_scans = 0;
@@ -667,9 +675,7 @@ impl Stream {
         s.period_b = p;
         // About two standard deviations of the slope: the residuals' spread (some
         // four deviations of the minima) over the span, times sqrt(12 / n) ≈ 1.
-        s.period_b_err = q(spread.sat_add(1))
-            .checked_div(x_max.max(1).sat_mul(2))
-            .unwrap_or(i64::MAX);
+        s.period_b_err = q(spread.wrapping_add(1)).div_or(x_max.max(1).wrapping_mul(2), i64::MAX);
     }
 }
 
@@ -686,13 +692,13 @@ fn calibrate(tm: Option<Tm>, latency: &mut Option<(i64, i64)>, s: &Stream) {
     }
     // The narrowest start of the stream (where the scans crossed a millisecond
     // tick of the sensor's clock), and the envelope carried back to it.
-    let dk = s.k.sat_sub(s.best_k);
+    let dk = s.k.sat_sub(s.best.k);
     // Bridge time of the scan's start interval: the anchor carried by the sensor
     // µs between them, scaled by bridge/sensor period (the drift). In `i64`: the
     // anchor at most ANCHOR_MAX_US away, the periods' ratio within 2^-8 of 1 and
     // taken as a Q30 difference (|ratio − 1| · 2^30 < 2^22), so `ds × ratio` stays
     // below 2^58; the periods at most MAX_PERIOD_Q (below 2^37).
-    let ds = s.best_phase.lo.sat_sub(tm.sensor_us);
+    let ds = s.best.phase.lo.sat_sub(tm.sensor_us);
     if ds.saturating_abs() > ANCHOR_MAX_US || s.period_s > MAX_PERIOD_Q || s.period_b > MAX_PERIOD_Q
     {
         return;
@@ -707,7 +713,7 @@ fn calibrate(tm: Option<Tm>, latency: &mut Option<(i64, i64)>, s: &Stream) {
     let ds_b = ds.wrapping_add(ds.wrapping_mul(ratio) >> 30);
     let start = Span {
         lo: tm.bridge.lo.sat_add(ds_b),
-        hi: tm.bridge.hi.sat_add(ds_b).sat_add(s.best_phase.width()),
+        hi: tm.bridge.hi.sat_add(ds_b).sat_add(s.best.phase.width()),
     };
     let env = s.env.sat_sub(mul_unq(s.period_b, dk));
     // What the period's error does over the distance to the anchor (a product that
