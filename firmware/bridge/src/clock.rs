@@ -100,15 +100,16 @@ struct Span {
 
 impl Span {
     fn width(self) -> i64 {
-        self.hi.saturating_sub(self.lo)
+        self.hi.sat_sub(self.lo)
     }
     fn mid(self) -> i64 {
-        self.lo.saturating_add(self.width() / 2)
+        self.lo.sat_add(self.width() / 2)
     }
+    #[inline(never)]
     fn shift(self, d: i64) -> Self {
         Span {
-            lo: self.lo.saturating_add(d),
-            hi: self.hi.saturating_add(d),
+            lo: self.lo.sat_add(d),
+            hi: self.hi.sat_add(d),
         }
     }
     fn intersect(self, o: Span) -> Option<Span> {
@@ -129,11 +130,9 @@ struct Stream {
     /// Start of the last scan, sensor µs.
     phase: Span,
     /// First scan's index and start interval (the period fit's reference).
-    ref_k: i64,
-    ref_phase: Span,
+    reference: Mark,
     /// The narrowest start seen since the reference.
-    best_k: i64,
-    best_phase: Span,
+    best: Mark,
     /// Sensor µs per scan, Q16; 0 until two scans were seen.
     period_s: i64,
     /// Uncertainty of `period_s`, Q16.
@@ -195,27 +194,71 @@ impl Default for ScanClock {
     }
 }
 
-/// The period (Q16) and its uncertainty between the starts `p0` of scan `k0` and `p1`
-/// of scan `k1` (not inlined: called three times a scan, small next to its callers).
+/// A scan's index and its start interval, sensor µs.
+#[derive(Debug, Clone, Copy)]
+struct Mark {
+    k: i64,
+    phase: Span,
+}
+
+/// The period (Q16) and its uncertainty between the starts of scans `a` and `b`; the
+/// uncertainty is `i64::MAX` (no period) unless `b` comes after `a`.
 #[inline(never)]
-fn pair(k0: i64, p0: Span, k1: i64, p1: Span) -> Option<(i64, i64)> {
-    let dk = k1.saturating_sub(k0);
+fn pair(a: &Mark, b: &Mark) -> (i64, i64) {
+    let dk = b.k.sat_sub(a.k);
     if dk <= 0 {
-        return None;
+        return (0, i64::MAX);
     }
-    let span = p1.mid().saturating_sub(p0.mid());
-    let err = q(p1.width().saturating_add(p0.width()) / 2).checked_div(dk)?;
-    Some((q(span).checked_div(dk)?, err))
+    let span = b.phase.mid().sat_sub(a.phase.mid());
+    // `dk` > 0 and `q` within ±2^62: the divisions cannot fail.
+    let err = q(b.phase.width().sat_add(a.phase.width()) / 2).div_or(dk, 0);
+    (q(span).div_or(dk, 0), err)
+}
+
+/// Saturating `i64` arithmetic, out of line: on the M4 every inlined 64-bit
+/// saturating operation costs tens of bytes of code, and the model has dozens.
+trait Sat: Sized {
+    fn sat_add(self, o: Self) -> Self;
+    fn sat_sub(self, o: Self) -> Self;
+    fn sat_mul(self, o: Self) -> Self;
+    fn div_or(self, o: Self, or: Self) -> Self;
+}
+
+impl Sat for i64 {
+    #[inline(never)]
+    fn sat_add(self, o: i64) -> i64 {
+        self.saturating_add(o)
+    }
+    #[inline(never)]
+    fn sat_sub(self, o: i64) -> i64 {
+        self.saturating_sub(o)
+    }
+    #[inline(never)]
+    fn sat_mul(self, o: i64) -> i64 {
+        self.saturating_mul(o)
+    }
+    #[inline(never)]
+    fn div_or(self, o: i64, or: i64) -> i64 {
+        self.checked_div(o).unwrap_or(or)
+    }
+}
+
+/// `unq(a × b)`: a Q16 value times a count, in µs.
+#[inline(never)]
+fn mul_unq(a: i64, b: i64) -> i64 {
+    unq(a.sat_mul(b))
 }
 
 /// µs to Q16, clamped to ±2^46 µs (a shift: cheaper than a saturating multiply).
+#[inline(never)]
 fn q(us: i64) -> i64 {
     us.clamp(-(1 << 46), 1 << 46) << Q
 }
 
+#[inline(never)]
 fn unq(v: i64) -> i64 {
     // Round to nearest.
-    v.saturating_add(1 << (Q - 1)) >> Q
+    v.sat_add(1 << (Q - 1)) >> Q
 }
 
 impl ScanClock {
@@ -259,8 +302,8 @@ impl ScanClock {
         if s.period_s == 0 || s.period_b == 0 || s.blocks_len < 2 {
             return None;
         }
-        let diff = s.period_s.saturating_sub(s.period_b);
-        diff.saturating_mul(1_000_000_000).checked_div(s.period_b)
+        let diff = s.period_s.sat_sub(s.period_b);
+        diff.sat_mul(1_000_000_000).checked_div(s.period_b)
     }
 
     /// Whether the latency is calibrated (a `TM` and enough scans).
@@ -276,20 +319,18 @@ impl ScanClock {
     /// scan rate, which a `TM` does not change.
     #[inline(never)]
     pub fn on_tm(&mut self, sensor_ms: u64, sent_us: u64, recv_us: u64) {
-        let sensor_us = i64::try_from(sensor_ms)
-            .unwrap_or(i64::MAX)
-            .saturating_mul(1000);
+        let sensor_us = i64::try_from(sensor_ms).unwrap_or(i64::MAX).sat_mul(1000);
         let sent = i64::try_from(sent_us).unwrap_or(i64::MAX);
         let recv = i64::try_from(recv_us).unwrap_or(i64::MAX).max(sent);
         // The clock showed `sensor_ms` at some bridge time in [sent, recv]; it turned
         // to that millisecond up to 1000 µs before.
         let here = Span {
-            lo: sent.saturating_sub(1000),
+            lo: sent.sat_sub(1000),
             hi: recv,
         };
         let merged = self.tm.and_then(|tm| {
             // Back-to-back answers: the drift over their few ms is far below 1 µs.
-            let apart = sensor_us.saturating_sub(tm.sensor_us);
+            let apart = sensor_us.sat_sub(tm.sensor_us);
             if !(0..=TM_EXCHANGE_US).contains(&apart) {
                 return None;
             }
@@ -323,18 +364,14 @@ impl ScanClock {
         if self.latency.is_some()
             || s.tm_asks >= TM_ASKS
             || s.period_s <= 0
-            || s.best_k != s.k
-            || s.best_phase.width() > NARROW_US
+            || s.best.k != s.k
+            || s.best.phase.width() > NARROW_US
         {
             return false;
         }
-        let stale = self.tm.is_none_or(|tm| {
-            s.best_phase
-                .lo
-                .saturating_sub(tm.sensor_us)
-                .saturating_abs()
-                > TM_FRESH_US
-        });
+        let stale = self
+            .tm
+            .is_none_or(|tm| s.best.phase.lo.sat_sub(tm.sensor_us).saturating_abs() > TM_FRESH_US);
         // Only a clock that runs at about the bridge's rate (within 2^-8, as the
         // calibration needs) is worth a TM: before the fit, the mean arrival period
         // stands in for the bridge period (2 ms of jitter over the stream's scans).
@@ -342,13 +379,10 @@ impl ScanClock {
         let bridge = if s.period_b > 0 {
             unq(s.period_b)
         } else {
-            s.env
-                .saturating_sub(s.first_arrival)
-                .checked_div(s.k)
-                .unwrap_or(0)
+            s.env.sat_sub(s.first_arrival).div_or(s.k, 0)
         };
-        let slack = (sensor >> 8).saturating_add(2000i64.checked_div(s.k).unwrap_or(2000));
-        stale && bridge.saturating_sub(sensor).saturating_abs() <= slack
+        let slack = (sensor >> 8).sat_add(2000i64.div_or(s.k, 2000));
+        stale && bridge.sat_sub(sensor).saturating_abs() <= slack
     }
 
     /// The caller asked the sensor for a `TM` exchange ([`ScanClock::wants_tm`]): the
@@ -372,44 +406,38 @@ impl ScanClock {
         let ms = i64::try_from(sensor_ms).unwrap_or(i64::MAX);
         let arrival = i64::try_from(arrival_us).unwrap_or(i64::MAX);
         let stamp = Span {
-            lo: ms.saturating_mul(1000),
-            hi: ms.saturating_mul(1000).saturating_add(999),
+            lo: ms.sat_mul(1000),
+            hi: ms.sat_mul(1000).sat_add(999),
         };
-        let stream = match self.stream {
-            Some(s) => self.advance(s, ms, stamp, arrival),
-            None => None,
+        let step = match self.stream.as_mut() {
+            Some(s) => s.advance(ms, stamp, arrival),
+            None => Step::Next,
         };
-        let s = stream.unwrap_or(Stream {
-            last_ms: ms,
-            k: 0,
-            phase: stamp,
-            ref_k: 0,
-            ref_phase: stamp,
-            best_k: 0,
-            best_phase: stamp,
-            period_s: 0,
-            period_s_err: 0,
-            env: arrival,
-            period_b: self.period_b,
-            period_b_err: 0,
-            scans: 0,
-            blocks: [(0, 0); BLOCKS],
-            blocks_len: 0,
-            blocks_head: 0,
-            block: 0,
-            block_min: None,
-            tm_asks: 0,
-            env_scans: 0,
-            first_arrival: arrival,
-        });
-        let mut s = s;
-        s.scans = s.scans.saturating_add(1);
-        self.fit_blocks(&mut s, arrival);
-        self.stream = Some(s);
-        self.calibrate(&s);
+        match step {
+            Step::Next => {}
+            // The clock went back (or stood still across two scans): a restart.
+            Step::Restart => self.sensor_restarted(),
+            // The scans no longer follow the period: a new rate (or a restart the
+            // stamps hide). The latency and the bridge period belonged to the old rate.
+            Step::NewRate => {
+                self.latency = None;
+                self.period_b = 0;
+                self.sensor_restarted();
+            }
+        }
+        let period_b = self.period_b;
+        let s = self
+            .stream
+            .get_or_insert_with(|| Stream::start(ms, stamp, arrival, period_b));
+        s.scans = s.scans.sat_add(1);
+        s.fit_blocks(arrival);
+        // The bridge period outlives the stream (the fit sets both).
+        self.period_b = s.period_b;
+        calibrate(self.tm, &mut self.latency, s);
+        let s = &*s;
         let warm = s.scans >= WARMUP_SCANS && s.period_b != 0;
         let (time, valid) = match self.latency {
-            Some((l, _)) => (s.env.saturating_sub(l), warm),
+            Some((l, _)) => (s.env.sat_sub(l), warm),
             None => (s.env, false),
         };
         let time = u64::try_from(time.max(0)).unwrap_or(0);
@@ -428,18 +456,55 @@ impl ScanClock {
             valid,
         }
     }
+}
 
-    /// Carries the stream to a new scan; `None` if the stamp does not fit it (the
+/// How a scan continued the stream ([`Stream::advance`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Step {
+    /// The scan follows the stream.
+    Next,
+    /// The sensor's clock went back (or stood still across two scans): a restart.
+    Restart,
+    /// The stamp does not fit the period: a new scan rate (or a hidden restart).
+    NewRate,
+}
+
+impl Stream {
+    /// A stream starting with a scan of stamp `stamp` arriving at `arrival`.
+    fn start(ms: i64, stamp: Span, arrival: i64, period_b: i64) -> Self {
+        Stream {
+            last_ms: ms,
+            k: 0,
+            phase: stamp,
+            reference: Mark { k: 0, phase: stamp },
+            best: Mark { k: 0, phase: stamp },
+            period_s: 0,
+            period_s_err: 0,
+            env: arrival,
+            period_b,
+            period_b_err: 0,
+            scans: 0,
+            blocks: [(0, 0); BLOCKS],
+            blocks_len: 0,
+            blocks_head: 0,
+            block: 0,
+            block_min: None,
+            tm_asks: 0,
+            env_scans: 0,
+            first_arrival: arrival,
+        }
+    }
+
+    /// Carries the stream to a new scan, unless the stamp does not fit it (the
     /// sensor restarted or its period changed).
     #[inline(never)]
-    fn advance(&mut self, mut s: Stream, ms: i64, stamp: Span, arrival: i64) -> Option<Stream> {
-        let dms = ms.saturating_sub(s.last_ms);
+    fn advance(&mut self, ms: i64, stamp: Span, arrival: i64) -> Step {
+        let s = self;
+        let dms = ms.sat_sub(s.last_ms);
         if dms <= 0 {
-            // The clock went back (or stood still across two scans): a restart.
-            self.sensor_restarted();
-            return None;
+            return Step::Restart;
         }
-        let dus = dms.saturating_mul(1000);
+        let dus = dms.sat_mul(1000);
         let (n, predicted) = if s.period_s == 0 {
             // Second scan: taken as the next one.
             (
@@ -450,74 +515,64 @@ impl ScanClock {
                 },
             )
         } else {
-            let n = q(dus)
-                .saturating_add(s.period_s / 2)
-                .checked_div(s.period_s)
-                .unwrap_or(1)
-                .max(1);
-            let step = unq(s.period_s.saturating_mul(n));
-            let err = unq(s.period_s_err.saturating_mul(n).saturating_mul(2)).saturating_add(2);
+            let n = q(dus).sat_add(s.period_s / 2).div_or(s.period_s, 1).max(1);
+            let step = mul_unq(s.period_s, n);
+            let err = mul_unq(s.period_s_err.sat_mul(n), 2).sat_add(2);
             let p = s.phase.shift(step);
             (
                 n,
                 Span {
-                    lo: p.lo.saturating_sub(err),
-                    hi: p.hi.saturating_add(err),
+                    lo: p.lo.sat_sub(err),
+                    hi: p.hi.sat_add(err),
                 },
             )
         };
         let Some(phase) = predicted.intersect(stamp) else {
-            // The scans no longer follow the period: a new rate (or a restart the
-            // stamps hide). The latency and the bridge period belonged to the old rate.
-            self.latency = None;
-            self.period_b = 0;
-            self.sensor_restarted();
-            return None;
+            return Step::NewRate;
         };
-        s.k = s.k.saturating_add(n);
+        s.k = s.k.sat_add(n);
         s.last_ms = ms;
         s.phase = phase;
         // Period in sensor µs between the reference start and this one, and between
         // the narrowest start seen and this one: the narrower pair becomes the
         // reference (two narrow starts many scans apart pin the period to a fraction
         // of a µs).
-        if phase.width() < s.best_phase.width() {
-            s.best_k = s.k;
-            s.best_phase = phase;
+        if phase.width() < s.best.phase.width() {
+            s.best.k = s.k;
+            s.best.phase = phase;
         }
-        let better = |a: Option<(i64, i64)>, b: Option<(i64, i64)>| match (a, b) {
-            (Some(x), Some(y)) if y.1 < x.1 => Some(y),
-            (x, y) => x.or(y),
-        };
-        let from_ref = pair(s.ref_k, s.ref_phase, s.k, phase);
-        let from_best = pair(s.best_k, s.best_phase, s.k, phase);
-        let ref_best = pair(s.ref_k, s.ref_phase, s.best_k, s.best_phase);
-        if from_best.is_some_and(|b| from_ref.is_none_or(|r| b.1 < r.1)) {
-            s.ref_k = s.best_k;
-            s.ref_phase = s.best_phase;
+        // The lower uncertainty wins (`i64::MAX`: no period).
+        let better = |a: (i64, i64), b: (i64, i64)| if b.1 < a.1 { b } else { a };
+        let now = Mark { k: s.k, phase };
+        let from_ref = pair(&s.reference, &now);
+        let from_best = pair(&s.best, &now);
+        let ref_best = pair(&s.reference, &s.best);
+        if from_best.1 < from_ref.1 {
+            s.reference = s.best;
         }
-        let chosen = better(better(from_ref, from_best), ref_best);
-        if let Some((p, err)) = chosen {
+        let (p, err) = better(better(from_ref, from_best), ref_best);
+        if err < i64::MAX {
             s.period_s = p;
             s.period_s_err = err;
         }
         if s.period_b == 0 {
             // No bridge period yet: the envelope cannot be carried; it is the arrival.
             s.env = arrival;
-            return Some(s);
+            return Step::Next;
         }
         // Envelope: a sample below it is the truth so far, one above it lifts it a little.
-        let predicted_env = s.env.saturating_add(unq(s.period_b.saturating_mul(n)));
-        s.env_scans = s.env_scans.saturating_add(n);
-        let late = arrival.saturating_sub(predicted_env);
-        s.env = predicted_env.saturating_add(late.min(CREEP_US.saturating_mul(n)));
-        Some(s)
+        let predicted_env = s.env.sat_add(mul_unq(s.period_b, n));
+        s.env_scans = s.env_scans.sat_add(n);
+        let late = arrival.sat_sub(predicted_env);
+        s.env = predicted_env.sat_add(late.min(CREEP_US.sat_mul(n)));
+        Step::Next
     }
 
     /// Block minima of the arrivals and the bridge period from their slope.
     #[inline(never)]
-    fn fit_blocks(&mut self, s: &mut Stream, arrival: i64) {
-        let block = s.k.checked_div(BLOCK).unwrap_or(0);
+    fn fit_blocks(&mut self, arrival: i64) {
+        let s = self;
+        let block = s.k.div_or(BLOCK, 0);
         if block != s.block {
             if let Some(min) = s.block_min.take() {
                 if let Some(slot) = s.blocks.get_mut(s.blocks_head) {
@@ -529,7 +584,7 @@ impl ScanClock {
                     .checked_rem(BLOCKS)
                     .unwrap_or(0);
                 s.blocks_len = s.blocks_len.saturating_add(1).min(BLOCKS);
-                self.fit_period(s, arrival);
+                s.fit_period(arrival);
             }
             s.block = block;
         }
@@ -539,7 +594,7 @@ impl ScanClock {
         } else {
             s.period_s
         };
-        let detrend = |(k, a): (i64, i64)| a.saturating_sub(unq(trend.saturating_mul(k)));
+        let detrend = |(k, a): (i64, i64)| a.sat_sub(mul_unq(trend, k));
         let here = (s.k, arrival);
         s.block_min = Some(match s.block_min {
             Some(m) if detrend(m) <= detrend(here) => m,
@@ -555,7 +610,8 @@ impl ScanClock {
     /// better points. Then `n·Σxy`, `n·Σx²` and `(Σx)²` stay below 2^60 and the slope
     /// is taken as quotient and remainder, each scaled to Q16 within 2^56.
     #[inline(never)]
-    fn fit_period(&mut self, s: &mut Stream, arrival: i64) {
+    fn fit_period(&mut self, arrival: i64) {
+        let s = self;
         if s.blocks_len < 4 {
             return;
         }
@@ -566,132 +622,126 @@ impl ScanClock {
         let (mut n, mut sx, mut sy, mut sxx, mut sxy) = (0i64, 0i64, 0i64, 0i64, 0i64);
         let mut x_max = 0i64;
         for &(k, a) in pts {
-            let x = k.saturating_sub(k0);
-            let y = a.saturating_sub(a0);
+            let x = k.sat_sub(k0);
+            let y = a.sat_sub(a0);
             if !(0..FIT_MAX_SCANS).contains(&x) || y.saturating_abs() >= FIT_MAX_US {
                 return;
             }
             x_max = x_max.max(x);
-            // Within the ranges above none of these wraps.
+            // Within the ranges above none of these wraps (`x` fits `i32`: a 32-bit
+            // multiply for `x²`).
+            let x32 = i64::from(i32::try_from(x).unwrap_or(0));
             n = n.wrapping_add(1);
             sx = sx.wrapping_add(x);
             sy = sy.wrapping_add(y);
-            sxx = sxx.wrapping_add(x.wrapping_mul(x));
-            sxy = sxy.wrapping_add(x.wrapping_mul(y));
+            sxx = sxx.wrapping_add(x32.wrapping_mul(x32));
+            sxy = sxy.wrapping_add(x32.wrapping_mul(y));
         }
-        let num = n.saturating_mul(sxy).saturating_sub(sx.saturating_mul(sy));
-        let den = n.saturating_mul(sxx).saturating_sub(sx.saturating_mul(sx));
+        // With n ≤ 16 points, `n·Σxy`, `n·Σx²`, `(Σx)²` and `Σx·Σy` stay below 2^60.
+        let num = n.wrapping_mul(sxy).wrapping_sub(sx.wrapping_mul(sy));
+        let den = n.wrapping_mul(sxx).wrapping_sub(sx.wrapping_mul(sx));
         if den <= 0 || num <= 0 {
             return;
         }
-        // num / den in Q16: |num / den| < 2^36 (a slope of µs per scan), the
-        // remainder below den < 2^41.
-        let whole = num.checked_div(den).unwrap_or(0);
+        // num / den in Q16: a whole part above MAX_PERIOD_Q's is out of range; below
+        // it the Q16 value fits, and the remainder (below den < 2^41) scales within 2^57.
+        let whole = num.div_or(den, 0);
+        if whole > MAX_PERIOD_Q >> Q {
+            return;
+        }
         let frac = num
             .checked_rem(den)
             .unwrap_or(0)
             .wrapping_shl(Q)
-            .checked_div(den)
-            .unwrap_or(0);
-        let p = whole.saturating_mul(1 << Q).saturating_add(frac);
+            .div_or(den, 0);
+        let p = whole.wrapping_shl(Q).wrapping_add(frac);
         if p <= 0 || p > MAX_PERIOD_Q {
             return;
         }
         // Spread of the residuals about the line (its intercept cancels out).
         let (mut lo, mut hi) = (i64::MAX, i64::MIN);
         for &(k, a) in pts {
-            let x = k.saturating_sub(k0);
+            let x = k.sat_sub(k0);
             // In range: checked in the loop above, and p ≤ 2^36.
             let r = a.wrapping_sub(a0).wrapping_sub(p.wrapping_mul(x) >> Q);
             lo = lo.min(r);
             hi = hi.max(r);
         }
-        let spread = hi.saturating_sub(lo);
+        let spread = hi.wrapping_sub(lo);
         if s.period_b == 0 {
             s.env = arrival;
             s.env_scans = 0;
         }
         s.period_b = p;
-        self.period_b = p;
         // About two standard deviations of the slope: the residuals' spread (some
         // four deviations of the minima) over the span, times sqrt(12 / n) ≈ 1.
-        s.period_b_err = q(spread.saturating_add(1))
-            .checked_div(x_max.max(1).saturating_mul(2))
-            .unwrap_or(i64::MAX);
+        s.period_b_err = q(spread.wrapping_add(1)).div_or(x_max.max(1).wrapping_mul(2), i64::MAX);
     }
+}
 
-    /// Latency from the `TM` anchor and the scan phase, intersected over scans.
-    #[inline(never)]
-    fn calibrate(&mut self, s: &Stream) {
-        let Some(tm) = self.tm else { return };
-        if s.period_s <= 0
-            || s.period_b <= 0
-            || s.scans < WARMUP_SCANS
-            || s.env_scans < 2 * WARMUP_SCANS
-        {
-            return;
-        }
-        // The narrowest start of the stream (where the scans crossed a millisecond
-        // tick of the sensor's clock), and the envelope carried back to it.
-        let dk = s.k.saturating_sub(s.best_k);
-        // Bridge time of the scan's start interval: the anchor carried by the sensor
-        // µs between them, scaled by bridge/sensor period (the drift). In `i64`: the
-        // anchor at most ANCHOR_MAX_US away, the periods' ratio within 2^-8 of 1 and
-        // taken as a Q30 difference (|ratio − 1| · 2^30 < 2^22), so `ds × ratio` stays
-        // below 2^58; the periods at most MAX_PERIOD_Q (below 2^37).
-        let ds = s.best_phase.lo.saturating_sub(tm.sensor_us);
-        if ds.saturating_abs() > ANCHOR_MAX_US
-            || s.period_s > MAX_PERIOD_Q
-            || s.period_b > MAX_PERIOD_Q
-        {
-            return;
-        }
-        // Both periods are positive and at most 2^36 (the fit's bound for `period_b`):
-        // plain arithmetic within the ranges above.
-        let diff = s.period_b.wrapping_sub(s.period_s);
-        if diff.wrapping_abs() > s.period_s >> 8 {
-            return;
-        }
-        let ratio = diff.wrapping_shl(30).checked_div(s.period_s).unwrap_or(0);
-        let ds_b = ds.wrapping_add(ds.wrapping_mul(ratio) >> 30);
-        let start = Span {
-            lo: tm.bridge.lo.saturating_add(ds_b),
-            hi: tm
-                .bridge
-                .hi
-                .saturating_add(ds_b)
-                .saturating_add(s.best_phase.width()),
-        };
-        let env = s.env.saturating_sub(unq(s.period_b.saturating_mul(dk)));
-        // What the period's error does over the distance to the anchor (a product that
-        // saturates is far wider than any valid span).
-        let extra = ds
-            .saturating_abs()
-            .saturating_mul(s.period_s_err.saturating_add(s.period_b_err))
-            .checked_div(s.period_s)
-            .unwrap_or(i64::MAX)
-            .saturating_add(unq(s.period_b_err.saturating_mul(dk)));
-        let here = Span {
-            lo: env.saturating_sub(start.hi).saturating_sub(extra),
-            hi: env.saturating_sub(start.lo).saturating_add(extra),
-        };
-        // Only scans whose start is known well enough calibrate; the value follows
-        // them smoothed (the envelope wanders by tens of µs with the jitter).
-        if here.width() > VALID_SPAN_US {
-            return;
-        }
-        let mid = here.mid();
-        self.latency = Some(match self.latency {
-            // Scans about as well placed as the best so far refine it; worse ones
-            // (farther from the anchor, in a wider interval) leave it.
-            Some((l, w)) if here.width() <= w.saturating_add(SPAN_SLACK_US) => (
-                l.saturating_add(mid.saturating_sub(l) / 8),
-                w.min(here.width()),
-            ),
-            Some(kept) if here.width() > kept.1 => kept,
-            _ => (mid, here.width()),
-        });
+/// Latency from the `TM` anchor and the scan phase, intersected over scans.
+#[inline(never)]
+fn calibrate(tm: Option<Tm>, latency: &mut Option<(i64, i64)>, s: &Stream) {
+    let Some(tm) = tm else { return };
+    if s.period_s <= 0
+        || s.period_b <= 0
+        || s.scans < WARMUP_SCANS
+        || s.env_scans < 2 * WARMUP_SCANS
+    {
+        return;
     }
+    // The narrowest start of the stream (where the scans crossed a millisecond
+    // tick of the sensor's clock), and the envelope carried back to it.
+    let dk = s.k.sat_sub(s.best.k);
+    // Bridge time of the scan's start interval: the anchor carried by the sensor
+    // µs between them, scaled by bridge/sensor period (the drift). In `i64`: the
+    // anchor at most ANCHOR_MAX_US away, the periods' ratio within 2^-8 of 1 and
+    // taken as a Q30 difference (|ratio − 1| · 2^30 < 2^22), so `ds × ratio` stays
+    // below 2^58; the periods at most MAX_PERIOD_Q (below 2^37).
+    let ds = s.best.phase.lo.sat_sub(tm.sensor_us);
+    if ds.saturating_abs() > ANCHOR_MAX_US || s.period_s > MAX_PERIOD_Q || s.period_b > MAX_PERIOD_Q
+    {
+        return;
+    }
+    // Both periods are positive and at most 2^36 (the fit's bound for `period_b`):
+    // plain arithmetic within the ranges above.
+    let diff = s.period_b.wrapping_sub(s.period_s);
+    if diff.wrapping_abs() > s.period_s >> 8 {
+        return;
+    }
+    let ratio = diff.wrapping_shl(30).div_or(s.period_s, 0);
+    let ds_b = ds.wrapping_add(ds.wrapping_mul(ratio) >> 30);
+    let start = Span {
+        lo: tm.bridge.lo.sat_add(ds_b),
+        hi: tm.bridge.hi.sat_add(ds_b).sat_add(s.best.phase.width()),
+    };
+    let env = s.env.sat_sub(mul_unq(s.period_b, dk));
+    // What the period's error does over the distance to the anchor (a product that
+    // saturates is far wider than any valid span).
+    let extra = ds
+        .saturating_abs()
+        .sat_mul(s.period_s_err.sat_add(s.period_b_err))
+        .div_or(s.period_s, i64::MAX)
+        .sat_add(mul_unq(s.period_b_err, dk));
+    let here = Span {
+        lo: env.sat_sub(start.hi).sat_sub(extra),
+        hi: env.sat_sub(start.lo).sat_add(extra),
+    };
+    // Only scans whose start is known well enough calibrate; the value follows
+    // them smoothed (the envelope wanders by tens of µs with the jitter).
+    if here.width() > VALID_SPAN_US {
+        return;
+    }
+    let mid = here.mid();
+    *latency = Some(match *latency {
+        // Scans about as well placed as the best so far refine it; worse ones
+        // (farther from the anchor, in a wider interval) leave it.
+        Some((l, w)) if here.width() <= w.sat_add(SPAN_SLACK_US) => {
+            (l.sat_add(mid.sat_sub(l) / 8), w.min(here.width()))
+        }
+        Some(kept) if here.width() > kept.1 => kept,
+        _ => (mid, here.width()),
+    });
 }
 
 #[cfg(test)]
