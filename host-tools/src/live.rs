@@ -127,7 +127,7 @@ impl Viewer {
 
 /// Runs the bridge until Ctrl-C or `--seconds`.
 pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
-    let config = crate::replay::args::bridge_config(
+    let mut config = crate::replay::args::bridge_config(
         &args.bus,
         &args.pipeline,
         args.baud,
@@ -135,6 +135,13 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         args.sensor_data,
     )?;
     let spec = SensorSpec::parse(&args.sensor, args.baud)?;
+    // A TCP sensor, and the in-process simulator (whose answers and scans leave it
+    // whole, as an Ethernet sensor's do), bring a response at once: no byte time to
+    // date its bytes back by, no UART time for frames to drain in (`bridge::link`).
+    let burst = !matches!(spec, SensorSpec::Serial { .. });
+    if burst {
+        config.link = bridge::link::LinkKind::Tcp;
+    }
     let mut link = link::open(&spec, Duration::from_secs(2))
         .with_context(|| format!("opening the sensor {}", args.sensor))?;
     let mut can = port::open(
@@ -184,11 +191,23 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
     let now_us = || start.elapsed().as_micros() as u64;
     bridge.set_time_estimation(args.time_estimate);
     bridge.start(now_ms());
-    // µs per byte at the sensor link's rate (10 bits a byte).
-    let byte_us = 10_000_000 / u64::from(args.baud.max(1));
+    if burst {
+        // Connected (or built) by `link::open` above.
+        bridge.link_up(now_ms());
+    }
+    // µs per byte at the sensor link's rate (10 bits a byte); none on a burst link.
+    let byte_us = if burst {
+        0
+    } else {
+        10_000_000 / u64::from(args.baud.max(1))
+    };
     let mut buf = vec![0u8; 4096];
     let mut next_report = Duration::from_secs(1);
     let mut last = Summary::default();
+    // TimeSync notices in a row.
+    let mut tm_readings = 0u32;
+    // The governor's plan last printed: factor, every n-th scan, points.
+    let mut shown_plan = None;
     while !stop.load(Ordering::SeqCst) && deadline.is_none_or(|d| Instant::now() < d) {
         let n = link
             .recv(&mut buf, Duration::from_millis(2))
@@ -217,19 +236,32 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         }
         if let Some(notice) = bridge.take_notice() {
             state = format!("{notice:?}");
-            if !args.quiet {
+            // A TM calibration reads the sensor's clock many times: its first reading is
+            // printed, the number of the others with the next notice.
+            let reading = matches!(notice, bridge::session::Notice::TimeSync { .. });
+            let repeat = reading && tm_readings > 0;
+            if !args.quiet && !reading && tm_readings > 1 {
+                eprintln!("           ({tm_readings} TM readings of the sensor clock)");
+            }
+            tm_readings = if reading { tm_readings + 1 } else { 0 };
+            if !args.quiet && !repeat {
                 eprintln!("[{:8.3} s] {notice:?}", start.elapsed().as_secs_f64());
-                if notice == bridge::session::Notice::Streaming {
-                    if let Some(plan) = bridge.plan() {
-                        eprintln!(
-                            "           governor: {} points per scan (1 in {} steps kept), 1 scan in {} sent, worst-case bus load {:.1} %",
-                            plan.points,
-                            plan.factor,
-                            plan.every_nth,
-                            plan.load_ppm as f64 / 10_000.0
-                        );
-                    }
-                }
+            }
+        }
+        // The governor's plan when the stream starts, and again whenever it changes
+        // (with the lossless coding it plans from the bits per point it has seen).
+        if let Some(plan) = bridge.plan().filter(|_| !args.quiet) {
+            let now = (plan.factor, plan.every_nth, plan.points);
+            if shown_plan != Some(now) {
+                shown_plan = Some(now);
+                eprintln!(
+                    "[{:8.3} s] governor: {} points per scan (1 in {} steps kept), 1 scan in {} sent, worst-case bus load {:.1} %",
+                    start.elapsed().as_secs_f64(),
+                    plan.points,
+                    plan.factor,
+                    plan.every_nth,
+                    plan.load_ppm as f64 / 10_000.0
+                );
             }
         }
         while let Some(frame) = bridge.pop_frame() {
