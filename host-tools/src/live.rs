@@ -141,6 +141,10 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
     let burst = !matches!(spec, SensorSpec::Serial { .. });
     if burst {
         config.link = bridge::link::LinkKind::Tcp;
+        // Bytes within a piece are a network's byte time apart (as the Ethernet boards
+        // configure it), not a UART's.
+        config.uart_bit_rate = 100_000_000;
+        config.session.bit_rate = None;
     }
     let mut link = link::open(&spec, Duration::from_secs(2))
         .with_context(|| format!("opening the sensor {}", args.sensor))?;
