@@ -26,8 +26,8 @@ const OUT_CAP: usize = 512;
 
 /// What arrived on the port.
 pub enum Input {
-    /// A frame the host put on the bus.
-    Frame(Frame),
+    /// A frame the host put on the bus, and when its line began (µs of the SysTick clock).
+    Frame(Frame, u64),
     /// The `?` diagnostics request.
     Diagnostics,
 }
@@ -41,6 +41,8 @@ pub struct CanPort {
     pub closed_drops: u32,
     /// Bytes lost on UART1's receive side.
     pub rx_overruns: u32,
+    /// When the first byte of the line being read arrived, µs.
+    line_start_us: Option<u64>,
 }
 
 impl CanPort {
@@ -52,6 +54,7 @@ impl CanPort {
             out: Deque::new(),
             closed_drops: 0,
             rx_overruns: 0,
+            line_start_us: None,
         }
     }
 
@@ -90,8 +93,13 @@ impl CanPort {
                     continue;
                 }
             };
+            // A frame was on the bus when the host wrote its line: the line's first byte
+            // is the nearest this port sees of it. The characters after it are the serial
+            // link's time (a longer frame's line takes longer), not the bus's.
+            let start = *self.line_start_us.get_or_insert_with(now_us);
             let (_, line) = self.lines.feed(&[byte]);
             let Some(line) = line else { continue };
+            self.line_start_us = None;
             if let Line::Text([b'?', ..]) = line {
                 return Some(Input::Diagnostics);
             }
@@ -105,7 +113,7 @@ impl CanPort {
                 let fd = frame.kind().is_fd();
                 return Frame::new(frame.id(), frame.data(), fd)
                     .ok()
-                    .map(Input::Frame);
+                    .map(|f| Input::Frame(f, start));
             }
         }
         None
@@ -174,14 +182,20 @@ impl CanPort {
     }
 }
 
+/// The SysTick clock in µs.
+fn now_us() -> u64 {
+    crate::hw::ticks() / u64::from(crate::hw::TICKS_PER_MS / 1000)
+}
+
 /// The identifier's kind in the bridge's window, for the board's bookkeeping.
 pub fn kind(ids: &can_wire::NodeIds, id: Id) -> Option<can_wire::Kind> {
     ids.window().classify(id).map(|(_, k)| k)
 }
 
 /// The CAN side of one pass of a board's loop: a frame from the SLCAN host goes to the
-/// bridge, stamped in µs of the SysTick clock (so a time master's SYNC, SPEC 9, is taken
-/// at that resolution); then the bridge's frames go out as far as the port has room,
+/// bridge, stamped in µs of the SysTick clock when its line began (so a time master's
+/// SYNC, SPEC 9, is taken at that resolution, and a FOLLOW-UP's longer line does not
+/// make it later than its SYNC); then the bridge's frames go out as far as the port has room,
 /// each metered. True when the host asked for the diagnostics line (`?`), which the
 /// board writes.
 pub fn serve<const Q: usize>(
@@ -192,9 +206,8 @@ pub fn serve<const Q: usize>(
     now_ms: u32,
 ) -> bool {
     let diagnostics = match port.receive(can) {
-        Some(Input::Frame(frame)) => {
-            let now_us = crate::hw::ticks() / u64::from(crate::hw::TICKS_PER_MS / 1000);
-            bridge.on_can_frame_at(&frame, now_us);
+        Some(Input::Frame(frame, line_start_us)) => {
+            bridge.on_can_frame_at(&frame, line_start_us);
             false
         }
         Some(Input::Diagnostics) => true,
