@@ -73,6 +73,58 @@ pub struct BridgeConfig {
     pub link: LinkKind,
 }
 
+impl BridgeConfig {
+    /// The configuration of the bridge with identifiers `ids` sending `format` frames,
+    /// with the defaults of the project's boards:
+    /// - the default session ([`SessionConfig::default`]: a full-range distance stream,
+    ///   the UART at 115 200 bit/s, no `SS`) and pipeline (every stage off);
+    /// - the lossless coding with 16-bit intensities (SPEC 4.2);
+    /// - the whole of a 1 Mbit/s bus: classic CAN, or for a CAN FD `format` a 5 Mbit/s
+    ///   data phase and a controller that can send FD frames; extended identifiers when
+    ///   `ids` is in an extended window;
+    /// - a UART link at 115 200 bit/s, status pages every second.
+    ///
+    /// Change the rest with struct update syntax:
+    /// ```
+    /// # use bridge::engine::{Bridge, BridgeConfig};
+    /// # use can_wire::{Encoding, FrameFormat, IdWindow};
+    /// let config = BridgeConfig {
+    ///     encoding: Encoding::PLAIN_MM,
+    ///     status_period_ms: 0,
+    ///     ..BridgeConfig::new(IdWindow::DEFAULT.node(0).unwrap(), FrameFormat::FD64)
+    /// };
+    /// assert!(Bridge::<64>::new(config).is_ok());
+    /// ```
+    pub fn new(ids: NodeIds, format: can_wire::FrameFormat) -> BridgeConfig {
+        let session = SessionConfig::default();
+        let fd = format.is_fd();
+        BridgeConfig {
+            session,
+            pipeline: PipelineConfig::default(),
+            encoding: Encoding {
+                distance: can_wire::DistanceEncoding::Lossless,
+                intensity: can_wire::IntensityEncoding::I16,
+                unit_exp: 0,
+            },
+            budget: Budget {
+                rates: if fd {
+                    can_wire::bandwidth::BitRates::FD_1M_5M
+                } else {
+                    can_wire::bandwidth::BitRates::CLASSIC_1M
+                },
+                format,
+                extended: ids.window().is_extended(),
+                share_permille: 1000,
+            },
+            ids,
+            uart_bit_rate: session.initial_bit_rate,
+            status_period_ms: 1000,
+            fd_capable: fd,
+            link: LinkKind::Uart,
+        }
+    }
+}
+
 /// Why a bridge configuration is refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
