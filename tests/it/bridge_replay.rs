@@ -6,10 +6,7 @@
 //! (tests/golden/spec_frames_d16.txt).
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::{PipelineConfig, StepWindow};
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
+use bridge::pipeline::StepWindow;
 use can_wire::reassembly::{Completeness, Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{
     Distance, DistanceEncoding, Encoding, Frame, FrameFormat, IdWindow, IntensityEncoding,
@@ -21,24 +18,10 @@ const Q: usize = 512;
 
 pub(crate) fn config(format: FrameFormat, encoding: Encoding) -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding,
-        budget: Budget {
-            rates: if format.is_fd() {
-                BitRates::FD_1M_5M
-            } else {
-                BitRates::CLASSIC_1M
-            },
-            format,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).expect("node 0"),
-        uart_bit_rate: 115_200,
         status_period_ms: 0,
         fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(0).expect("node 0"), format)
     }
 }
 

@@ -9,10 +9,6 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use bridge::engine::BridgeConfig;
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::reassembly::Completeness;
 use can_wire::{
     Distance, DistanceEncoding, Encoding, FrameFormat, IdWindow, IntensityEncoding, Point,
@@ -26,28 +22,13 @@ use serde_json::Value;
 
 fn config(format: FrameFormat, distance: DistanceEncoding) -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: Encoding {
             distance,
             intensity: IntensityEncoding::I16,
             unit_exp: 0,
         },
-        budget: Budget {
-            rates: if format.is_fd() {
-                BitRates::FD_1M_5M
-            } else {
-                BitRates::CLASSIC_1M
-            },
-            format,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).expect("node 0"),
-        uart_bit_rate: 115_200,
-        status_period_ms: 1000,
         fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(0).expect("node 0"), format)
     }
 }
 

@@ -10,10 +10,6 @@ use std::sync::{mpsc, OnceLock};
 use std::time::Duration;
 
 use bridge::engine::BridgeConfig;
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::{DistanceEncoding, Encoding, FrameFormat, IdWindow, IntensityEncoding};
 use scip2can_host::replay::{replay_reader, replay_stream, TimedFrame, LINE_CAP};
 use scip2can_tests::recordings_or_skip;
@@ -326,24 +322,15 @@ fn replay_runs_in_constant_memory() {
 
 fn config() -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: Encoding {
             distance: DistanceEncoding::D16,
             intensity: IntensityEncoding::I16,
             unit_exp: 0,
         },
-        budget: Budget {
-            rates: BitRates::CLASSIC_1M,
-            format: FrameFormat::Classic,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).expect("node 0"),
-        uart_bit_rate: 115_200,
-        status_period_ms: 1000,
-        fd_capable: false,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(
+            IdWindow::DEFAULT.node(0).expect("node 0"),
+            FrameFormat::Classic,
+        )
     }
 }
 

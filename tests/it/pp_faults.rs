@@ -7,10 +7,6 @@
 //! the scan's start step is the literal number of its echo: never the parser under test.
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{DistanceEncoding, Encoding, Frame, FrameFormat, IdWindow, IntensityEncoding};
 use scip2can_tests::recordings_or_skip;
@@ -47,24 +43,16 @@ const CASES: [Case; 2] = [
 
 fn config() -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: Encoding {
             distance: DistanceEncoding::D16,
             intensity: IntensityEncoding::I16,
             unit_exp: 0,
         },
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::Fd { max_len: 64 },
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).expect("node 0"),
-        uart_bit_rate: 115_200,
         status_period_ms: 0,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(
+            IdWindow::DEFAULT.node(0).expect("node 0"),
+            FrameFormat::Fd { max_len: 64 },
+        )
     }
 }
 

@@ -3,10 +3,6 @@
 //! `plot` refuses them.
 
 use bridge::engine::BridgeConfig;
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::{Encoding, FrameFormat, IdWindow};
 use clap::Parser;
 use scip2can_host::decode::{decode_log, json, DecodedScan, Item};
@@ -16,20 +12,9 @@ use scip2can_tests::recordings_or_skip;
 
 fn config() -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).unwrap(),
-        uart_bit_rate: 115_200,
         status_period_ms: 0,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(0).unwrap(), FrameFormat::FD64)
     }
 }
 

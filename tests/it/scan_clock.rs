@@ -6,10 +6,7 @@
 use std::collections::VecDeque;
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::{Action, SessionConfig};
-use can_wire::bandwidth::BitRates;
+use bridge::session::Action;
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{Encoding, FrameFormat, IdWindow, ScanHeader};
 use scip2can_host::sim::SimOptions;
@@ -47,20 +44,10 @@ fn run(spec: &str, secs: u64) -> Run {
 fn run_with(spec: &str, secs: u64, master: Option<Master>) -> Run {
     let sim = SimOptions::from_spec(spec).unwrap();
     let config = BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).unwrap(),
         uart_bit_rate: 5_000_000,
         status_period_ms: 0,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(0).unwrap(), FrameFormat::FD64)
     };
     let mut sensor = sim.build().unwrap();
     sensor.record_truth(true);

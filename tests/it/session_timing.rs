@@ -4,10 +4,7 @@
 //! The times are the simulator's own (its fault log) and the bridge's CAN output.
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::{Action, Notice, SessionConfig};
-use can_wire::bandwidth::BitRates;
+use bridge::session::{Action, Notice};
 use can_wire::{FrameFormat, IdWindow, Kind};
 use scip2can_host::sim::faults::FaultKind;
 use scip2can_host::sim::options::SimOptions;
@@ -16,20 +13,10 @@ const Q: usize = 512;
 
 fn config(uart_bit_rate: u32) -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: can_wire::Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).unwrap(),
         uart_bit_rate,
         status_period_ms: 0,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(0).unwrap(), FrameFormat::FD64)
     }
 }
 

@@ -425,28 +425,18 @@ fn ust_speaks_scip22() {
 
 /// The bridge config of the runs below: CAN FD 64, 16-bit distances, no intensity.
 fn bridge_config() -> bridge::engine::BridgeConfig {
-    use bridge::governor::Budget;
-    use can_wire::bandwidth::BitRates;
     use can_wire::{DistanceEncoding, Encoding, FrameFormat, IdWindow, IntensityEncoding};
     bridge::engine::BridgeConfig {
-        session: bridge::session::SessionConfig::default(),
-        pipeline: bridge::pipeline::PipelineConfig::default(),
         encoding: Encoding {
             distance: DistanceEncoding::D16,
             intensity: IntensityEncoding::None,
             unit_exp: 0,
         },
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).expect("node 0"),
-        uart_bit_rate: 115_200,
         status_period_ms: 0,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..bridge::engine::BridgeConfig::new(
+            IdWindow::DEFAULT.node(0).expect("node 0"),
+            FrameFormat::FD64,
+        )
     }
 }
 

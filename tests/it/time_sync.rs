@@ -3,10 +3,7 @@
 //! bridge's clock with `time_synced` set (SPEC 3.2).
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::{Action, SessionConfig};
-use can_wire::bandwidth::BitRates;
+use bridge::session::Action;
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{Encoding, FrameFormat, IdWindow, ScanHeader};
 use scip2can_host::sim::SimOptions;
@@ -30,20 +27,10 @@ fn run(ms: u64, sync_at: Option<u64>) -> Vec<Seen> {
 
 fn run_sim(sim: &SimOptions, ms: u64, sync_at: Option<u64>) -> Vec<Seen> {
     let config = BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).unwrap(),
         uart_bit_rate: 1_000_000,
         status_period_ms: 0,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(0).unwrap(), FrameFormat::FD64)
     };
     let mut sensor = sim.build().unwrap();
     let mut bridge: Box<Bridge<Q>> = Box::new(Bridge::new(config).unwrap());

@@ -19,10 +19,7 @@ use std::hint::black_box;
 use std::path::PathBuf;
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
 use bridge::pipeline::{MedianWidth, PipelineConfig, RangeWindow, SpeckleFilter};
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::{DistanceEncoding, Encoding, FrameFormat, IdWindow, IntensityEncoding};
 use scip::{Command, Decoder, Event, Request, ResponseWriter};
 
@@ -103,24 +100,17 @@ fn config(typical: bool, distance: DistanceEncoding) -> BridgeConfig {
         pipeline.median = Some(MedianWidth::Three);
     }
     BridgeConfig {
-        session: SessionConfig::default(),
         pipeline,
         encoding: Encoding {
             distance,
             intensity: IntensityEncoding::I16,
             unit_exp: 0,
         },
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).expect("node 0 exists"),
         uart_bit_rate: 12_000_000,
-        status_period_ms: 1000,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(
+            IdWindow::DEFAULT.node(0).expect("node 0 exists"),
+            FrameFormat::FD64,
+        )
     }
 }
 

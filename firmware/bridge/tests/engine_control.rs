@@ -2,10 +2,6 @@
 //! over scan frames, decimation changes showing in the next scan.
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::control::{Command as Ctl, DecimationMode};
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{Answer, BridgeState, Control, Frame, FrameFormat, IdWindow, Kind, Outcome, Status};
@@ -15,20 +11,8 @@ const Q: usize = 256;
 
 fn config() -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: can_wire::Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(3).unwrap(),
-        uart_bit_rate: 115_200,
-        status_period_ms: 1000,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(3).unwrap(), FrameFormat::FD64)
     }
 }
 

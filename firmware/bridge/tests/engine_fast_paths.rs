@@ -4,11 +4,9 @@
 //! encoding's out-of-range code, lines split anywhere, classic and CAN FD frames.
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
 use bridge::pipeline::{
     Decimation, DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo,
 };
-use bridge::session::SessionConfig;
 use can_wire::bandwidth::BitRates;
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{Distance, Encoding, FrameFormat, IdWindow};
@@ -22,22 +20,16 @@ const Q: usize = 512;
 const STEPS: u16 = 1081;
 
 fn config(pipeline: PipelineConfig, format: FrameFormat) -> BridgeConfig {
-    BridgeConfig {
-        session: SessionConfig::default(),
+    let mut config = BridgeConfig {
         pipeline,
         encoding: Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(5).unwrap(),
-        uart_bit_rate: 115_200,
         status_period_ms: 0,
         fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
-    }
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(5).unwrap(), format)
+    };
+    // The CAN FD bit rates whatever the format.
+    config.budget.rates = BitRates::FD_1M_5M;
+    config
 }
 
 /// Distances of scan `k`: ranges, error codes below DMIN (20), and ranges past 65534

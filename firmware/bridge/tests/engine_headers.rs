@@ -4,10 +4,7 @@
 //! the trailer's `filtered` flag (3.4).
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
 use bridge::pipeline::{MedianWidth, PipelineConfig, RangeWindow};
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{
     Distance, DistanceEncoding, Encoding, FrameFormat, IdWindow, IntensityEncoding, ScanHeader,
@@ -18,20 +15,9 @@ const Q: usize = 256;
 
 fn config() -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(0).unwrap(),
-        uart_bit_rate: 115_200,
         status_period_ms: 0,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(0).unwrap(), FrameFormat::FD64)
     }
 }
 

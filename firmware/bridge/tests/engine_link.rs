@@ -8,11 +8,8 @@
 //! the can-wire reassembly, against what the script sent.
 
 use bridge::engine::{Bridge, BridgeConfig, BridgeError};
-use bridge::governor::Budget;
 use bridge::link::LinkKind;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::{Action, SessionConfig, State};
-use can_wire::bandwidth::BitRates;
+use bridge::session::{Action, State};
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{Abort, AbortReason, Frame, FrameFormat, IdWindow, Kind};
 use scip::{Command, Request, ResponseWriter};
@@ -21,20 +18,10 @@ const Q: usize = 256;
 
 fn config(link: LinkKind) -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: can_wire::Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(3).unwrap(),
-        uart_bit_rate: 115_200,
         status_period_ms: 0,
-        fd_capable: true,
         link,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(3).unwrap(), FrameFormat::FD64)
     }
 }
 

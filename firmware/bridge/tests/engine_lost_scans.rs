@@ -3,10 +3,6 @@
 //! them as lost scans, and status page 1's `dropped_scans` counts them.
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
 use can_wire::{Frame, FrameFormat, IdWindow, Kind, Status};
 use scip::{Command, Request, ResponseWriter, ScanMode, ScanRequest};
@@ -15,20 +11,8 @@ const Q: usize = 256;
 
 fn config() -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: can_wire::Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(3).unwrap(),
-        uart_bit_rate: 115_200,
-        status_period_ms: 1000,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(IdWindow::DEFAULT.node(3).unwrap(), FrameFormat::FD64)
     }
 }
 

@@ -3,10 +3,6 @@
 //! master's; status page 7 (SPEC 5) reports it after each FOLLOW-UP.
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::{Frame, FrameFormat, IdWindow, Kind, Status};
 use embedded_can::{ExtendedId, Id, StandardId};
 
@@ -14,20 +10,9 @@ const Q: usize = 64;
 
 fn config(window: IdWindow) -> BridgeConfig {
     BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: can_wire::Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::CLASSIC_1M,
-            format: FrameFormat::Classic,
-            extended: window.is_extended(),
-            share_permille: 1000,
-        },
-        ids: window.node(5).unwrap(),
-        uart_bit_rate: 115_200,
         status_period_ms: 0,
-        fd_capable: false,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(window.node(5).unwrap(), FrameFormat::Classic)
     }
 }
 

@@ -1,0 +1,328 @@
+//! Unit tests of the scan encoder.
+
+use super::*;
+use crate::encoding::{DistanceEncoding, Encoding, IntensityEncoding};
+use crate::header::Grouping;
+use crate::id::IdWindow;
+use embedded_can::{Id, StandardId};
+
+fn header(count: u16, encoding: Encoding) -> ScanHeader {
+    ScanHeader {
+        seq: 0x0107,
+        timestamp_ms: 1000,
+        point_count: count,
+        encoding,
+        time_synced: false,
+        time_estimated: false,
+        time_master: false,
+        grouping: Grouping::Single,
+        step_increment: 1,
+        first_step: -2,
+        ares: 1024,
+    }
+}
+
+fn sid(raw: u16) -> Id {
+    Id::Standard(StandardId::new(raw).unwrap())
+}
+
+const D12: Encoding = Encoding {
+    distance: DistanceEncoding::D12,
+    intensity: IntensityEncoding::None,
+    unit_exp: 0,
+};
+
+#[test]
+fn in_place_frames_equal_returned_frames_and_a_dropped_one_still_counts() {
+    let ids = IdWindow::DEFAULT.node(2).unwrap();
+    let mut a = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+    let mut b = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+    a.begin(&header(5, D12)).unwrap();
+    b.begin(&header(5, D12)).unwrap();
+    let pts = [
+        Distance::Mm(0xABC),
+        Distance::Invalid,
+        Distance::OutOfRange,
+        Distance::Mm(0x123),
+        Distance::Mm(5000),
+    ];
+    let mut returned = Vec::new();
+    // A stale slot: the frame written into it must not keep old bytes.
+    let mut slot = Frame::new(sid(0x7FF), &[0xEE; 8], false).unwrap();
+    let mut due = Vec::new();
+    for p in pts {
+        returned.extend(a.push_point(p, 0).unwrap());
+        due.push(b.push_point_into(p, 0, || Some(&mut slot)).unwrap());
+    }
+    assert_eq!(due, [false, false, false, true, true]);
+    assert_eq!(slot, returned[1]);
+    assert_eq!(slot.data(), &[0x04, 0x70, 0xFF, 0x0F]);
+    // Dropped frames (no slot) advance the scan the same: same trailer.
+    let mut c = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+    c.begin(&header(5, D12)).unwrap();
+    for p in pts {
+        c.push_point_into(p, 0, || None).unwrap();
+    }
+    let tb = b.finish(TrailerFlags::default()).unwrap();
+    assert_eq!(c.finish(TrailerFlags::default()).unwrap()[0], tb[0]);
+    assert_eq!(a.finish(TrailerFlags::default()).unwrap()[0], tb[0]);
+    assert_eq!(
+        b.push_point_into(Distance::Invalid, 0, || None),
+        Err(Error::NoScan)
+    );
+}
+
+/// A sink over a vector that has room for `room` frames.
+struct VecSink {
+    frames: Vec<Frame>,
+    room: usize,
+}
+
+impl FrameSink for VecSink {
+    fn data_slot(&mut self) -> Option<&mut Frame> {
+        if self.frames.len() >= self.room {
+            return None;
+        }
+        // A stale slot, as a queue's reused one: nothing of it may remain.
+        self.frames
+            .push(Frame::new(sid(0x7FF), &[0xEE; 64], true).unwrap());
+        self.frames.last_mut()
+    }
+}
+
+proptest::proptest! {
+    /// A run gives the frames, trailer and stops of point-by-point pushing, in every
+    /// encoding and frame format, with runs cut anywhere and (`mix`) runs and single
+    /// points taking turns within a frame.
+    #[test]
+    fn push_run_equals_push_point(
+        d in 0usize..3,
+        i in 0usize..4,
+        unit_exp in 0u8..3,
+        format in proptest::sample::select(vec![
+            FrameFormat::Classic,
+            FrameFormat::Fd { max_len: 12 },
+            FrameFormat::Fd { max_len: 24 },
+            FrameFormat::FD64,
+        ]),
+        count in 1u16..120,
+        extra in 0usize..3,
+        seed in proptest::collection::vec((0u32..70_000, proptest::prelude::any::<u16>()), 130),
+        cuts in proptest::collection::vec(1usize..40, 1..8),
+        room in 0usize..60,
+        mix in proptest::prelude::any::<bool>(),
+        rule_min in 0u32..40,
+        rule_except in 0usize..4,
+        band in proptest::prelude::any::<bool>(),
+        window in proptest::option::of((0u32..3000, 0u32..70_000)),
+    ) {
+        let enc = Encoding {
+            distance: DistanceEncoding::ALL[d],
+            intensity: IntensityEncoding::ALL[i],
+            unit_exp,
+        };
+        let ids = IdWindow::DEFAULT.node(3).unwrap();
+        let rule = RangeRule {
+            min: rule_min,
+            except: [
+                [u32::MAX; 2],
+                [4095, u32::MAX],
+                [u32::MAX, 65533],
+                [65533, 4095],
+            ][rule_except],
+            band: band.then_some(65533),
+            window: window.map_or([0, u32::MAX], |(lo, hi)| [lo, hi]),
+        };
+        // Raw distances: some below the minimum, some exactly an exception.
+        let points: Vec<(u32, u16)> = seed
+            .iter()
+            .take(usize::from(count) + extra)
+            .map(|&(mm, int)| match mm % 50 {
+                0 => (4095, int),
+                1 => (65533, int),
+                2 => (65534, int),
+                3 => (65535, int),
+                _ => (mm, int),
+            })
+            .collect();
+        let raw = |&(r, i): &(u32, u16)| (r, i);
+        // Point by point, with the same room for frames: once it is used up, every
+        // due frame is lost and pushing goes on.
+        let mut one = ScanEncoder::new(ids, format).unwrap();
+        one.begin(&header(count, enc)).unwrap();
+        let mut expected = Vec::new();
+        let (mut stop, mut lost) = (None, 0);
+        for &(r, i) in &points {
+            match one.push_point(rule.distance(r), i) {
+                Ok(Some(f)) if expected.len() < room => expected.push(f),
+                Ok(Some(_)) => lost += 1,
+                Ok(None) => {}
+                Err(e) => {
+                    proptest::prop_assert_eq!(e, Error::TooManyPoints);
+                    stop = Some(RunStop::TooManyPoints);
+                    break;
+                }
+            }
+        }
+        // In runs (after a lost frame, the next run starts at the first point not
+        // taken), and with `mix` point by point now and then.
+        let mut two = ScanEncoder::new(ids, format).unwrap();
+        two.begin(&header(count, enc)).unwrap();
+        let mut sink = VecSink { frames: Vec::new(), room };
+        let mut rest = &points[..];
+        let (mut run_stop, mut run_lost, mut frames) = (None, 0, 0);
+        // The window's rejections among the points the runs took, as the rule says.
+        let (mut rejected, mut expected_rejected) = (0, 0);
+        for (n, &cut) in cuts.iter().cycle().enumerate() {
+            if rest.is_empty() || run_stop.is_some() {
+                break;
+            }
+            let (now, later) = rest.split_at(cut.min(rest.len()));
+            if mix && n % 2 == 1 {
+                // Point by point into the same sink: the two ways share a frame.
+                for &(r, i) in now {
+                    let mut got = false;
+                    match two.push_point_into(rule.distance(r), i, || {
+                        let slot = sink.data_slot();
+                        got = slot.is_some();
+                        slot
+                    }) {
+                        Ok(true) if got => frames += 1,
+                        Ok(true) => run_lost += 1,
+                        Ok(false) => {}
+                        Err(_) => {
+                            run_stop = Some(RunStop::TooManyPoints);
+                            break;
+                        }
+                    }
+                }
+                rest = later;
+            } else {
+                let run = two.push_run(now, rule, raw, &mut sink).unwrap();
+                frames += run.frames;
+                rejected += run.rejected;
+                let taken = &now[..run.points as usize];
+                expected_rejected += taken.iter().filter(|p| rule.rejects(p.0)).count();
+                match run.stop {
+                    Some(RunStop::NoSlot) => {
+                        run_lost += 1;
+                        rest = &rest[run.points as usize..];
+                    }
+                    other => {
+                        run_stop = other;
+                        rest = later;
+                    }
+                }
+            }
+        }
+        proptest::prop_assert_eq!(run_stop, stop);
+        proptest::prop_assert_eq!(run_lost, lost);
+        proptest::prop_assert_eq!(rejected as usize, expected_rejected);
+        proptest::prop_assert_eq!(frames as usize, sink.frames.len());
+        proptest::prop_assert_eq!(&sink.frames, &expected);
+        let t1 = one.finish(TrailerFlags::default()).unwrap();
+        let t2 = two.finish(TrailerFlags::default()).unwrap();
+        proptest::prop_assert_eq!(t1, t2);
+    }
+}
+
+#[test]
+fn golden_scan_classic() {
+    let ids = IdWindow::DEFAULT.node(2).unwrap();
+    let mut e = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+    let h = e.begin(&header(5, D12)).unwrap();
+    assert_eq!(h[0].id(), sid(0x132));
+    assert_eq!(h[0].data(), &[0x07, 0x01, 0xE8, 0x03, 0, 0, 0x05, 0x00]);
+    assert_eq!(h[1].id(), sid(0x142));
+    assert_eq!(
+        h[1].data(),
+        &[0x07, 0x03, 0x00, 0x01, 0xFE, 0xFF, 0x00, 0x04]
+    );
+    let pts = [
+        Distance::Mm(0xABC),
+        Distance::Invalid,
+        Distance::OutOfRange,
+        Distance::Mm(0x123),
+        Distance::Mm(5000), // > 4094 mm in D12/1 mm: out of range
+    ];
+    let mut frames = Vec::new();
+    for p in pts {
+        if let Some(f) = e.push_point(p, 0).unwrap() {
+            frames.push(f);
+        }
+    }
+    assert_eq!(frames.len(), 2);
+    assert_eq!(frames[0].id(), sid(0x152));
+    // seq low 7, index 0; codes ABC 000 FFF 123
+    assert_eq!(
+        frames[0].data(),
+        &[0x00, 0x70, 0xBC, 0x0A, 0x00, 0xFF, 0x3F, 0x12]
+    );
+    // index 4; code FFF in 2 bytes
+    assert_eq!(frames[1].data(), &[0x04, 0x70, 0xFF, 0x0F]);
+    let t = e.finish(TrailerFlags::default()).unwrap();
+    assert_eq!(t.len(), 1);
+    assert_eq!(t[0].id(), sid(0x162));
+    let d = t[0].data();
+    // seq, sent 5, valid 2 (ABC and 123), CRC
+    assert_eq!(&d[..6], &[0x07, 0x01, 0x05, 0x00, 0x02, 0x00]);
+    let mut crc = ScanCrc::new(h[0].data(), h[1].data());
+    for c in [0xABC, 0, 0xFFF, 0x123, 0xFFF] {
+        crc.point(c, None);
+    }
+    assert_eq!(u16::from_le_bytes([d[6], d[7]]), crc.finish(&d[..6]));
+    assert!(!e.in_progress());
+}
+
+#[test]
+fn truncated_and_abort() {
+    let ids = IdWindow::DEFAULT.node(0).unwrap();
+    let mut e = ScanEncoder::new(ids, FrameFormat::FD64).unwrap();
+    e.begin(&header(100, D12)).unwrap();
+    for _ in 0..45 {
+        e.push_point(Distance::Mm(1000), 0).unwrap();
+    }
+    let out = e.finish(TrailerFlags::default()).unwrap();
+    assert_eq!(out.len(), 2);
+    assert!(out[0].is_fd());
+    // 45 - 41 = 4 points → 6 + 2 = 8 bytes
+    assert_eq!(out[0].data().len(), 8);
+    let t = Trailer::parse(out[1].data()).unwrap();
+    assert_eq!(t.points_sent, 45);
+    assert!(t.flags.truncated);
+
+    e.begin(&header(100, D12)).unwrap();
+    for _ in 0..45 {
+        e.push_point(Distance::Mm(1000), 0).unwrap();
+    }
+    let f = e.abort(AbortReason::Timeout, 0).unwrap();
+    let a = Abort::parse(f.data()).unwrap();
+    assert_eq!(a.points_sent, 41); // only the full frame went out
+    assert_eq!(a.reason, AbortReason::Timeout);
+}
+
+#[test]
+fn misuse() {
+    let ids = IdWindow::DEFAULT.node(0).unwrap();
+    assert_eq!(
+        ScanEncoder::new(ids, FrameFormat::Fd { max_len: 13 }).map(|_| ()),
+        Err(Error::FrameTooLong)
+    );
+    let mut e = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+    assert_eq!(e.push_point(Distance::Invalid, 0), Err(Error::NoScan));
+    assert_eq!(e.finish(TrailerFlags::default()), Err(Error::NoScan));
+    assert_eq!(e.abort(AbortReason::Stopped, 0), Err(Error::NoScan));
+    e.begin(&header(1, D12)).unwrap();
+    assert_eq!(e.begin(&header(1, D12)), Err(Error::ScanInProgress));
+    assert_eq!(e.set_format(FrameFormat::FD64), Err(Error::ScanInProgress));
+    assert!(e.push_point(Distance::Invalid, 0).unwrap().is_some());
+    assert_eq!(
+        e.push_point(Distance::Invalid, 0),
+        Err(Error::TooManyPoints)
+    );
+    let mut bad = header(1, D12);
+    bad.step_increment = 0;
+    e.finish(TrailerFlags::default()).unwrap();
+    assert_eq!(e.begin(&bad), Err(Error::OutOfRange { offset: 3 }));
+    assert!(!e.in_progress());
+}
