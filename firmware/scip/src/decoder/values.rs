@@ -194,20 +194,15 @@ impl Decoder {
         let whole = DATA_CHARS.wrapping_sub(OFF).checked_div(W).unwrap_or(0);
         let tail_at = OFF.wrapping_add(whole.wrapping_mul(W));
         let total = whole.wrapping_add(usize::from(OFF > 0));
-        let too_many = ErrorKind::TooManyValues {
-            expected: self.shape.expected,
-        };
-        if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
-            return Err(too_many);
-        }
-        if A == 0 && !self.readings_plain {
-            // As in `decode_steps`.
-            self.readings = [Reading::default(); MAX_READINGS];
-            self.readings_plain = true;
-        } else if A > 0 {
-            self.readings_plain = false;
-        }
+        begin_steps::<A>(
+            &mut self.readings,
+            &mut self.readings_plain,
+            self.values,
+            self.shape.expected,
+            total,
+        )?;
         let plain = A == 0 && self.readings_plain;
+        let too_many = self.too_many();
         let Some(slots) = self.readings.get_mut(..total) else {
             return Err(too_many);
         };
@@ -259,6 +254,14 @@ impl Decoder {
         let tail = chars.get(tail_at..).unwrap_or(&[]);
         self.set_carry(Carry::of::<D, A>(tail));
         Ok(())
+    }
+
+    /// The error of a line that completes more values than the scan has.
+    #[inline(always)]
+    fn too_many(&self) -> ErrorKind {
+        ErrorKind::TooManyValues {
+            expected: self.shape.expected,
+        }
     }
 
     /// Carries the partial step at the end of a line's whole steps into the next line.
@@ -352,22 +355,16 @@ impl Decoder {
         // Lengths and counts within one line (at most LINE_CAP): none of these wraps.
         let (mid, tail) = rest.split_at(whole.wrapping_mul(width));
         let total = whole.wrapping_add(usize::from(head.is_some()));
-        let too_many = ErrorKind::TooManyValues {
-            expected: self.shape.expected,
-        };
-        if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
-            return Err(too_many);
-        }
-        if A == 0 && !self.readings_plain {
-            // Once per change of data set: clear what readings with echoes or second
-            // values left, so that distance-only lines write less.
-            self.readings = [Reading::default(); MAX_READINGS];
-            self.readings_plain = true;
-        } else if A > 0 {
-            self.readings_plain = false;
-        }
+        begin_steps::<A>(
+            &mut self.readings,
+            &mut self.readings_plain,
+            self.values,
+            self.shape.expected,
+            total,
+        )?;
         let first = self.n_readings;
         let end = first.wrapping_add(total);
+        let too_many = self.too_many();
         let slots = self.readings.get_mut(first..end).ok_or(too_many)?;
         let mut index = self.values;
         let mut slots = slots.iter_mut();
@@ -499,6 +496,31 @@ impl Decoder {
         self.n_readings = self.n_readings.wrapping_add(1);
         Ok(self.shape.dist_width)
     }
+}
+
+/// What every whole-step decoder does before it writes a line's `total` steps of
+/// `A`-char second values (after `values` of `expected`): fail when they would make more
+/// values than the scan has, and keep `plain` (the decoder's `readings_plain`) true for
+/// distance-only lines: once per change of data set, the readings that echoes or second
+/// values left are cleared, so that distance-only lines write less.
+#[inline(always)]
+fn begin_steps<const A: usize>(
+    readings: &mut [Reading; MAX_READINGS],
+    plain: &mut bool,
+    values: u16,
+    expected: u16,
+    total: usize,
+) -> Result<(), ErrorKind> {
+    if usize::from(values).wrapping_add(total) > usize::from(expected) {
+        return Err(ErrorKind::TooManyValues { expected });
+    }
+    if A == 0 && !*plain {
+        *readings = [Reading::default(); MAX_READINGS];
+        *plain = true;
+    } else if A > 0 {
+        *plain = false;
+    }
+    Ok(())
 }
 
 /// Writes the whole steps of `mid` (valid value chars, `D`-char distances and `A`-char
