@@ -400,16 +400,13 @@ impl Decoder {
     #[inline]
     pub fn feed(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
         #[cfg(not(target_pointer_width = "32"))]
-        if let Some((used, decoded)) = self.full_data_line(input) {
+        if let Some((used, decoded)) = self.data_fast(input) {
             let ev = match decoded {
-                Ok(()) => Some(self.data_event()),
-                Err(kind) => self.fail(kind),
+                Some(Ok(())) => Some(self.data_event()),
+                Some(Err(kind)) => self.fail(kind),
+                None => None,
             };
             return (used, ev);
-        }
-        #[cfg(not(target_pointer_width = "32"))]
-        if self.take_data_chars(input) {
-            return (input.len(), None);
         }
         let mut consumed: usize = 0;
         let mut rest = input;
