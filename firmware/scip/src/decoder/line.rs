@@ -106,7 +106,7 @@ impl Decoder {
         found
     }
 
-    /// The other fast path of [`Self::feed`] on 64-bit hosts ([`Self::data_fast`]):
+    /// The other fast path of [`Self::feed`] on 64-bit hosts:
     /// `input` continues a data line of `start` bytes so far (no overflow) and ends
     /// before a full data line's LF could come, and all of it is value chars (so none is
     /// an LF). It is copied into the line buffer eight bytes at a time and checked on
@@ -191,54 +191,56 @@ pub(super) fn copy_value_words(input: &[u8], dst: &mut [u8]) -> (usize, u32) {
 /// Copies `src` into `dst` (of the same length) and tells whether every byte is a
 /// value char (`0x30..=0x6F`); false when one is not or the lengths differ (`dst` then
 /// holds part or all of `src`, beyond what the caller counts as taken). Eight bytes at a
-/// time, the last eight overlapping the ones before, with no branch per word: the word
-/// test is [`copy_value_words`]', its flags gathered by OR and tested once at the end.
+/// time (see [`copy_words`]) with no branch per word but the length's: the word test is
+/// [`copy_value_words`]', its flags gathered by OR and tested once at the end.
 #[cfg(not(target_pointer_width = "32"))]
 #[inline(always)]
 pub(super) fn copy_value_chars(src: &[u8], dst: &mut [u8]) -> bool {
     const CHARS: u64 = u64::from_le_bytes([CHAR_MIN; 8]);
     const FLAGS: u64 = u64::from_le_bytes([0xC0; 8]);
-    if src.len() != dst.len() {
+    let mut flags = 0u64;
+    let copied = copy_words(src, dst, |w| {
+        flags |= u64::from_le_bytes(w).wrapping_sub(CHARS);
+    });
+    copied && flags & FLAGS == 0 && {
+        // Fewer than eight bytes: [`copy_words`] copied them one by one.
+        src.len() >= 8 || src.iter().all(|c| c.wrapping_sub(CHAR_MIN) < 0x40)
+    }
+}
+
+/// Copies `src` into `dst` (of the same length, at most [`LINE_CAP`] bytes; false and
+/// nothing copied otherwise) eight bytes at a time, the last eight overlapping the ones
+/// before, and hands every word copied to `each` (the last one too; none when `src` has
+/// fewer than eight bytes, then copied one by one). The loop has a constant bound and
+/// an exit on the length, so it unrolls into a few instructions per word and is not
+/// turned into a call of the library's copy, which costs more for a line's bytes.
+#[cfg(not(target_pointer_width = "32"))]
+#[inline(always)]
+pub(super) fn copy_words(src: &[u8], dst: &mut [u8], mut each: impl FnMut([u8; 8])) -> bool {
+    if src.len() != dst.len() || src.len() > LINE_CAP {
         return false;
     }
     let (Some(last), Some(last_dst)) = (src.last_chunk::<8>(), dst.last_chunk_mut::<8>()) else {
-        // Fewer than eight bytes.
-        let mut flags = 0u8;
-        for (d, &c) in dst.iter_mut().zip(src) {
-            flags |= c.wrapping_sub(CHAR_MIN);
-            *d = c;
-        }
-        return flags < 0x40;
-    };
-    let mut flags = u64::from_le_bytes(*last).wrapping_sub(CHARS);
-    *last_dst = *last;
-    for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
-        let w: [u8; 8] = s.try_into().unwrap_or([0; 8]);
-        flags |= u64::from_le_bytes(w).wrapping_sub(CHARS);
-        d.copy_from_slice(&w);
-    }
-    flags & FLAGS == 0
-}
-
-/// Copies `src` into `dst` (of the same length; nothing when they differ) eight bytes
-/// at a time, the last eight overlapping the ones before: for the few dozen bytes of a
-/// line, fewer instructions than a call of the library's copy.
-#[cfg(not(target_pointer_width = "32"))]
-#[inline(always)]
-pub(super) fn copy_words(src: &[u8], dst: &mut [u8]) {
-    if src.len() != dst.len() {
-        return;
-    }
-    let (Some(last), Some(last_dst)) = (src.last_chunk::<8>(), dst.last_chunk_mut::<8>()) else {
         for (d, &c) in dst.iter_mut().zip(src) {
             *d = c;
         }
-        return;
+        return true;
     };
+    each(*last);
     *last_dst = *last;
-    for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
-        d.copy_from_slice(s);
+    for i in 0..LINE_CAP / 8 {
+        // Below LINE_CAP + 8: no wrap.
+        let at = i.wrapping_mul(8);
+        let (Some(s), Some(d)) = (
+            src.get(at..).and_then(|r| r.first_chunk::<8>()),
+            dst.get_mut(at..).and_then(|r| r.first_chunk_mut::<8>()),
+        ) else {
+            break;
+        };
+        each(*s);
+        *d = *s;
     }
+    true
 }
 
 /// The sum char of `bytes` (as [`checksum`]) and whether every byte is a value char

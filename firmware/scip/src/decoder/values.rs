@@ -47,40 +47,8 @@ impl Decoder {
         })
     }
 
-    /// The fast paths of [`Self::feed`] on 64-bit hosts, in a data line: with the
-    /// state, the overflow flag and the line's length so far tested once, either a full
-    /// data line ends in `input` ([`Self::full_data_line`]) or all of `input` continues
-    /// the line without reaching a full line's LF ([`Self::take_data_chars`]). Returns
-    /// the bytes of `input` taken and, for a full line, the outcome of decoding it;
-    /// `None`, having consumed nothing, for anything else, which the general path then
-    /// handles.
-    #[cfg(not(target_pointer_width = "32"))]
-    #[inline]
-    pub(super) fn data_fast(
-        &mut self,
-        input: &[u8],
-    ) -> Option<(usize, Option<Result<(), ErrorKind>>)> {
-        if self.state != State::Payload(Payload::Data) || self.overflow {
-            return None;
-        }
-        let buffered = self.len;
-        // Bytes of `input` up to a full line's LF, excluded: the line buffer has at most
-        // `FULL_LINE` of the line (more go the general path).
-        let rest = FULL_LINE.checked_sub(buffered)?;
-        match input.get(rest) {
-            Some(&b'\n') => self
-                .full_data_line(input, buffered, rest)
-                .map(|(used, decoded)| (used, Some(decoded))),
-            Some(_) => None,
-            // All of `input` fits before the LF: `buffered + input.len() <= FULL_LINE`.
-            None => self
-                .take_data_chars(input, buffered)
-                .then_some((input.len(), None)),
-        }
-    }
-
-    /// [`Self::data_fast`] for a full data line (64 value chars, its sum char and the LF)
-    /// that ends in `input` (its LF at `input[rest]`, after `buffered` bytes of the line
+    /// The fast path of [`Self::feed`] on 64-bit hosts for a full data line (64 value
+    /// chars, its sum char and the LF) that ends in `input` (its LF at `input[rest]`, after `buffered` bytes of the line
     /// in the line buffer), either all of it in `input` (decoded from there, not copied)
     /// or begun in the line buffer (its rest copied there). Returns the bytes of `input`
     /// the line took and the outcome of decoding it, as [`Self::data_line`] would give
@@ -92,7 +60,7 @@ impl Decoder {
     /// out an earlier LF.
     #[cfg(not(target_pointer_width = "32"))]
     #[inline(always)]
-    fn full_data_line(
+    pub(super) fn full_data_line(
         &mut self,
         input: &[u8],
         buffered: usize,
@@ -109,7 +77,7 @@ impl Decoder {
             input.first_chunk()?
         } else {
             let tail = input.get(..rest)?;
-            copy_words(tail, self.buf.get_mut(buffered..FULL_LINE)?);
+            copy_words(tail, self.buf.get_mut(buffered..FULL_LINE)?, |_| {});
             self.buf.first_chunk()?
         };
         let (data, &[s]) = line.split_first_chunk::<DATA_CHARS>()? else {
