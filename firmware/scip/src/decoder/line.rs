@@ -106,24 +106,17 @@ impl Decoder {
         found
     }
 
-    /// The other fast path of [`Self::feed`] on 64-bit hosts: `input` continues a data
-    /// line and ends before a full data line's LF could come, and all of it is value
-    /// chars (so none is an LF). It is copied into the line buffer eight bytes at a time
-    /// and checked on the way, without an LF search. False, having taken nothing, for
-    /// anything else, which the general path then handles.
+    /// The other fast path of [`Self::feed`] on 64-bit hosts:
+    /// `input` continues a data line of `start` bytes so far (no overflow) and ends
+    /// before a full data line's LF could come, and all of it is value chars (so none is
+    /// an LF). It is copied into the line buffer eight bytes at a time and checked on
+    /// the way, without an LF search. False, having taken nothing, for anything else,
+    /// which the general path then handles.
     #[cfg(not(target_pointer_width = "32"))]
-    #[inline]
-    pub(super) fn take_data_chars(&mut self, input: &[u8]) -> bool {
-        if self.state != State::Payload(Payload::Data) || self.overflow {
-            return false;
-        }
-        let start = self.len;
+    #[inline(always)]
+    pub(super) fn take_data_chars(&mut self, input: &[u8], start: usize) -> bool {
         // `start` is at most LINE_CAP: no wrap.
         let end = start.wrapping_add(input.len());
-        // At most the data chars and the sum char of a full line.
-        if end > DATA_CHARS + 1 {
-            return false;
-        }
         let Some(dst) = self.buf.get_mut(start..end) else {
             return false;
         };
@@ -195,42 +188,57 @@ pub(super) fn copy_value_words(input: &[u8], dst: &mut [u8]) -> (usize, u32) {
     (words.wrapping_mul(4), sum)
 }
 
-/// Copies `src` into `dst` (of the same length) when every byte is a value char
-/// (`0x30..=0x6F`); false when one is not or the lengths differ (`dst` then holds part
-/// of `src`). Eight bytes at a time, the last eight overlapping the ones before; the
-/// word test is [`copy_value_words`]'. The early exits keep the loop from being turned
-/// into a call of the library's copy, which costs more than the loop for lines.
+/// Copies `src` into `dst` (of the same length) and tells whether every byte is a
+/// value char (`0x30..=0x6F`); false when one is not or the lengths differ (`dst` then
+/// holds part or all of `src`, beyond what the caller counts as taken). Eight bytes at a
+/// time (see [`copy_words`]) with no branch per word but the length's: the word test is
+/// [`copy_value_words`]', its flags gathered by OR and tested once at the end.
 #[cfg(not(target_pointer_width = "32"))]
-#[inline]
+#[inline(always)]
 pub(super) fn copy_value_chars(src: &[u8], dst: &mut [u8]) -> bool {
     const CHARS: u64 = u64::from_le_bytes([CHAR_MIN; 8]);
     const FLAGS: u64 = u64::from_le_bytes([0xC0; 8]);
-    let chars = |w: [u8; 8]| u64::from_le_bytes(w).wrapping_sub(CHARS) & FLAGS == 0;
-    if src.len() != dst.len() {
+    let mut flags = 0u64;
+    let copied = copy_words(src, dst, |w| {
+        flags |= u64::from_le_bytes(w).wrapping_sub(CHARS);
+    });
+    copied && flags & FLAGS == 0 && {
+        // Fewer than eight bytes: [`copy_words`] copied them one by one.
+        src.len() >= 8 || src.iter().all(|c| c.wrapping_sub(CHAR_MIN) < 0x40)
+    }
+}
+
+/// Copies `src` into `dst` (of the same length, at most [`LINE_CAP`] bytes; false and
+/// nothing copied otherwise) eight bytes at a time, the last eight overlapping the ones
+/// before, and hands every word copied to `each` (the last one too; none when `src` has
+/// fewer than eight bytes, then copied one by one). The loop has a constant bound and
+/// an exit on the length, so it unrolls into a few instructions per word and is not
+/// turned into a call of the library's copy, which costs more for a line's bytes.
+#[cfg(not(target_pointer_width = "32"))]
+#[inline(always)]
+pub(super) fn copy_words(src: &[u8], dst: &mut [u8], mut each: impl FnMut([u8; 8])) -> bool {
+    if src.len() != dst.len() || src.len() > LINE_CAP {
         return false;
     }
     let (Some(last), Some(last_dst)) = (src.last_chunk::<8>(), dst.last_chunk_mut::<8>()) else {
-        // Fewer than eight bytes.
         for (d, &c) in dst.iter_mut().zip(src) {
-            if c.wrapping_sub(CHAR_MIN) >= 0x40 {
-                return false;
-            }
             *d = c;
         }
         return true;
     };
-    if !chars(*last) {
-        return false;
-    }
+    each(*last);
     *last_dst = *last;
-    for (d, s) in dst.chunks_exact_mut(8).zip(src.chunks_exact(8)) {
-        let Ok(w) = <[u8; 8]>::try_from(s) else {
-            return false;
+    for i in 0..LINE_CAP / 8 {
+        // Below LINE_CAP + 8: no wrap.
+        let at = i.wrapping_mul(8);
+        let (Some(s), Some(d)) = (
+            src.get(at..).and_then(|r| r.first_chunk::<8>()),
+            dst.get_mut(at..).and_then(|r| r.first_chunk_mut::<8>()),
+        ) else {
+            break;
         };
-        if !chars(w) {
-            return false;
-        }
-        d.copy_from_slice(&w);
+        each(*s);
+        *d = *s;
     }
     true
 }

@@ -399,17 +399,31 @@ impl Decoder {
     /// without a copy into the line buffer; the events are the same.
     #[inline]
     pub fn feed(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
+        // 64-bit hosts, in a data line: with the state, the overflow flag and the line's
+        // length so far tested once, either a full data line ends in `input` or all of
+        // `input` continues the line without reaching a full line's LF.
         #[cfg(not(target_pointer_width = "32"))]
-        if let Some((used, decoded)) = self.full_data_line(input) {
-            let ev = match decoded {
-                Ok(()) => Some(self.data_event()),
-                Err(kind) => self.fail(kind),
-            };
-            return (used, ev);
-        }
-        #[cfg(not(target_pointer_width = "32"))]
-        if self.take_data_chars(input) {
-            return (input.len(), None);
+        if self.state == State::Payload(Payload::Data) && !self.overflow {
+            let buffered = self.len;
+            // Bytes of `input` up to a full line's LF, excluded: the line buffer has at
+            // most that much of the line (more go the general path).
+            if let Some(rest) = (DATA_CHARS + 1).checked_sub(buffered) {
+                match input.get(rest) {
+                    Some(&b'\n') => {
+                        if let Some((used, decoded)) = self.full_data_line(input, buffered, rest) {
+                            let ev = match decoded {
+                                Ok(()) => Some(self.data_event()),
+                                Err(kind) => self.fail(kind),
+                            };
+                            return (used, ev);
+                        }
+                    }
+                    // All of `input` fits before the LF: `buffered + input.len()` is at
+                    // most a full line.
+                    None if self.take_data_chars(input, buffered) => return (input.len(), None),
+                    _ => {}
+                }
+            }
         }
         let mut consumed: usize = 0;
         let mut rest = input;

@@ -120,6 +120,57 @@ fn value_words_copied_agree_with_bytes() {
     }
 }
 
+/// The word copies of split data lines (64-bit hosts) against a byte-by-byte copy and
+/// check: every length up to past the line buffer's, one arbitrary byte anywhere (the
+/// first, a middle and the last, overlapping word alike), lengths that differ.
+#[cfg(not(target_pointer_width = "32"))]
+#[test]
+fn word_copies_of_split_lines_agree_with_bytes() {
+    let mut x = 0x5EED_1234u32;
+    let mut next = || {
+        x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        x >> 8
+    };
+    for len in 0..=LINE_CAP + 9 {
+        for round in 0..200 {
+            let mut src: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
+            if len > 0 && round % 2 == 1 {
+                // One byte that may or may not be a value char, anywhere.
+                let at = match round % 6 {
+                    1 => 0,
+                    3 => len - 1,
+                    _ => next() as usize % len,
+                };
+                src[at] = next() as u8;
+            }
+            let chars = src.iter().all(|c| (0x30..=0x6F).contains(c));
+            let fits = len <= LINE_CAP;
+
+            let mut dst = vec![0xAAu8; len];
+            let ok = copy_value_chars(&src, &mut dst);
+            assert_eq!(ok, fits && chars, "copy_value_chars {src:?}");
+            if ok {
+                assert_eq!(dst, src);
+            }
+            let mut dst = vec![0xAAu8; len];
+            let mut words = 0;
+            let copied = copy_words(&src, &mut dst, |_| words += 1);
+            assert_eq!(copied, fits, "copy_words, {len} bytes");
+            if fits {
+                assert_eq!(dst, src);
+                // Every whole word, and the last eight bytes once more.
+                let expected = if len < 8 { 0 } else { len / 8 + 1 };
+                assert_eq!(words, expected, "{len} bytes");
+            }
+        }
+        // Lengths that differ: refused.
+        let src = vec![b'0'; len];
+        let mut dst = vec![0u8; len + 1];
+        assert!(!copy_value_chars(&src, &mut dst));
+        assert!(!copy_words(&src, &mut dst, |_| {}));
+    }
+}
+
 #[test]
 fn sum_and_check_taken_while_copying_equals_the_bytewise_one() {
     // Lines of value chars (some with one arbitrary byte, never LF), their LF, in

@@ -2,8 +2,12 @@
 //! a time on the fast path or char by char.
 
 #[cfg(not(target_pointer_width = "32"))]
-use super::line::sum_and_check;
+use super::line::{copy_words, sum_and_check};
 use super::*;
+
+/// Bytes of a full data line (64 data chars and the sum char), LF excluded.
+#[cfg(not(target_pointer_width = "32"))]
+const FULL_LINE: usize = DATA_CHARS + 1;
 
 impl Decoder {
     pub(super) fn data_line(&mut self, len: usize) -> Option<Event<'_>> {
@@ -43,47 +47,37 @@ impl Decoder {
         })
     }
 
-    /// The fast path of [`Self::feed`] on 64-bit hosts: a full data line (64 value
-    /// chars, its sum char and the LF) that ends in `input`, either all of it in `input`
-    /// (decoded from there, not copied) or begun in the line buffer (its rest copied
-    /// there). Returns the bytes of `input` the line took and the outcome of decoding
-    /// it, as [`Self::data_line`] would give them; `None`, having consumed nothing, for
-    /// anything else (another state or line length, a bad sum or char, a partial line
-    /// that overflowed ...), which the general path then handles.
+    /// The fast path of [`Self::feed`] on 64-bit hosts for a full data line (64 value
+    /// chars, its sum char and the LF) that ends in `input` (its LF at `input[rest]`, after `buffered` bytes of the line
+    /// in the line buffer), either all of it in `input` (decoded from there, not copied)
+    /// or begun in the line buffer (its rest copied there). Returns the bytes of `input`
+    /// the line took and the outcome of decoding it, as [`Self::data_line`] would give
+    /// them; `None`, having consumed nothing, for anything else (a bad sum or char, a
+    /// line after a short one, multi-echo data ...).
     ///
-    /// No LF search: the LF must be where a full line puts it, and the value-char check
-    /// of the 64 data chars and the sum char (a value char, as the computed sum is)
-    /// rule out an earlier LF.
+    /// No LF search: the LF is where a full line puts it, and the value-char check of
+    /// the 64 data chars and the sum char (a value char, as the computed sum is) rule
+    /// out an earlier LF.
     #[cfg(not(target_pointer_width = "32"))]
-    #[inline]
+    #[inline(always)]
     pub(super) fn full_data_line(
         &mut self,
         input: &[u8],
+        buffered: usize,
+        rest: usize,
     ) -> Option<(usize, Result<(), ErrorKind>)> {
-        /// Bytes of a full data line, LF excluded.
-        const LINE: usize = DATA_CHARS + 1;
-        if self.state != State::Payload(Payload::Data)
-            || self.overflow
-            || self.short_line_seen
-            || self.shape.multi_echo
-        {
+        if self.short_line_seen || self.shape.multi_echo {
             return None;
         }
         #[cfg(any(test, fuzzing))]
         if self.char_by_char {
             return None;
         }
-        let buffered = self.len;
-        // Bytes of `input` up to the LF, excluded: the line buffer has at most `LINE`.
-        let rest = LINE.checked_sub(buffered)?;
-        if input.get(rest) != Some(&b'\n') {
-            return None;
-        }
-        let line: &[u8; LINE] = if buffered == 0 {
+        let line: &[u8; FULL_LINE] = if buffered == 0 {
             input.first_chunk()?
         } else {
             let tail = input.get(..rest)?;
-            self.buf.get_mut(buffered..LINE)?.copy_from_slice(tail);
+            copy_words(tail, self.buf.get_mut(buffered..FULL_LINE)?, |_| {});
             self.buf.first_chunk()?
         };
         let (data, &[s]) = line.split_first_chunk::<DATA_CHARS>()? else {
@@ -111,6 +105,7 @@ impl Decoder {
         let decoded = match (self.shape.dist_width, self.shape.aux_width) {
             (3, 0) => self.decode_full::<3, 0, 3>(from_input),
             (2, 0) => self.decode_full::<2, 0, 2>(from_input),
+            (3, 3) => self.decode_full::<3, 3, 6>(from_input),
             // Lines with second values: the general whole-step loop measured faster
             // for them (the ME stream) than these per-offset instantiations.
             _ => self.decode_values(from_input, DATA_CHARS, true),
@@ -194,20 +189,15 @@ impl Decoder {
         let whole = DATA_CHARS.wrapping_sub(OFF).checked_div(W).unwrap_or(0);
         let tail_at = OFF.wrapping_add(whole.wrapping_mul(W));
         let total = whole.wrapping_add(usize::from(OFF > 0));
-        let too_many = ErrorKind::TooManyValues {
-            expected: self.shape.expected,
-        };
-        if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
-            return Err(too_many);
-        }
-        if A == 0 && !self.readings_plain {
-            // As in `decode_steps`.
-            self.readings = [Reading::default(); MAX_READINGS];
-            self.readings_plain = true;
-        } else if A > 0 {
-            self.readings_plain = false;
-        }
+        begin_steps::<A>(
+            &mut self.readings,
+            &mut self.readings_plain,
+            self.values,
+            self.shape.expected,
+            total,
+        )?;
         let plain = A == 0 && self.readings_plain;
+        let too_many = self.too_many();
         let Some(slots) = self.readings.get_mut(..total) else {
             return Err(too_many);
         };
@@ -222,35 +212,28 @@ impl Decoder {
             };
             index = index.wrapping_add(1);
         }
-        // `whole` steps from `OFF` on, `W` chars each, within the line; a constant count
-        // the compiler unrolls.
-        for j in 0..whole {
-            let at = OFF.wrapping_add(j.wrapping_mul(W));
-            let (Some(slot), Some(step)) = (
-                mid_slots.get_mut(j),
-                chars.get(at..).and_then(|r| r.first_chunk::<W>()),
-            ) else {
-                break;
-            };
-            let Some((d, a)) = step.split_first_chunk::<D>() else {
-                break;
-            };
-            if plain {
-                slot.distance = decode_valid(d);
-                slot.index = index;
-            } else {
-                let Some(a) = a.first_chunk::<A>() else {
-                    break;
-                };
-                *slot = Reading {
-                    index,
-                    echo: 0,
-                    distance: decode_valid(d),
-                    aux: decode_valid(a),
-                };
+        // `whole` steps from `OFF` on, `W` chars each, within the line (a constant
+        // count), four per round: the rounds unroll fully, so no loop instruction is
+        // left per step and every index is a constant.
+        // Apart for the line in `input` and in the line buffer, so that every load of
+        // the unrolled steps is from one base (not a choice of two per load).
+        let from_input = input.and_then(|c| c.first_chunk::<DATA_CHARS>());
+        let from_buf = self.buf.first_chunk::<DATA_CHARS>();
+        match (plain, from_input, from_buf) {
+            (true, Some(c), _) => put_full_steps::<D, A, W, OFF, true>(mid_slots, c, whole, index),
+            (true, None, Some(c)) => {
+                put_full_steps::<D, A, W, OFF, true>(mid_slots, c, whole, index)
             }
-            index = index.wrapping_add(1);
+            (false, Some(c), _) => {
+                put_full_steps::<D, A, W, OFF, false>(mid_slots, c, whole, index)
+            }
+            (false, None, Some(c)) => {
+                put_full_steps::<D, A, W, OFF, false>(mid_slots, c, whole, index)
+            }
+            _ => {}
         }
+        // `whole` is at most DATA_CHARS: fits in u16.
+        index = index.wrapping_add(whole as u16);
         if total > 0 {
             self.echo_no = 0;
         }
@@ -259,6 +242,14 @@ impl Decoder {
         let tail = chars.get(tail_at..).unwrap_or(&[]);
         self.set_carry(Carry::of::<D, A>(tail));
         Ok(())
+    }
+
+    /// The error of a line that completes more values than the scan has.
+    #[inline(always)]
+    fn too_many(&self) -> ErrorKind {
+        ErrorKind::TooManyValues {
+            expected: self.shape.expected,
+        }
     }
 
     /// Carries the partial step at the end of a line's whole steps into the next line.
@@ -352,22 +343,16 @@ impl Decoder {
         // Lengths and counts within one line (at most LINE_CAP): none of these wraps.
         let (mid, tail) = rest.split_at(whole.wrapping_mul(width));
         let total = whole.wrapping_add(usize::from(head.is_some()));
-        let too_many = ErrorKind::TooManyValues {
-            expected: self.shape.expected,
-        };
-        if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
-            return Err(too_many);
-        }
-        if A == 0 && !self.readings_plain {
-            // Once per change of data set: clear what readings with echoes or second
-            // values left, so that distance-only lines write less.
-            self.readings = [Reading::default(); MAX_READINGS];
-            self.readings_plain = true;
-        } else if A > 0 {
-            self.readings_plain = false;
-        }
+        begin_steps::<A>(
+            &mut self.readings,
+            &mut self.readings_plain,
+            self.values,
+            self.shape.expected,
+            total,
+        )?;
         let first = self.n_readings;
         let end = first.wrapping_add(total);
+        let too_many = self.too_many();
         let slots = self.readings.get_mut(first..end).ok_or(too_many)?;
         let mut index = self.values;
         let mut slots = slots.iter_mut();
@@ -498,6 +483,104 @@ impl Decoder {
         // The slot at `n_readings` exists (above): below MAX_READINGS, no wrap.
         self.n_readings = self.n_readings.wrapping_add(1);
         Ok(self.shape.dist_width)
+    }
+}
+
+/// What every whole-step decoder does before it writes a line's `total` steps of
+/// `A`-char second values (after `values` of `expected`): fail when they would make more
+/// values than the scan has, and keep `plain` (the decoder's `readings_plain`) true for
+/// distance-only lines: once per change of data set, the readings that echoes or second
+/// values left are cleared, so that distance-only lines write less.
+#[inline(always)]
+fn begin_steps<const A: usize>(
+    readings: &mut [Reading; MAX_READINGS],
+    plain: &mut bool,
+    values: u16,
+    expected: u16,
+    total: usize,
+) -> Result<(), ErrorKind> {
+    if usize::from(values).wrapping_add(total) > usize::from(expected) {
+        return Err(ErrorKind::TooManyValues { expected });
+    }
+    if A == 0 && !*plain {
+        *readings = [Reading::default(); MAX_READINGS];
+        *plain = true;
+    } else if A > 0 {
+        *plain = false;
+    }
+    Ok(())
+}
+
+/// Writes the `whole` steps of a full line from char `OFF` on (`W = D + A` chars each,
+/// valid value chars) into `slots`, with indices from `index`, four per round: with
+/// `whole` a constant the rounds unroll fully, so no loop instruction is left per step
+/// and every offset is a constant. `PLAIN`: as in [`put_steps`].
+#[cfg(not(target_pointer_width = "32"))]
+#[inline(always)]
+fn put_full_steps<
+    const D: usize,
+    const A: usize,
+    const W: usize,
+    const OFF: usize,
+    const PLAIN: bool,
+>(
+    slots: &mut [Reading],
+    chars: &[u8; DATA_CHARS],
+    whole: usize,
+    index: u16,
+) {
+    let rounds = whole / 4;
+    for r in 0..rounds {
+        // Below `whole`: no wrap.
+        let j = r.wrapping_mul(4);
+        for k in 0..4 {
+            put_step_at::<D, A, W, OFF, PLAIN>(slots, chars, j.wrapping_add(k), index);
+        }
+    }
+    for j in rounds.wrapping_mul(4)..whole {
+        put_step_at::<D, A, W, OFF, PLAIN>(slots, chars, j, index);
+    }
+}
+
+/// Writes step `j` of a full line's whole steps from char `OFF` on (`W = D + A` chars
+/// each, valid value chars) into `slots[j]`, with index `index + j`; nothing when
+/// either is out of range. `PLAIN`: as in [`put_steps`].
+#[cfg(not(target_pointer_width = "32"))]
+#[inline(always)]
+fn put_step_at<
+    const D: usize,
+    const A: usize,
+    const W: usize,
+    const OFF: usize,
+    const PLAIN: bool,
+>(
+    slots: &mut [Reading],
+    chars: &[u8; DATA_CHARS],
+    j: usize,
+    index: u16,
+) {
+    // Within one line: none of these wraps, and `j` fits in u16.
+    let at = OFF.wrapping_add(j.wrapping_mul(W));
+    let (Some(slot), Some(step)) = (
+        slots.get_mut(j),
+        chars.get(at..).and_then(|r| r.first_chunk::<W>()),
+    ) else {
+        return;
+    };
+    let Some((d, a)) = step.split_first_chunk::<D>() else {
+        return;
+    };
+    let index = index.wrapping_add(j as u16);
+    if PLAIN {
+        slot.distance = decode_valid(d);
+        slot.index = index;
+    } else if let Some(a) = a.first_chunk::<A>() {
+        *slot = Reading {
+            index,
+            echo: 0,
+            distance: decode_valid(d),
+            aux: decode_valid(a),
+        };
     }
 }
 
