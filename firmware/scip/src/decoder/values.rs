@@ -48,12 +48,13 @@ impl Decoder {
     }
 
     /// The fast path of [`Self::feed`] on 64-bit hosts for a full data line (64 value
-    /// chars, its sum char and the LF) that ends in `input` (its LF at `input[rest]`, after `buffered` bytes of the line
-    /// in the line buffer), either all of it in `input` (decoded from there, not copied)
-    /// or begun in the line buffer (its rest copied there). Returns the bytes of `input`
-    /// the line took and the outcome of decoding it, as [`Self::data_line`] would give
-    /// them; `None`, having consumed nothing, for anything else (a bad sum or char, a
-    /// line after a short one, multi-echo data ...).
+    /// chars, its sum char and the LF) that ends in `input`: its LF at `input[rest]`,
+    /// after `buffered` bytes of the line in the line buffer. Either all of it is in
+    /// `input` (decoded from there, not copied) or it began in the line buffer (its rest
+    /// copied there). Returns the bytes of `input` the line took and the outcome of
+    /// decoding it, as [`Self::data_line`] would give them; `None`, having consumed
+    /// nothing, for anything else (a bad sum or char, a line after a short one,
+    /// multi-echo data ...).
     ///
     /// No LF search: the LF is where a full line puts it, and the value-char check of
     /// the 64 data chars and the sum char (a value char, as the computed sum is) rule
@@ -106,8 +107,8 @@ impl Decoder {
             (3, 0) => self.decode_full::<3, 0, 3>(from_input),
             (2, 0) => self.decode_full::<2, 0, 2>(from_input),
             (3, 3) => self.decode_full::<3, 3, 6>(from_input),
-            // Lines with second values: the general whole-step loop measured faster
-            // for them (the ME stream) than these per-offset instantiations.
+            // The other data sets with second values (3 + 2, 3 + 4 chars) keep the
+            // general whole-step loop (no stream of them is benchmarked).
             _ => self.decode_values(from_input, DATA_CHARS, true),
         };
         Some((used, decoded))
@@ -212,11 +213,10 @@ impl Decoder {
             };
             index = index.wrapping_add(1);
         }
-        // `whole` steps from `OFF` on, `W` chars each, within the line (a constant
-        // count), four per round: the rounds unroll fully, so no loop instruction is
-        // left per step and every index is a constant.
-        // Apart for the line in `input` and in the line buffer, so that every load of
-        // the unrolled steps is from one base (not a choice of two per load).
+        // `whole` steps from `OFF` on, `W` chars each, within the line, unrolled (see
+        // `put_full_steps`): written out apart for the line in `input` (which has its
+        // 64 chars, checked above) and in the line buffer, so that every load of the
+        // unrolled steps is from one base, not a choice of two per load.
         let from_input = input.and_then(|c| c.first_chunk::<DATA_CHARS>());
         let from_buf = self.buf.first_chunk::<DATA_CHARS>();
         match (plain, from_input, from_buf) {
