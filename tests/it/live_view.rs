@@ -41,6 +41,20 @@ fn stderr_lines(child: &mut Child) -> mpsc::Receiver<String> {
     rx
 }
 
+/// The Foxglove server address (`HOST:PORT`) that `child` prints on its standard error
+/// (`ws://HOST:PORT`), waiting up to a minute; and the rest of its standard error lines.
+fn server_address(child: &mut Child) -> (mpsc::Receiver<String>, String) {
+    let errs = stderr_lines(child);
+    loop {
+        let line = errs
+            .recv_timeout(Duration::from_secs(60))
+            .expect("the server's address");
+        if let Some(a) = line.split("ws://").nth(1) {
+            return (errs, a.trim().to_owned());
+        }
+    }
+}
+
 type Ws = WebSocket<TcpStream>;
 
 /// A client of the server at `addr` (`HOST:PORT`) offering the Foxglove WebSocket
@@ -215,15 +229,7 @@ fn a_foxglove_client_receives_the_bridge_scans_and_closed_or_slow_clients_do_not
         "--seconds",
         "12",
     ]);
-    let errs = stderr_lines(&mut child);
-    let addr = loop {
-        let line = errs
-            .recv_timeout(Duration::from_secs(60))
-            .expect("the server's address");
-        if let Some(a) = line.split("ws://").nth(1) {
-            break a.trim().to_owned();
-        }
-    };
+    let (errs, addr) = server_address(&mut child);
     // A client that subscribes and goes away without a close handshake, and one that
     // subscribes and never reads.
     let mut gone = connect(&addr);
@@ -569,15 +575,8 @@ fn another_protocol_on_the_bridge_ids_is_counted_and_the_bridge_keeps_streaming(
         "--seconds",
         "8",
     ]);
-    let errs = stderr_lines(&mut child);
-    let addr = loop {
-        let line = errs
-            .recv_timeout(Duration::from_secs(60))
-            .expect("the server's address");
-        if let Some(a) = line.split("ws://").nth(1) {
-            break a.trim().to_owned();
-        }
-    };
+    // Held to the end: its thread keeps reading the child's standard error.
+    let (_errs, addr) = server_address(&mut child);
     let mut ws = connect(&addr);
     let status = advertised(&mut ws, "/scip2can/bridge");
     subscribe(&mut ws, 1, &status);
@@ -611,15 +610,8 @@ fn another_protocol_on_the_bridge_ids_is_counted_and_the_bridge_keeps_streaming(
 #[test]
 fn decode_serves_a_live_log_to_a_foxglove_client() {
     let mut child = spawn(&["decode", "--foxglove", "127.0.0.1:0", "-"]);
-    let errs = stderr_lines(&mut child);
-    let addr = loop {
-        let line = errs
-            .recv_timeout(Duration::from_secs(60))
-            .expect("the server's address");
-        if let Some(a) = line.split("ws://").nth(1) {
-            break a.trim().to_owned();
-        }
-    };
+    // Held to the end: its thread keeps reading the child's standard error.
+    let (_errs, addr) = server_address(&mut child);
     let mut stdin = child.stdin.take().expect("stdin");
     // Its JSON lines are read (and dropped) so that a full pipe never stops it.
     let _lines = line_reader(&mut child);

@@ -5,7 +5,6 @@
 
 use bridge::engine::{BridgeConfig, BridgeError};
 use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
 use bridge::session::SessionConfig;
 use can_wire::bandwidth::BitRates;
 use can_wire::{Encoding, FrameFormat, IdWindow};
@@ -109,25 +108,23 @@ pub const ENCODING: Encoding = Encoding {
 
 /// The bridge configuration of a board on `bus`.
 pub fn bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
+    let base = BridgeConfig::new(node_ids()?, bus.format);
     Ok(BridgeConfig {
         session: SessionConfig {
             bit_rate: Some(SENSOR_BIT_RATE),
             initial_bit_rate: SENSOR_POWER_UP_BIT_RATE,
-            ..SessionConfig::default()
+            ..base.session
         },
-        pipeline: PipelineConfig::default(),
         encoding: ENCODING,
         budget: Budget {
             rates: bus.rates,
-            format: bus.format,
-            extended: false,
             share_permille: BUS_SHARE_PERMILLE,
+            ..base.budget
         },
-        ids: node_ids()?,
         uart_bit_rate: SENSOR_BIT_RATE,
         status_period_ms: STATUS_PERIOD_MS,
         fd_capable: bus.fd_capable,
-        link: bridge::link::LinkKind::Uart,
+        ..base
     })
 }
 

@@ -1,10 +1,7 @@
 //! The bridge settings of the emulated board.
 
 use bridge::engine::BridgeConfig;
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
 use bridge::session::SessionConfig;
-use can_wire::bandwidth::BitRates;
 use can_wire::{Encoding, FrameFormat, IdWindow, NodeIds};
 
 /// Capacity of the CAN transmit queue, in frames (76 bytes each).
@@ -50,18 +47,10 @@ pub fn bridge_with(encoding: Encoding) -> Option<BridgeConfig> {
             initial_bit_rate: BAUD,
             ..SessionConfig::default()
         },
-        pipeline: PipelineConfig::default(),
         encoding,
-        budget: Budget {
-            rates: BitRates::CLASSIC_1M,
-            format: FrameFormat::Classic,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids,
         uart_bit_rate: BAUD,
-        status_period_ms: 1000,
+        // The SLCAN port carries CAN FD although the bus starts classic.
         fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(ids, FrameFormat::Classic)
     })
 }

@@ -40,10 +40,7 @@ mod hw;
 mod semihosting;
 
 use bridge::engine::{Bridge, BridgeConfig};
-use bridge::governor::Budget;
-use bridge::pipeline::PipelineConfig;
-use bridge::session::{Action, SessionConfig};
-use can_wire::bandwidth::BitRates;
+use bridge::session::Action;
 use can_wire::{Encoding, FrameFormat, IdWindow};
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
@@ -74,20 +71,13 @@ const COMMANDS_CAP: usize = 256;
 /// class stream (plain millimetres, CAN FD 1/5 Mbit/s), the sensor clock model on.
 fn bridge_config() -> Option<BridgeConfig> {
     Some(BridgeConfig {
-        session: SessionConfig::default(),
-        pipeline: PipelineConfig::default(),
         encoding: Encoding::PLAIN_MM,
-        budget: Budget {
-            rates: BitRates::FD_1M_5M,
-            format: FrameFormat::FD64,
-            extended: false,
-            share_permille: 1000,
-        },
-        ids: IdWindow::DEFAULT.node(config::NODE).ok()?,
         uart_bit_rate: UART_BIT_RATE,
         status_period_ms: 0,
-        fd_capable: true,
-        link: bridge::link::LinkKind::Uart,
+        ..BridgeConfig::new(
+            IdWindow::DEFAULT.node(config::NODE).ok()?,
+            FrameFormat::FD64,
+        )
     })
 }
 
