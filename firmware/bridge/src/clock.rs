@@ -76,7 +76,7 @@ pub const TM_FRESH_US: i32 = 1_000_000;
 /// Fresh `TM` exchanges the model asks for per stream of the sensor's clock.
 pub const TM_ASKS: u8 = 2;
 /// `TM1` answers this far apart (sensor ms) belong to different exchanges.
-const TM_EXCHANGE_MS: u64 = 500;
+const TM_EXCHANGE_MS: u32 = 500;
 /// Fixed-point shift of the periods (µs × 2^8).
 const Q: u32 = 8;
 /// 1 µs in the periods' fixed point.
@@ -91,7 +91,7 @@ const FIT_MAX_US: u32 = 1 << 30;
 /// distance the model takes between two times stays within ±2^31 µs.
 const ANCHOR_MAX_US: i32 = 1 << 30;
 /// The same, in the sensor's ms (a little less).
-const ANCHOR_MAX_MS: u64 = 1 << 20;
+const ANCHOR_MAX_MS: u32 = 1 << 20;
 /// Two scans this far apart (sensor ms, about 9 minutes) or farther: the stream
 /// stopped for long; the next scan starts a new one (the latency stays).
 pub const GAP_MAX_MS: u32 = 1 << 19;
@@ -215,10 +215,11 @@ struct Stream {
     first_arrival: u32,
 }
 
-/// `TM1` answers of one calibration: bridge time of sensor time `ms` (extended).
+/// `TM1` answers of one calibration: bridge time of sensor time `ms` (low 32 bits
+/// of the extended ms).
 #[derive(Debug, Clone, Copy)]
 struct Tm {
-    ms: u64,
+    ms: u32,
     bridge: Span,
     samples: u8,
 }
@@ -226,7 +227,7 @@ struct Tm {
 impl Tm {
     /// The anchor's sensor time, wrapping µs.
     fn sensor_us(&self) -> u32 {
-        (self.ms as u32).wrapping_mul(1000)
+        self.ms.wrapping_mul(1000)
     }
 }
 
@@ -332,6 +333,7 @@ impl ScanClock {
     #[inline(never)]
     pub fn on_tm(&mut self, sensor_ms: u64, sent_us: u64, recv_us: u64) {
         let sent = sent_us as u32;
+        let ms = sensor_ms as u32;
         // The clock showed `sensor_ms` at some bridge time in [sent, recv]; it turned
         // to that millisecond up to 1000 µs before. (A round trip beyond 2^29 µs is
         // cut there: such a span is far too wide to calibrate anyway.)
@@ -342,7 +344,7 @@ impl ScanClock {
         };
         let merged = self.tm.and_then(|tm| {
             // Back-to-back answers: the drift over their few ms is far below 1 µs.
-            let apart = sensor_ms.wrapping_sub(tm.ms);
+            let apart = ms.wrapping_sub(tm.ms);
             if apart > TM_EXCHANGE_MS {
                 return None;
             }
@@ -351,13 +353,13 @@ impl ScanClock {
                 .shift((apart as i32).wrapping_mul(1000))
                 .intersect(here)?;
             Some(Tm {
-                ms: sensor_ms,
+                ms,
                 bridge: both,
                 samples: tm.samples.saturating_add(1),
             })
         });
         self.tm = Some(merged.unwrap_or(Tm {
-            ms: sensor_ms,
+            ms,
             bridge: here,
             samples: 1,
         }));
@@ -418,14 +420,14 @@ impl ScanClock {
     /// timestamp line ended arriving, µs. Returns the estimated start of the scan.
     #[inline(never)]
     pub fn on_scan(&mut self, sensor_ms: u64, arrival_us: u64) -> Estimate {
+        let ms = sensor_ms as u32;
         // An anchor this far away is dropped before its distance could wrap.
         if self
             .tm
-            .is_some_and(|t| sensor_ms.abs_diff(t.ms) > ANCHOR_MAX_MS)
+            .is_some_and(|t| diff(ms, t.ms).unsigned_abs() > ANCHOR_MAX_MS)
         {
             self.tm = None;
         }
-        let ms = sensor_ms as u32;
         let arrival = arrival_us as u32;
         let lo = ms.wrapping_mul(1000);
         let stamp = Span {
