@@ -526,7 +526,6 @@ impl Stream {
 
     /// Carries the stream to a new scan, unless the stamp does not fit it (the
     /// sensor restarted or its period changed).
-    #[inline(never)]
     fn advance(&mut self, ms: u32, stamp: Span, arrival: u32) -> Step {
         let s = self;
         let dms = ms.wrapping_sub(s.last_ms);
@@ -701,7 +700,6 @@ impl Stream {
 }
 
 /// Latency from the `TM` anchor and the scan phase, intersected over scans.
-#[inline(never)]
 fn calibrate(tm: Option<&Tm>, latency: &mut Option<(i32, i32)>, s: &Stream) {
     let Some(tm) = tm else { return };
     if s.period_s <= 0
