@@ -336,8 +336,9 @@ impl ScanClock {
         let ms = sensor_ms as u32;
         // The clock showed `sensor_ms` at some bridge time in [sent, recv]; it turned
         // to that millisecond up to 1000 µs before. (A round trip beyond 2^29 µs is
-        // cut there: such a span is far too wide to calibrate anyway.)
-        let trip = recv_us.saturating_sub(sent_us).min(1 << 29) as u32;
+        // cut there, one that seems to go back is none: such a span is far too wide
+        // to calibrate anyway, and `recv` before `sent` is no answer of that request.)
+        let trip = ((recv_us as u32).wrapping_sub(sent) as i32).clamp(0, 1 << 29) as u32;
         let here = Span {
             lo: sent.wrapping_sub(1000),
             hi: sent.wrapping_add(trip),
