@@ -207,9 +207,9 @@ pub fn lossless_cost(
     extended: bool,
     rates: BitRates,
 ) -> ScanCost {
-    use crate::lossless::{segment_points, segments};
+    use crate::lossless::SEGMENT_POINTS;
     let fd = format.is_fd();
-    let payload = format.max_len().saturating_sub(1).max(1) as u64;
+    let payload = format.max_len().saturating_sub(1).max(1) as u32;
     let channels = 1u32.wrapping_add(u32::from(encoding.intensity.is_present()));
     let mut nominal = 0u32;
     let mut data = 0u32;
@@ -223,25 +223,33 @@ pub fn lossless_cost(
     let mut data_frames = 0u32;
     let mut total_bits = 0u64;
     let n_points = usize::from(points);
-    for j in 0..segments(n_points) {
-        let n = segment_points(n_points, j) as u32;
+    // Every segment but the last has SEGMENT_POINTS points and the same cost: the full
+    // segments are worked out once (32-bit arithmetic: the MCU divides those in one
+    // instruction), then the last, shorter one if any.
+    let full = (n_points / SEGMENT_POINTS) as u32; // at most 512
+    let rest = (n_points % SEGMENT_POINTS) as u32;
+    for (n, count) in [(SEGMENT_POINTS as u32, full), (rest, u32::from(rest > 0))] {
+        if count == 0 {
+            continue;
+        }
         let bits = match bits_x16 {
             Some(b) => u64::from(n).saturating_mul(u64::from(b)) / 16,
             None => u64::from(lossless_worst_segment_bits(n, channels)),
         };
-        total_bits = total_bits.saturating_add(bits);
-        let bytes = bits.div_ceil(8).max(1);
+        total_bits = total_bits.saturating_add(bits.saturating_mul(u64::from(count)));
+        // Saturated to 32 bits (only an absurd estimate comes near).
+        let bytes = u32::try_from(bits.div_ceil(8)).unwrap_or(u32::MAX).max(1);
         // At least one frame (`bytes` >= 1), and all but the last full: the last holds
         // 1..=payload bytes.
         let frames = bytes.div_ceil(payload);
         let before_last = frames.wrapping_sub(1);
         let last = bytes.wrapping_sub(before_last.wrapping_mul(payload));
-        add(format.max_len(), before_last as u32);
+        add(format.max_len(), before_last.saturating_mul(count));
         add(
             padded_len((last as usize).wrapping_add(1)).unwrap_or(format.max_len()),
-            1,
+            count,
         );
-        data_frames = data_frames.saturating_add(frames as u32);
+        data_frames = data_frames.saturating_add(frames.saturating_mul(count));
     }
     let bits = FrameBits { nominal, data };
     ScanCost {
@@ -299,6 +307,33 @@ mod tests {
         assert_eq!(w.data_frames, 2);
         // A full segment at worst: 9 + 25 + 8 × 7 + 127 × 20 + 23 bits.
         assert_eq!(lossless_worst_segment_bits(128, 1), 9 + 25 + 56 + 2540 + 23);
+    }
+
+    /// Several segments and a shorter last one, by hand: 300 points at 7 bits are
+    /// segments of 128, 128 and 44 points, 896, 896 and 308 bits, 112, 112 and 39 bytes:
+    /// 16 + 16 + 6 classic data frames, all of 8 bytes but the last (4 stream bytes
+    /// after the framing byte: 5 bytes).
+    #[test]
+    fn lossless_cost_of_several_segments() {
+        let dl = Encoding {
+            distance: DistanceEncoding::Lossless,
+            intensity: IntensityEncoding::None,
+            unit_exp: 0,
+        };
+        let c = lossless_cost(
+            300,
+            &dl,
+            Some(7 * 16),
+            FrameFormat::Classic,
+            false,
+            BitRates::CLASSIC_1M,
+        );
+        assert_eq!((c.data_frames, c.frames), (38, 41));
+        assert_eq!(c.bits_per_point, 7);
+        assert_eq!(
+            c.nominal_bits,
+            40 * 135 + classic_frame_bits(5, false).nominal
+        );
     }
 
     #[test]

@@ -4,13 +4,16 @@
 use super::{ESCAPE_ONES, SEGMENT_HEADER_BITS};
 use crate::crc::ScanCrc;
 use crate::encoder::FrameSink;
-use crate::frame::{padded_len, Frame, MAX_LEN};
+use crate::frame::{padded_len, Frame, CLASSIC_LEN, MAX_LEN};
 use embedded_can::Id;
 
 /// Flag of the framing byte: the frame begins a segment.
 pub const SEGMENT_START: u8 = 0x80;
 /// The frame counter's bits in the framing byte.
 pub const COUNTER_MASK: u8 = 0x7F;
+
+/// Stream bytes of a full classic data frame (its framing byte not counted).
+const CLASSIC_STREAM_BYTES: u32 = CLASSIC_LEN as u32 - 1;
 
 /// Where the frames of a scan go, and what happened to them.
 pub struct Out<'a, S: ?Sized> {
@@ -162,7 +165,11 @@ impl Writer {
             }
             // Every byte up to `len` is in the segment's CRC already (`word`).
             self.len = full;
-            self.emit(out);
+            if full == CLASSIC_LEN && !out.fd {
+                self.emit_classic(out);
+            } else {
+                self.emit(out);
+            }
             if let Some(dst) = self.buf.get_mut(1..5) {
                 dst.copy_from_slice(&next);
             }
@@ -226,6 +233,75 @@ impl Writer {
         self.nbits = nbits;
     }
 
+    /// Put the Rice codes of `u` with parameter `k` (at most 15), escapes included:
+    /// like [`Writer::put_rice`] of each `u` with the value of `values` beside it (in
+    /// `value_bits` bits, at most 31), with the gathering word kept in registers (a
+    /// block with an escape is not rare in real scans: a jump to or from an error code).
+    #[inline(always)]
+    pub fn put_rices_escaped<S: FrameSink + ?Sized>(
+        &mut self,
+        u: &[u32],
+        values: &[u32],
+        k: u32,
+        value_bits: u32,
+        out: &mut Out<'_, S>,
+    ) {
+        let k = k.min(ESCAPE_ONES - 1);
+        let mask = (1u32 << k).wrapping_sub(1);
+        let value_bits = value_bits.min(31);
+        let value_mask = (1u32 << value_bits).wrapping_sub(1);
+        let (mut acc, mut nbits) = (self.acc, self.nbits);
+        for (&x, &v) in u.iter().zip(values) {
+            let q = x >> k;
+            if q < ESCAPE_ONES {
+                // q < 16 and k <= 15: the code has q + 1 + k <= 31 bits.
+                let low = x & mask;
+                let code = (low.wrapping_mul(2) | 1).wrapping_shl(q).wrapping_sub(1);
+                self.gather(
+                    &mut acc,
+                    &mut nbits,
+                    code,
+                    q.wrapping_add(1).wrapping_add(k),
+                    out,
+                );
+            } else {
+                self.gather(
+                    &mut acc,
+                    &mut nbits,
+                    (1 << ESCAPE_ONES) - 1,
+                    ESCAPE_ONES,
+                    out,
+                );
+                self.gather(&mut acc, &mut nbits, v & value_mask, value_bits, out);
+            }
+        }
+        self.acc = acc;
+        self.nbits = nbits;
+    }
+
+    /// [`Writer::put`] with the gathering word and its bit count in `acc` and `nbits`
+    /// (the caller's registers) instead of the writer's.
+    #[inline(always)]
+    fn gather<S: FrameSink + ?Sized>(
+        &mut self,
+        acc: &mut u32,
+        nbits: &mut u32,
+        code: u32,
+        bits: u32,
+        out: &mut Out<'_, S>,
+    ) {
+        *acc |= code.wrapping_shl(*nbits);
+        let total = nbits.wrapping_add(bits);
+        if total >= 32 {
+            self.word(*acc, out);
+            // Here `nbits` >= 1 (a field has at most 31 bits): the bits that did not fit.
+            *acc = code.wrapping_shr(32u32.wrapping_sub(*nbits));
+            *nbits = total.wrapping_sub(32);
+        } else {
+            *nbits = total;
+        }
+    }
+
     /// End the segment: zero bits to a byte boundary, the segment's CRC (2 bytes, little
     /// endian), and its last frame sent at the shortest length that holds it. Returns
     /// the segment's CRC.
@@ -268,6 +344,26 @@ impl Writer {
         if self.len >= self.full {
             self.crc_pending();
             self.emit(out);
+        }
+    }
+
+    /// [`Writer::emit`] of a full classic frame (8 bytes, the most frequent): the frame
+    /// written into its slot as two words, none of `emit`'s length cases.
+    #[inline(always)]
+    fn emit_classic<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+        match out.sink.data_slot() {
+            Some(frame) => {
+                if let Some(head) = self.buf.first_chunk::<CLASSIC_LEN>() {
+                    frame.set_classic(out.id, *head, CLASSIC_LEN);
+                }
+                out.frames = out.frames.wrapping_add(1);
+            }
+            None => out.lost = out.lost.wrapping_add(1),
+        }
+        self.bytes = self.bytes.wrapping_add(CLASSIC_STREAM_BYTES);
+        self.counter = self.counter.wrapping_add(1);
+        if let Some(b) = self.buf.first_mut() {
+            *b = self.counter & COUNTER_MASK;
         }
     }
 
@@ -444,6 +540,36 @@ mod tests {
         assert_eq!(r.read(5), Some(0));
         for i in 0..20 {
             assert_eq!(r.read(8), Some(i));
+        }
+    }
+
+    /// A run of codes with escapes between them, long enough to fill several words
+    /// and frames, read back by the receiver's reader (SPEC 4.2.3).
+    #[test]
+    fn a_run_of_codes_with_escapes_reads_back() {
+        for k in [0u32, 3, 15] {
+            let mut sink = Frames::new();
+            let mut out = Out::new(&mut sink, id(), false);
+            let mut w = Writer::new(8);
+            w.begin_segment(0, 0, &mut out);
+            let u: std::vec::Vec<u32> = (0..40u32).map(|i| (i * 7919) % (20 << k)).collect();
+            let values: std::vec::Vec<u32> = (0..40u32).map(|i| 0xF_0000 | i).collect();
+            w.put_rices_escaped(&u, &values, k, 20, &mut out);
+            w.end_segment(&mut out);
+            let mut stream = vec![];
+            for f in &sink {
+                stream.extend_from_slice(&f.data()[1..]);
+            }
+            let mut r = Reader::new(&stream);
+            r.read(9);
+            for (&x, &v) in u.iter().zip(&values) {
+                let expect = if (x >> k) < ESCAPE_ONES {
+                    Ok(x)
+                } else {
+                    Err(v)
+                };
+                assert_eq!(r.read_rice(k, 20), Some(expect), "u {x} k {k}");
+            }
         }
     }
 

@@ -192,9 +192,7 @@ pub fn put_block<S: FrameSink + ?Sized>(
     }
     w.put(mode as u32 | k << MODE_BITS, MODE_BITS + K_BITS, out);
     if escapes {
-        for (&v, &x) in values.iter().zip(u) {
-            w.put_rice(x, k, v & MAX_VALUE, VALUE_BITS, out);
-        }
+        w.put_rices_escaped(u, values, k, VALUE_BITS, out);
     } else {
         w.put_rices(u, k, out);
     }
