@@ -101,6 +101,7 @@
 mod config;
 mod decimate;
 mod point;
+mod smooth;
 mod stats;
 mod temporal;
 mod window;
@@ -110,6 +111,7 @@ pub use config::{
     SpeckleFilter, StepWindow, TemporalDecimation,
 };
 pub use point::{Point, PointSink, RawPoint, ScanEnd, ScanInfo, ScanStart};
+pub use smooth::LINE_HEADROOM;
 pub use stats::Stats;
 
 use decimate::Decimator;
@@ -410,10 +412,12 @@ impl Pipeline {
     /// sensor's readings: a `distance` is a range when the `sensor` rule says so (its
     /// window is not used; `u32::MAX` is never a range), an error code otherwise; `aux`
     /// is the intensity when `intensity` (the `index` and `echo` fields are not used).
-    /// The stages write into `cells` (at least `n` long): the region of interest as a
-    /// slice; error codes, range window and intensity threshold as one classification,
-    /// speckle and median as sliding windows carried from line to line, all in one loop
-    /// over the line; decimation as a block reduction after it. The output points are left at the front
+    /// The stages write into `cells` (at least `n` + [`LINE_HEADROOM`] long): the
+    /// region of interest as a slice; error codes, range window and intensity threshold
+    /// as one classification of the line into `cells`, behind the points the windows
+    /// hold from the line before; speckle removal and median as one loop each over
+    /// those cells, chosen per line and width; decimation as a block reduction after
+    /// them. The output points are left at the front
     /// of `cells` as readings for the CAN encoder: `out_none` for no range, a range of
     /// 0 mm as 1 (the encodings code it so), `aux` the intensity (0 for none); their
     /// number is returned. Counters, the `filtered` flag and what
@@ -430,20 +434,20 @@ impl Pipeline {
         out_none: u32,
     ) -> Option<usize> {
         let n = input.len();
-        if self.config.is_passthrough() || cells.len() < n {
+        if self.config.is_passthrough() || cells.len() < n.saturating_add(LINE_HEADROOM) {
             return None;
         }
         let cluster = self.take_run(first_step, n)?.cluster;
         let (lo, hi) = self.roi_slice(first_step, n, cluster);
         let input = input.get(lo..hi).unwrap_or_default();
-        let buf = cells.get_mut(..input.len()).unwrap_or_default();
+        let buf = cells;
         // The slice is at most the run.
         add(&mut self.stats.points_in, n);
         add(
             &mut self.stats.points_outside_roi,
-            n.wrapping_sub(buf.len()),
+            n.wrapping_sub(input.len()),
         );
-        let Some(last) = buf.len().checked_sub(1) else {
+        let Some(last) = input.len().checked_sub(1) else {
             return Some(0);
         };
         // Step of the slice's last point (the run fits the scan's u16 steps).
@@ -465,17 +469,17 @@ impl Pipeline {
             decimate: self.decimator.is_active(),
             out_none,
         };
-        // The windows' state in registers for the line.
+        // The windows' state for the line.
         let mut sp = self.speckle.load(NONE);
         let mut md = self.median.load(NONE);
-        // Without a window stage, a plain classification pass (cheaper than the fused
-        // loop's stage flags); the output is converted after decimation, or below.
+        // Without a window stage, a plain classification pass; the output is converted
+        // after decimation, or below.
         let windows = line.jump.is_some() || line.median.is_some();
         let (w, mut invalid, changed) = if windows {
-            fused_line(input, buf, &line, &mut sp, &mut md, &mut c)
+            smooth::line(input, buf, &line, &mut sp, &mut md, &mut c)
         } else {
             classify_line(input, buf, &line, &mut c);
-            (buf.len(), 0, false)
+            (input.len(), 0, false)
         };
         let none = NONE;
         let jump = line.jump;
@@ -715,7 +719,7 @@ impl Pipeline {
 /// No range, inside a line.
 const NONE: u32 = u32::MAX;
 
-/// What [`fused_line`] needs of the settings, worked out once per line.
+/// What [`smooth::line`] needs of the settings, worked out once per line.
 struct LineConsts {
     /// The sensor's range test with the range window.
     rule: can_wire::RangeRule,
@@ -731,104 +735,7 @@ struct LineConsts {
     out_none: u32,
 }
 
-/// The stages of [`Pipeline::filter_line`] up to the median, in one loop over the
-/// line's readings `input`; the output points go to the front of `buf` (at least as
-/// long). Returns their number, how many have no range (when not decimating) and
-/// whether the median changed a range. Kept out of line so that its state stays in
-/// registers; one copy for every configuration (the stages are chosen per point by
-/// flags that do not change within the line).
-#[inline(never)]
-fn fused_line(
-    input: &[scip::Reading],
-    buf: &mut [scip::Reading],
-    k: &LineConsts,
-    sp: &mut window::Regs,
-    md: &mut window::Regs,
-    c: &mut Counts,
-) -> (usize, usize, bool) {
-    let rule = &k.rule;
-    let [wmin, wmax] = rule.window;
-    // The distances from `low` up to (not including) `low + span` are ranges inside
-    // the window, found by one test (as the encoder's runs do); the others take the
-    // full one. The sensor's error codes at or above its minimum end the span (which
-    // never holds NONE, `u32::MAX`).
-    let [a, b] = rule.except;
-    let first = a
-        .min(b)
-        .min(rule.band.unwrap_or(NONE))
-        .min(wmax.saturating_add(1));
-    let low = rule.min.max(wmin);
-    let span = first.saturating_sub(low);
-    let min_intensity = k.min_intensity;
-    let three = k.median == Some(MedianWidth::Three);
-    let five = k.median == Some(MedianWidth::Five);
-    let (mut w, mut invalid, mut changed) = (0usize, 0usize, false);
-    // The counts in registers, added to `c` once.
-    let (mut error_code, mut out_of_range, mut low_intensity, mut speckle) =
-        (0usize, 0usize, 0usize, 0usize);
-    let (mut s1, mut m) = (*sp, *md);
-    for r in input {
-        let d = r.distance;
-        let mut x = (d, r.aux);
-        if d.wrapping_sub(low) >= span {
-            // Counts of at most the line's points: no wrap.
-            if !rule.is_range(d) || d == NONE {
-                if d != NONE && rule.is_sensor_range(d) {
-                    out_of_range = out_of_range.wrapping_add(1);
-                } else {
-                    error_code = error_code.wrapping_add(1);
-                }
-                x.0 = NONE;
-            }
-        }
-        if x.0 != NONE && r.aux < min_intensity {
-            low_intensity = low_intensity.wrapping_add(1);
-            x.0 = NONE;
-        }
-        if let Some(jump) = k.jump {
-            let Some((centre, before, after)) = s1.push1(x) else {
-                continue;
-            };
-            let (out, removed) = window::speckle3_line(centre.0, before, after, NONE, jump);
-            speckle = speckle.wrapping_add(usize::from(removed));
-            x = (out, centre.1);
-        }
-        if three {
-            let Some((centre, before, after)) = m.push1(x) else {
-                continue;
-            };
-            let out = window::median3_line(centre.0, before, after, NONE);
-            changed |= out != centre.0;
-            x = (out, centre.1);
-        } else if five {
-            let Some((centre, nb)) = m.push2(x) else {
-                continue;
-            };
-            let out = window::median_line(centre.0, nb, NONE);
-            changed |= out != centre.0;
-            x = (out, centre.1);
-        }
-        if !k.decimate {
-            invalid = invalid.wrapping_add(usize::from(x.0 == NONE));
-            x.0 = if x.0 == NONE { k.out_none } else { x.0.max(1) };
-        }
-        if let Some(slot) = buf.get_mut(w) {
-            slot.distance = x.0;
-            slot.aux = x.1;
-        }
-        // At most the line's points.
-        w = w.wrapping_add(1);
-    }
-    *sp = s1;
-    *md = m;
-    c.error_code = c.error_code.wrapping_add(error_code);
-    c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
-    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
-    c.speckle = c.speckle.wrapping_add(speckle);
-    (w, invalid, changed)
-}
-
-/// The classification of [`fused_line`] alone (error codes, range window, intensity
+/// The classification of [`smooth::line`] alone (error codes, range window, intensity
 /// threshold), `input` into `buf` (as long), no range as [`NONE`].
 #[inline(never)]
 fn classify_line(
@@ -2008,6 +1915,7 @@ mod tests {
                                 .map(|r| scip::Reading { index: 0, echo: 0, distance: r.distance, aux: r.intensity.unwrap_or(0) })
                                 .collect();
                             let mut cells = input.clone();
+                            cells.extend([scip::Reading::default(); LINE_HEADROOM]);
                             let k = p.filter_line(a[0].step, &input, &mut cells, can_wire::RangeRule::at_least(1), with_intensity, 7_777_777);
                             match k {
                                 Some(k) => {
