@@ -68,9 +68,12 @@ pub(super) fn line(
             at = at.wrapping_add(1);
         }
     }
-    let big = classify(input, all.get_mut(head..).unwrap_or_default(), k, c);
+    let (big, zero_free) = classify(input, all.get_mut(head..).unwrap_or_default(), k, c);
 
     // Speckle removal over its held point and the line: its outputs stay in place.
+    // The last stage gives its outputs in the encoder's form when not decimating
+    // (`done`), counting those without a range (`invalid`).
+    let (mut invalid, mut done) = (0usize, false);
     let mut o1 = m;
     if let Some(jump) = k.jump {
         let l1 = np1.wrapping_add(m);
@@ -78,10 +81,16 @@ pub(super) fn line(
         o1 = l1.saturating_sub(1);
         if o1 > 0 {
             let short = jump < SMALL && !big && small(sp.b1) && small(sp.p0.0);
-            let removed = if short {
-                speckle_short(region, &mut sp.b1, jump)
-            } else {
+            let removed = if !short {
                 speckle_exact(region, &mut sp.b1, jump)
+            } else if half2 == 0 && !k.decimate && zero_free {
+                // The last stage: its outputs in the encoder's form.
+                let (removed, none) = speckle_short::<true>(region, &mut sp.b1, jump, k.out_none);
+                invalid = none;
+                done = true;
+                removed
+            } else {
+                speckle_short::<false>(region, &mut sp.b1, jump, NONE).0
             };
             c.speckle = c.speckle.wrapping_add(removed);
         }
@@ -99,11 +108,16 @@ pub(super) fn line(
         let region = all.get_mut(..l2).unwrap_or_default();
         out = l2.saturating_sub(half2);
         if out > 0 {
-            diff = if half2 == 1 {
-                median3(region, &mut md.b1)
-            } else {
-                median5(region, &mut md.b1, &mut md.b2)
+            let mut b = [md.b1, md.b2];
+            let last = !k.decimate && zero_free;
+            (diff, invalid) = match (half2 == 1, last) {
+                (true, true) => median3::<true>(region, &mut b, k.out_none),
+                (true, false) => median3::<false>(region, &mut b, NONE),
+                (false, true) => median5::<true>(region, &mut b, k.out_none),
+                (false, false) => median5::<false>(region, &mut b, NONE),
             };
+            done = last;
+            [md.b1, md.b2] = b;
         }
         md.np = l2.wrapping_sub(out);
         if let Some(cell) = region.get(out) {
@@ -114,19 +128,22 @@ pub(super) fn line(
         }
     }
 
-    let outputs = all.get_mut(..out).unwrap_or_default();
-    let invalid = if k.decimate {
-        0
-    } else {
-        finish(outputs, k.out_none)
-    };
+    if !k.decimate && !done {
+        invalid = finish(all.get_mut(..out).unwrap_or_default(), k.out_none);
+    }
     (out, invalid, diff != 0)
 }
 
 /// Error codes, the range window and the intensity threshold: `input` into `out` (as
 /// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
-/// [`SMALL`] passed.
-fn classify(input: &[Reading], out: &mut [Reading], k: &LineConsts, c: &mut Counts) -> bool {
+/// [`SMALL`] passed, and whether no range of 0 can (in this line or, the rule being
+/// the scan's, any line of the scan).
+fn classify(
+    input: &[Reading],
+    out: &mut [Reading],
+    k: &LineConsts,
+    c: &mut Counts,
+) -> (bool, bool) {
     let rule = &k.rule;
     let [wmin, wmax] = rule.window;
     // The distances from `low` up to (not including) `low + span` are ranges inside
@@ -151,7 +168,7 @@ fn classify(input: &[Reading], out: &mut [Reading], k: &LineConsts, c: &mut Coun
     c.error_code = c.error_code.wrapping_add(error_code);
     c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
     c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
-    big
+    (big, !rule.is_sensor_range(0) || !rule.is_range(0))
 }
 
 /// The loop of [`classify`], with or without an intensity threshold.
@@ -204,25 +221,48 @@ fn classify_rare(rule: &can_wire::RangeRule, d: u32, n: &mut [usize; 3], big: &m
 /// look-ahead), `b1` the distance before the first (updated to the one before the
 /// last). For a threshold and ranges below [`SMALL`] (a missing neighbour is then never
 /// within the threshold, and a missing centre stays missing either way). Returns the
-/// number of ranges removed.
+/// number of ranges removed and, when `LAST` (the outputs then in the encoder's form,
+/// see [`out`]), the number of outputs without a range.
 #[inline(never)]
-fn speckle_short(s: &mut [Reading], b1: &mut u32, jump: u32) -> usize {
+fn speckle_short<const LAST: bool>(
+    s: &mut [Reading],
+    b1: &mut u32,
+    jump: u32,
+    out_none: u32,
+) -> (usize, usize) {
     let Some((mut cell, rest)) = s.split_first_mut() else {
-        return 0;
+        return (0, 0);
     };
     let (mut b, mut c) = (*b1, cell.distance);
-    let mut removed = 0usize;
+    let (mut removed, mut invalid) = (0usize, 0usize);
     for next in rest {
         let a = next.distance;
         let keep = b.abs_diff(c) <= jump || a.abs_diff(c) <= jump;
-        let out = if keep { c } else { NONE };
+        let x = if keep { c } else { NONE };
         // At most the line's points: no wrap.
-        removed = removed.wrapping_add(usize::from(out != c));
-        cell.distance = out;
+        removed = removed.wrapping_add(usize::from(x != c));
+        cell.distance = out::<LAST>(x, out_none, &mut invalid);
         (b, c, cell) = (c, a, next);
     }
     *b1 = b;
-    removed
+    (removed, invalid)
+}
+
+/// A stage's output `x`: as it is, or when `LAST` in the encoder's form (no range as
+/// `out_none`, counted in `invalid`; only for lines without a range of 0, which the
+/// encoder's form gives as 1).
+#[inline(always)]
+fn out<const LAST: bool>(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
+    if !LAST {
+        return x;
+    }
+    // At most the line's points: no wrap.
+    *invalid = invalid.wrapping_add(usize::from(x == NONE));
+    if x == NONE {
+        out_none
+    } else {
+        x
+    }
 }
 
 /// [`speckle_short`] for any threshold and range.
@@ -245,52 +285,55 @@ fn speckle_exact(s: &mut [Reading], b1: &mut u32, jump: u32) -> usize {
 }
 
 /// The median of 3 over `s` (as [`speckle_short`]: every cell but the last is a centre,
-/// `b1` the distance before the first). Returns the OR of every changed range with its
-/// new value (0: none changed).
+/// `b[0]` the distance before the first, updated likewise). Returns the OR of every
+/// changed range with its new value (0: none changed) and, when `LAST`, the number of
+/// outputs without a range.
 #[inline(never)]
-fn median3(s: &mut [Reading], b1: &mut u32) -> u32 {
+fn median3<const LAST: bool>(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
     let Some((mut cell, rest)) = s.split_first_mut() else {
-        return 0;
+        return (0, 0);
     };
-    let (mut b, mut c) = (*b1, cell.distance);
-    let mut diff = 0u32;
+    // Each distance also with no range as 0: a window with a neighbour missing then
+    // clamps its centre into [0, NONE], which leaves it (the centre is one of the
+    // middle pair); with both, into the neighbours' span, which is the median.
+    let zero = |d: u32| if d == NONE { 0 } else { d };
+    let (mut x1, mut c) = (b[0], cell.distance);
+    let (mut z1, mut zc) = (zero(x1), zero(c));
+    let (mut diff, mut invalid) = (0u32, 0usize);
     for next in rest {
         let a = next.distance;
-        // With a neighbour missing the centre is one of the middle pair, and a missing
-        // centre stays missing: the centre either way.
-        let out = if b == NONE || a == NONE || c == NONE {
-            c
-        } else {
-            c.min(b).max(c.max(b).min(a))
-        };
-        diff |= out ^ c;
-        cell.distance = out;
-        (b, c, cell) = (c, a, next);
+        let za = zero(a);
+        let m = c.max(z1.min(za)).min(x1.max(a));
+        // A missing centre stays missing.
+        let x = if c == NONE { NONE } else { m };
+        diff |= x ^ c;
+        cell.distance = out::<LAST>(x, out_none, &mut invalid);
+        (x1, z1, c, zc, cell) = (c, zc, a, za, next);
     }
-    *b1 = b;
-    diff
+    b[0] = x1;
+    (diff, invalid)
 }
 
-/// The median of 5 over `s`: every cell but the last two is a centre, `b1` and `b2`
-/// the distances before the first (nearest first; updated likewise). Returns as
+/// The median of 5 over `s`: every cell but the last two is a centre, `b` the
+/// distances before the first (nearest first; updated likewise). Returns as
 /// [`median3`].
 #[inline(never)]
-fn median5(s: &mut [Reading], b1: &mut u32, b2: &mut u32) -> u32 {
+fn median5<const LAST: bool>(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
     let Some((mut cell, rest)) = s.split_first_mut() else {
-        return 0;
+        return (0, 0);
     };
     let Some((mut cell1, rest)) = rest.split_first_mut() else {
-        return 0;
+        return (0, 0);
     };
-    let (mut x2, mut x1, mut c, mut a1) = (*b2, *b1, cell.distance, cell1.distance);
+    let (mut x2, mut x1, mut c, mut a1) = (b[1], b[0], cell.distance, cell1.distance);
     // Bit i set: the i-th newest distance of the window is no range.
     let none = |d: u32| u32::from(d == NONE);
     let mut missing = none(x2) << 3 | none(x1) << 2 | none(c) << 1 | none(a1);
-    let mut diff = 0u32;
+    let (mut diff, mut invalid) = (0u32, 0usize);
     for next in rest {
         let a2 = next.distance;
         missing = missing << 1 | none(a2);
-        let out = if missing & 0x1f == 0 {
+        let x = if missing & 0x1f == 0 {
             // Five ranges: the median of the two pairs' inner values and the centre.
             let lo = x2.min(x1).max(a1.min(a2));
             let hi = x2.max(x1).min(a1.max(a2));
@@ -298,13 +341,13 @@ fn median5(s: &mut [Reading], b1: &mut u32, b2: &mut u32) -> u32 {
         } else {
             median_line(c, [x2, x1, a1, a2], NONE)
         };
-        diff |= out ^ c;
-        cell.distance = out;
+        diff |= x ^ c;
+        cell.distance = out::<LAST>(x, out_none, &mut invalid);
         (x2, x1, c, a1) = (x1, c, a1, a2);
         (cell, cell1) = (cell1, next);
     }
-    (*b1, *b2) = (x1, x2);
-    diff
+    *b = [x1, x2];
+    (diff, invalid)
 }
 
 /// The output points into the encoder's form: no range as `out_none`, a range of 0 as
@@ -353,10 +396,10 @@ mod tests {
         for t in 0..5u32.pow(5) {
             let v: [u32; 5] = core::array::from_fn(|i| t / 5u32.pow(i as u32) % 5 * 100);
             let mut s = cells(&v[2..]);
-            let (mut b1, mut b2) = (v[1], v[0]);
-            median5(&mut s, &mut b1, &mut b2);
+            let mut b = [v[1], v[0]];
+            median5::<false>(&mut s, &mut b, NONE);
             assert_eq!(s[0].distance, sorted_median(v), "{v:?}");
-            assert_eq!((b1, b2), (v[2], v[1]));
+            assert_eq!(b, [v[2], v[1]]);
         }
     }
 
@@ -366,14 +409,21 @@ mod tests {
         // 1000 9999 1002), 1002 becomes 1004 (of 9999 1002 1004), a centre beside a
         // missing neighbour stays.
         let mut s = cells(&[9999, 1002, 1004, NONE, 1010]);
-        let mut b1 = 1000;
-        let diff = median3(&mut s, &mut b1);
+        let mut b = [1000, 0];
+        let (diff, _) = median3::<false>(&mut s, &mut b, NONE);
         assert_eq!(dist(&s), [1002, 1004, 1004, NONE, 1010]);
         assert_ne!(diff, 0);
-        assert_eq!(b1, NONE);
+        assert_eq!(b[0], NONE);
+        // The last stage: no range as the encoder's value, counted.
+        let mut s = cells(&[9999, NONE, 1004, 1003]);
+        let mut b = [1000, 0];
+        assert_eq!(median3::<true>(&mut s, &mut b, 7).1, 1);
+        assert_eq!(dist(&s), [9999, 7, 1004, 1003]);
         // Threshold 5: 1000 (supported by 1004) stays, 2000 and 3000 go, a missing
         // centre is not counted.
-        for f in [speckle_short, speckle_exact] {
+        let short =
+            |s: &mut [Reading], b1: &mut u32, jump| speckle_short::<false>(s, b1, jump, NONE).0;
+        for f in [short, speckle_exact] {
             let mut s = cells(&[1000, 2000, NONE, 3000, 3010]);
             let mut b1 = 1004;
             assert_eq!(f(&mut s, &mut b1, 5), 2);
