@@ -155,6 +155,23 @@ pub struct Pipeline {
     stats: Stats,
     /// A filter changed or invalidated a point of the current (or last) scan.
     filtered: bool,
+    /// The windows' state after the last [`Pipeline::filter_line`], in its loops' form,
+    /// while no other path has needed it (then it is moved into `speckle` and `median`).
+    held: Held,
+}
+
+/// The windows' state between data lines (see [`Pipeline::filter_line`]).
+#[derive(Debug, Clone, Copy)]
+struct Held {
+    /// Whether this is the state (not `speckle` and `median` of the pipeline).
+    live: bool,
+    speckle: window::Regs,
+    median: window::Regs,
+    /// The step of the last point the windows took, and the steps between points.
+    last_step: u32,
+    cluster: u32,
+    /// Whether the points carry intensities.
+    intensity: bool,
 }
 
 impl Pipeline {
@@ -171,6 +188,14 @@ impl Pipeline {
             decimator: Decimator::new(config.decimation),
             stats: Stats::default(),
             filtered: false,
+            held: Held {
+                live: false,
+                speckle: window::Regs::default(),
+                median: window::Regs::default(),
+                last_step: 0,
+                cluster: 1,
+                intensity: false,
+            },
         })
     }
 
@@ -266,6 +291,7 @@ impl Pipeline {
                 return;
             }
         }
+        self.release();
         self.run_stages(core::iter::once(point), |p| sink.point(p));
     }
 
@@ -404,6 +430,7 @@ impl Pipeline {
         let outside = n.wrapping_sub(inner.len());
         add(&mut self.stats.points_in, n);
         add(&mut self.stats.points_outside_roi, outside);
+        self.release();
         Some(self.run_stages(inner.iter().map(raw), out))
     }
 
@@ -469,34 +496,30 @@ impl Pipeline {
             decimate: self.decimator.is_active(),
             out_none,
         };
-        // The windows' state for the line.
-        let mut sp = self.speckle.load(NONE);
-        let mut md = self.median.load(NONE);
+        // The windows' state for the line: as the last line left it, or loaded.
+        let h = &mut self.held;
+        if !h.live {
+            h.speckle = self.speckle.load(NONE);
+            h.median = self.median.load(NONE);
+        }
+        let (sp, md) = (&mut h.speckle, &mut h.median);
         // Without a window stage, a plain classification pass; the output is converted
         // after decimation, or below.
         let windows = line.jump.is_some() || line.median.is_some();
         let (w, mut invalid, changed) = if windows {
-            smooth::line(input, buf, &line, &mut sp, &mut md, &mut c)
+            smooth::line(input, buf, &line, sp, md, &mut c)
         } else {
             classify_line(input, buf, &line, &mut c);
             (input.len(), 0, false)
         };
-        let none = NONE;
-        let jump = line.jump;
-        let median = line.median.is_some();
         let decimate = line.decimate;
         c.filtered = changed;
         // Points held back by the windows (steps count back from `last_step`).
-        let mut lag = 0u32;
-        if jump.is_some() {
-            self.speckle
-                .store(&sp, none, intensity, (last_step, cluster));
-            lag = u32::try_from(sp.np).unwrap_or(0);
-        }
-        if median {
-            let at = last_step.saturating_sub(lag.saturating_mul(cluster));
-            self.median.store(&md, none, intensity, (at, cluster));
-            lag = lag.saturating_add(u32::try_from(md.np).unwrap_or(0));
+        let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
+        let lag = held(line.jump.is_some(), sp).saturating_add(held(line.median.is_some(), md));
+        let lag = u32::try_from(lag).unwrap_or(0);
+        if windows {
+            (h.live, h.last_step, h.cluster, h.intensity) = (true, last_step, cluster, intensity);
         }
         let mut m = w;
         if decimate {
@@ -506,7 +529,7 @@ impl Pipeline {
             let step = last_step.saturating_sub(back.saturating_mul(cluster));
             m = self
                 .decimator
-                .run_line(part, none, intensity, step, cluster);
+                .run_line(part, NONE, intensity, step, cluster);
         }
         if decimate || !windows {
             let out = buf.get_mut(..m).unwrap_or_default();
@@ -650,6 +673,7 @@ impl Pipeline {
         if !(intact && all_arrived && !scan.broken) {
             return self.abandon();
         }
+        self.release();
         let cfg = self.config;
         let mut c = Counts::default();
         let mut out = |p: Point| sink.point(p);
@@ -690,6 +714,7 @@ impl Pipeline {
 
     /// Ends an open published scan as incomplete, dropping its pending points.
     fn abandon(&mut self) -> ScanEnd {
+        self.release();
         let Open::Active(scan) = self.open else {
             self.open = Open::Idle;
             return ScanEnd::NotPublished;
@@ -708,7 +733,31 @@ impl Pipeline {
         }
     }
 
+    /// Moves the state [`Pipeline::filter_line`] holds into the windows, for the paths
+    /// that take them point by point.
+    fn release(&mut self) {
+        if !self.held.live {
+            return;
+        }
+        self.held.live = false;
+        let h = self.held;
+        let (last_step, cluster) = (h.last_step, h.cluster);
+        let mut lag = 0u32;
+        if self.config.speckle.is_some() {
+            let sp = &h.speckle;
+            self.speckle
+                .store(sp, NONE, h.intensity, (last_step, cluster));
+            lag = u32::try_from(sp.np).unwrap_or(0);
+        }
+        if self.config.median.is_some() {
+            let at = last_step.saturating_sub(lag.saturating_mul(cluster));
+            self.median
+                .store(&h.median, NONE, h.intensity, (at, cluster));
+        }
+    }
+
     fn reset_scan(&mut self) {
+        self.held.live = false;
         self.open = Open::Idle;
         self.speckle.clear();
         self.median.clear();
@@ -1955,6 +2004,86 @@ mod tests {
                 proptest::prop_assert_eq!(counters(p.stats()), want_k, "mode {}", mode);
                 proptest::prop_assert_eq!(p.filtered(), want_filtered, "mode {}", mode);
             }
+        }
+
+        /// The line path mixed with the point path in one scan (a line out of order, or
+        /// with several echoes, goes point by point in the engine): the windows' state
+        /// passes between them. Ranges up to near `u32::MAX` and speckle thresholds up
+        /// to it take the exact speckle loop. Points, counters and `filtered` as the
+        /// whole-scan reference.
+        #[test]
+        fn line_and_point_paths_mixed_match_the_reference(
+            inputs in proptest::collection::vec(
+                (proptest::prop_oneof![0u32..3000, (u32::MAX - 3000)..(u32::MAX - 1)], 0u8..6),
+                1..60,
+            ),
+            speckle in proptest::option::of(proptest::prop_oneof![0u32..500, (u32::MAX - 5000)..u32::MAX]),
+            median in 0u8..3,
+            decimate in proptest::bool::ANY,
+            chunks in proptest::collection::vec((1usize..25, proptest::bool::ANY), 1..6),
+        ) {
+            let config = PipelineConfig {
+                speckle: speckle.map(|max_jump_mm| SpeckleFilter { max_jump_mm }),
+                median: [None, Some(MedianWidth::Three), Some(MedianWidth::Five)][usize::from(median)],
+                decimation: decimate.then_some(Decimation { factor: 2, mode: DecimationMode::Min }),
+                ..PipelineConfig::default()
+            };
+            let n = inputs.len() as u16;
+            let info = ScanInfo { seq: 0, timestamp_ms: 0, first_step: 0, last_step: n - 1, cluster: 1 };
+            let points: Vec<RawPoint> = inputs
+                .iter()
+                .enumerate()
+                .map(|(i, &(d, e))| RawPoint {
+                    step: i as u16,
+                    distance: if e == 0 { 0 } else { d.max(1) },
+                    intensity: None,
+                    valid: e != 0,
+                })
+                .collect();
+            let (mut want, want_k, want_filtered) = reference(&config, &points);
+            let mut p = Pipeline::new(config).unwrap();
+            let published = matches!(p.begin_scan(info), ScanStart::Publish { .. });
+            proptest::prop_assert!(published);
+            let mut out = Vec::new();
+            let (mut rest, mut i) = (&points[..], 0);
+            while !rest.is_empty() {
+                let (size, by_line) = chunks[i % chunks.len()];
+                let (a, b) = rest.split_at(size.min(rest.len()));
+                if by_line {
+                    let input: Vec<scip::Reading> = a
+                        .iter()
+                        .map(|r| scip::Reading { distance: r.distance, ..scip::Reading::default() })
+                        .collect();
+                    let mut cells = std::vec![scip::Reading::default(); a.len() + LINE_HEADROOM];
+                    let none = 7_777_777;
+                    let k = p.filter_line(a[0].step, &input, &mut cells, can_wire::RangeRule::at_least(1), false, none);
+                    let Some(k) = k else {
+                        // Every stage off: no line path.
+                        p.push_batch(a, &mut |x| out.push(x));
+                        rest = b;
+                        i += 1;
+                        continue;
+                    };
+                    let base = out.len();
+                    out.extend(cells[..k].iter().enumerate().map(|(j, c)| Point {
+                        step: want.get(base + j).map_or(0, |w| w.step),
+                        range_mm: (c.distance != none).then_some(c.distance),
+                        intensity: None,
+                    }));
+                } else {
+                    p.push_batch(a, &mut |x| out.push(x));
+                }
+                rest = b;
+                i += 1;
+            }
+            let end = p.end_scan(true, &mut |x| out.push(x));
+            proptest::prop_assert_eq!(end, ScanEnd::Complete { points: want.len() });
+            let norm = |p: &mut Point| p.range_mm = p.range_mm.map(|r| r.max(1));
+            want.iter_mut().for_each(norm);
+            out.iter_mut().for_each(norm);
+            proptest::prop_assert_eq!(&out, &want);
+            proptest::prop_assert_eq!(counters(p.stats()), want_k);
+            proptest::prop_assert_eq!(p.filtered(), want_filtered);
         }
     }
 }

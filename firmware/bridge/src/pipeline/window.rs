@@ -114,7 +114,7 @@ impl CentredWindow {
 /// The state of a [`CentredWindow`] in the form the line loops
 /// ([`super::Pipeline::filter_line`]) take it: distances with a "no range"
 /// value instead of options, intensities as plain values.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct Regs {
     /// The oldest pending point (distance, intensity).
     pub p0: (u32, u32),
