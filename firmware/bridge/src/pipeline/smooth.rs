@@ -109,12 +109,13 @@ pub(super) fn line(
         out = l2.saturating_sub(half2);
         if out > 0 {
             let mut b = [md.b1, md.b2];
+            // Not the last stage: no range stays NONE (one loop per width either way).
             let last = !k.decimate && zero_free;
-            (diff, invalid) = match (half2 == 1, last) {
-                (true, true) => median3::<true>(region, &mut b, k.out_none),
-                (true, false) => median3::<false>(region, &mut b, NONE),
-                (false, true) => median5::<true>(region, &mut b, k.out_none),
-                (false, false) => median5::<false>(region, &mut b, NONE),
+            let none = if last { k.out_none } else { NONE };
+            (diff, invalid) = if half2 == 1 {
+                median3(region, &mut b, none)
+            } else {
+                median5(region, &mut b, none)
             };
             done = last;
             [md.b1, md.b2] = b;
@@ -128,7 +129,10 @@ pub(super) fn line(
         }
     }
 
-    if !k.decimate && !done {
+    if k.decimate {
+        // Counted after decimation.
+        invalid = 0;
+    } else if !done {
         invalid = finish(all.get_mut(..out).unwrap_or_default(), k.out_none);
     }
     (out, invalid, diff != 0)
@@ -285,11 +289,11 @@ fn speckle_exact(s: &mut [Reading], b1: &mut u32, jump: u32) -> usize {
 }
 
 /// The median of 3 over `s` (as [`speckle_short`]: every cell but the last is a centre,
-/// `b[0]` the distance before the first, updated likewise). Returns the OR of every
-/// changed range with its new value (0: none changed) and, when `LAST`, the number of
-/// outputs without a range.
+/// `b[0]` the distance before the first, updated likewise). No range is written as
+/// `out_none` ([`NONE`] to leave it). Returns the OR of every changed range with its
+/// new value (0: none changed) and the number of outputs without a range.
 #[inline(never)]
-fn median3<const LAST: bool>(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
+fn median3(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
     let Some((mut cell, rest)) = s.split_first_mut() else {
         return (0, 0);
     };
@@ -307,7 +311,7 @@ fn median3<const LAST: bool>(s: &mut [Reading], b: &mut [u32; 2], out_none: u32)
         // A missing centre stays missing.
         let x = if c == NONE { NONE } else { m };
         diff |= x ^ c;
-        cell.distance = out::<LAST>(x, out_none, &mut invalid);
+        cell.distance = out::<true>(x, out_none, &mut invalid);
         (x1, z1, c, zc, cell) = (c, zc, a, za, next);
     }
     b[0] = x1;
@@ -318,7 +322,7 @@ fn median3<const LAST: bool>(s: &mut [Reading], b: &mut [u32; 2], out_none: u32)
 /// distances before the first (nearest first; updated likewise). Returns as
 /// [`median3`].
 #[inline(never)]
-fn median5<const LAST: bool>(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
+fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
     let Some((mut cell, rest)) = s.split_first_mut() else {
         return (0, 0);
     };
@@ -342,7 +346,7 @@ fn median5<const LAST: bool>(s: &mut [Reading], b: &mut [u32; 2], out_none: u32)
             median_line(c, [x2, x1, a1, a2], NONE)
         };
         diff |= x ^ c;
-        cell.distance = out::<LAST>(x, out_none, &mut invalid);
+        cell.distance = out::<true>(x, out_none, &mut invalid);
         (x2, x1, c, a1) = (x1, c, a1, a2);
         (cell, cell1) = (cell1, next);
     }
@@ -397,7 +401,7 @@ mod tests {
             let v: [u32; 5] = core::array::from_fn(|i| t / 5u32.pow(i as u32) % 5 * 100);
             let mut s = cells(&v[2..]);
             let mut b = [v[1], v[0]];
-            median5::<false>(&mut s, &mut b, NONE);
+            median5(&mut s, &mut b, NONE);
             assert_eq!(s[0].distance, sorted_median(v), "{v:?}");
             assert_eq!(b, [v[2], v[1]]);
         }
@@ -410,14 +414,14 @@ mod tests {
         // missing neighbour stays.
         let mut s = cells(&[9999, 1002, 1004, NONE, 1010]);
         let mut b = [1000, 0];
-        let (diff, _) = median3::<false>(&mut s, &mut b, NONE);
+        let (diff, _) = median3(&mut s, &mut b, NONE);
         assert_eq!(dist(&s), [1002, 1004, 1004, NONE, 1010]);
         assert_ne!(diff, 0);
         assert_eq!(b[0], NONE);
         // The last stage: no range as the encoder's value, counted.
         let mut s = cells(&[9999, NONE, 1004, 1003]);
         let mut b = [1000, 0];
-        assert_eq!(median3::<true>(&mut s, &mut b, 7).1, 1);
+        assert_eq!(median3(&mut s, &mut b, 7).1, 1);
         assert_eq!(dist(&s), [9999, 7, 1004, 1003]);
         // Threshold 5: 1000 (supported by 1004) stays, 2000 and 3000 go, a missing
         // centre is not counted.
