@@ -81,8 +81,9 @@
 //! [`Pipeline::pass_run`] lets the bridge engine publish a data line directly, also with
 //! a region of interest (a slice of the line) and a range window (part of the encoder's
 //! range rule). With a window stage or decimation on, [`Pipeline::filter_line`] runs the
-//! engine's data line through every stage: classification, speckle and median in one
-//! loop (the windows' state carried from line to line), decimation in a pass after it; and
+//! engine's data line through every stage: classification, then speckle and median a
+//! loop each over the line in place (the points the windows hold from the line before
+//! copied in front of it), decimation in a pass after them; and
 //! [`Pipeline::filter_run`] does the same for a run of points in one loop without a
 //! sink call per point; both give exactly what pushing the points one by one gives.
 
