@@ -129,7 +129,9 @@ pub(crate) struct Regs {
 }
 
 impl CentredWindow {
-    /// The window's state as [`Regs`] (`none` for no range).
+    /// The window's state as [`Regs`] (`none` for no range). (Never inlined: one copy
+    /// for both windows, it runs once a scan or after a point-by-point path.)
+    #[inline(never)]
     pub fn load(&self, none: u32) -> Regs {
         let d = |p: &Point| p.range_mm.unwrap_or(none);
         let [p0, p1] = self.pending;
@@ -146,6 +148,7 @@ impl CentredWindow {
     /// Takes the state back from [`Regs`] after a line: the points left pending get
     /// steps counted back from `last_step` (the step of the last point the window
     /// took), `cluster` apart; intensities only when `intensity`.
+    #[inline(never)]
     pub fn store(
         &mut self,
         r: &Regs,
