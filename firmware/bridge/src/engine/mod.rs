@@ -227,7 +227,7 @@ struct Core<const Q: usize> {
     /// The cost the scan being published was admitted with.
     admitted: Option<can_wire::bandwidth::ScanCost>,
     /// A data line's points out of [`Pipeline::filter_run`], as readings.
-    decimated: [scip::Reading; scip::MAX_READINGS],
+    decimated: [scip::Reading; scip::MAX_READINGS + crate::pipeline::LINE_HEADROOM],
     /// The sensor's 24-bit ms clock, extended (SPEC 3.1); reset when the sensor restarts.
     clock: scip::TimestampUnwrapper,
     /// Bridge ms minus extended sensor ms at the last TM sync, while it holds.
@@ -304,7 +304,8 @@ impl<const Q: usize> Bridge<Q> {
                 auto_decimation: true,
                 plan: None,
                 admitted: None,
-                decimated: [scip::Reading::default(); scip::MAX_READINGS],
+                decimated: [scip::Reading::default();
+                    scip::MAX_READINGS + crate::pipeline::LINE_HEADROOM],
                 clock: scip::TimestampUnwrapper::new(),
                 sync_offset: None,
                 sync_asked: false,

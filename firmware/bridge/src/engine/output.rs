@@ -15,7 +15,7 @@ impl<const Q: usize> Core<Q> {
         &mut self,
     ) -> (
         &mut Pipeline,
-        &mut [scip::Reading; scip::MAX_READINGS],
+        &mut [scip::Reading; scip::MAX_READINGS + crate::pipeline::LINE_HEADROOM],
         Output<'_, Q>,
     ) {
         let Self {

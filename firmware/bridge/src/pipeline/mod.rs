@@ -81,8 +81,9 @@
 //! [`Pipeline::pass_run`] lets the bridge engine publish a data line directly, also with
 //! a region of interest (a slice of the line) and a range window (part of the encoder's
 //! range rule). With a window stage or decimation on, [`Pipeline::filter_line`] runs the
-//! engine's data line through every stage: classification, speckle and median in one
-//! loop (the windows' state carried from line to line), decimation in a pass after it; and
+//! engine's data line through every stage: classification, then speckle and median a
+//! loop each over the line in place (the points the windows hold from the line before
+//! copied in front of it), decimation in a pass after them; and
 //! [`Pipeline::filter_run`] does the same for a run of points in one loop without a
 //! sink call per point; both give exactly what pushing the points one by one gives.
 
@@ -101,6 +102,7 @@
 mod config;
 mod decimate;
 mod point;
+mod smooth;
 mod stats;
 mod temporal;
 mod window;
@@ -110,6 +112,7 @@ pub use config::{
     SpeckleFilter, StepWindow, TemporalDecimation,
 };
 pub use point::{Point, PointSink, RawPoint, ScanEnd, ScanInfo, ScanStart};
+pub use smooth::LINE_HEADROOM;
 pub use stats::Stats;
 
 use decimate::Decimator;
@@ -153,6 +156,23 @@ pub struct Pipeline {
     stats: Stats,
     /// A filter changed or invalidated a point of the current (or last) scan.
     filtered: bool,
+    /// The windows' state after the last [`Pipeline::filter_line`], in its loops' form,
+    /// while no other path has needed it (then it is moved into `speckle` and `median`).
+    held: Held,
+}
+
+/// The windows' state between data lines (see [`Pipeline::filter_line`]).
+#[derive(Debug, Clone, Copy)]
+struct Held {
+    /// Whether this is the state (not `speckle` and `median` of the pipeline).
+    live: bool,
+    speckle: window::Regs,
+    median: window::Regs,
+    /// The step of the last point the windows took, and the steps between points.
+    last_step: u32,
+    cluster: u32,
+    /// Whether the points carry intensities.
+    intensity: bool,
 }
 
 impl Pipeline {
@@ -169,6 +189,14 @@ impl Pipeline {
             decimator: Decimator::new(config.decimation),
             stats: Stats::default(),
             filtered: false,
+            held: Held {
+                live: false,
+                speckle: window::Regs::default(),
+                median: window::Regs::default(),
+                last_step: 0,
+                cluster: 1,
+                intensity: false,
+            },
         })
     }
 
@@ -264,6 +292,7 @@ impl Pipeline {
                 return;
             }
         }
+        self.release();
         self.run_stages(core::iter::once(point), |p| sink.point(p));
     }
 
@@ -402,6 +431,7 @@ impl Pipeline {
         let outside = n.wrapping_sub(inner.len());
         add(&mut self.stats.points_in, n);
         add(&mut self.stats.points_outside_roi, outside);
+        self.release();
         Some(self.run_stages(inner.iter().map(raw), out))
     }
 
@@ -410,10 +440,12 @@ impl Pipeline {
     /// sensor's readings: a `distance` is a range when the `sensor` rule says so (its
     /// window is not used; `u32::MAX` is never a range), an error code otherwise; `aux`
     /// is the intensity when `intensity` (the `index` and `echo` fields are not used).
-    /// The stages write into `cells` (at least `n` long): the region of interest as a
-    /// slice; error codes, range window and intensity threshold as one classification,
-    /// speckle and median as sliding windows carried from line to line, all in one loop
-    /// over the line; decimation as a block reduction after it. The output points are left at the front
+    /// The stages write into `cells` (at least `n` + [`LINE_HEADROOM`] long): the
+    /// region of interest as a slice; error codes, range window and intensity threshold
+    /// as one classification of the line into `cells`, behind the points the windows
+    /// hold from the line before; speckle removal and median as one loop each over
+    /// those cells, chosen per line and width; decimation as a block reduction after
+    /// them. The output points are left at the front
     /// of `cells` as readings for the CAN encoder: `out_none` for no range, a range of
     /// 0 mm as 1 (the encodings code it so), `aux` the intensity (0 for none); their
     /// number is returned. Counters, the `filtered` flag and what
@@ -430,20 +462,20 @@ impl Pipeline {
         out_none: u32,
     ) -> Option<usize> {
         let n = input.len();
-        if self.config.is_passthrough() || cells.len() < n {
+        if self.config.is_passthrough() || cells.len() < n.saturating_add(LINE_HEADROOM) {
             return None;
         }
         let cluster = self.take_run(first_step, n)?.cluster;
         let (lo, hi) = self.roi_slice(first_step, n, cluster);
         let input = input.get(lo..hi).unwrap_or_default();
-        let buf = cells.get_mut(..input.len()).unwrap_or_default();
+        let buf = cells;
         // The slice is at most the run.
         add(&mut self.stats.points_in, n);
         add(
             &mut self.stats.points_outside_roi,
-            n.wrapping_sub(buf.len()),
+            n.wrapping_sub(input.len()),
         );
-        let Some(last) = buf.len().checked_sub(1) else {
+        let Some(last) = input.len().checked_sub(1) else {
             return Some(0);
         };
         // Step of the slice's last point (the run fits the scan's u16 steps).
@@ -465,34 +497,30 @@ impl Pipeline {
             decimate: self.decimator.is_active(),
             out_none,
         };
-        // The windows' state in registers for the line.
-        let mut sp = self.speckle.load(NONE);
-        let mut md = self.median.load(NONE);
-        // Without a window stage, a plain classification pass (cheaper than the fused
-        // loop's stage flags); the output is converted after decimation, or below.
+        // The windows' state for the line: as the last line left it, or loaded.
+        let h = &mut self.held;
+        if !h.live {
+            h.speckle = self.speckle.load(NONE);
+            h.median = self.median.load(NONE);
+        }
+        let (sp, md) = (&mut h.speckle, &mut h.median);
+        // Without a window stage, a plain classification pass; the output is converted
+        // after decimation, or below.
         let windows = line.jump.is_some() || line.median.is_some();
         let (w, mut invalid, changed) = if windows {
-            fused_line(input, buf, &line, &mut sp, &mut md, &mut c)
+            smooth::line(input, buf, &line, sp, md, &mut c)
         } else {
             classify_line(input, buf, &line, &mut c);
-            (buf.len(), 0, false)
+            (input.len(), 0, false)
         };
-        let none = NONE;
-        let jump = line.jump;
-        let median = line.median.is_some();
         let decimate = line.decimate;
         c.filtered = changed;
         // Points held back by the windows (steps count back from `last_step`).
-        let mut lag = 0u32;
-        if jump.is_some() {
-            self.speckle
-                .store(&sp, none, intensity, (last_step, cluster));
-            lag = u32::try_from(sp.np).unwrap_or(0);
-        }
-        if median {
-            let at = last_step.saturating_sub(lag.saturating_mul(cluster));
-            self.median.store(&md, none, intensity, (at, cluster));
-            lag = lag.saturating_add(u32::try_from(md.np).unwrap_or(0));
+        let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
+        let lag = held(line.jump.is_some(), sp).saturating_add(held(line.median.is_some(), md));
+        let lag = u32::try_from(lag).unwrap_or(0);
+        if windows {
+            (h.live, h.last_step, h.cluster, h.intensity) = (true, last_step, cluster, intensity);
         }
         let mut m = w;
         if decimate {
@@ -502,7 +530,7 @@ impl Pipeline {
             let step = last_step.saturating_sub(back.saturating_mul(cluster));
             m = self
                 .decimator
-                .run_line(part, none, intensity, step, cluster);
+                .run_line(part, NONE, intensity, step, cluster);
         }
         if decimate || !windows {
             let out = buf.get_mut(..m).unwrap_or_default();
@@ -646,6 +674,7 @@ impl Pipeline {
         if !(intact && all_arrived && !scan.broken) {
             return self.abandon();
         }
+        self.release();
         let cfg = self.config;
         let mut c = Counts::default();
         let mut out = |p: Point| sink.point(p);
@@ -686,6 +715,7 @@ impl Pipeline {
 
     /// Ends an open published scan as incomplete, dropping its pending points.
     fn abandon(&mut self) -> ScanEnd {
+        self.release();
         let Open::Active(scan) = self.open else {
             self.open = Open::Idle;
             return ScanEnd::NotPublished;
@@ -704,7 +734,31 @@ impl Pipeline {
         }
     }
 
+    /// Moves the state [`Pipeline::filter_line`] holds into the windows, for the paths
+    /// that take them point by point.
+    fn release(&mut self) {
+        if !self.held.live {
+            return;
+        }
+        self.held.live = false;
+        let h = self.held;
+        let (last_step, cluster) = (h.last_step, h.cluster);
+        let mut lag = 0u32;
+        if self.config.speckle.is_some() {
+            let sp = &h.speckle;
+            self.speckle
+                .store(sp, NONE, h.intensity, (last_step, cluster));
+            lag = u32::try_from(sp.np).unwrap_or(0);
+        }
+        if self.config.median.is_some() {
+            let at = last_step.saturating_sub(lag.saturating_mul(cluster));
+            self.median
+                .store(&h.median, NONE, h.intensity, (at, cluster));
+        }
+    }
+
     fn reset_scan(&mut self) {
+        self.held.live = false;
         self.open = Open::Idle;
         self.speckle.clear();
         self.median.clear();
@@ -715,7 +769,7 @@ impl Pipeline {
 /// No range, inside a line.
 const NONE: u32 = u32::MAX;
 
-/// What [`fused_line`] needs of the settings, worked out once per line.
+/// What [`smooth::line`] needs of the settings, worked out once per line.
 struct LineConsts {
     /// The sensor's range test with the range window.
     rule: can_wire::RangeRule,
@@ -731,104 +785,7 @@ struct LineConsts {
     out_none: u32,
 }
 
-/// The stages of [`Pipeline::filter_line`] up to the median, in one loop over the
-/// line's readings `input`; the output points go to the front of `buf` (at least as
-/// long). Returns their number, how many have no range (when not decimating) and
-/// whether the median changed a range. Kept out of line so that its state stays in
-/// registers; one copy for every configuration (the stages are chosen per point by
-/// flags that do not change within the line).
-#[inline(never)]
-fn fused_line(
-    input: &[scip::Reading],
-    buf: &mut [scip::Reading],
-    k: &LineConsts,
-    sp: &mut window::Regs,
-    md: &mut window::Regs,
-    c: &mut Counts,
-) -> (usize, usize, bool) {
-    let rule = &k.rule;
-    let [wmin, wmax] = rule.window;
-    // The distances from `low` up to (not including) `low + span` are ranges inside
-    // the window, found by one test (as the encoder's runs do); the others take the
-    // full one. The sensor's error codes at or above its minimum end the span (which
-    // never holds NONE, `u32::MAX`).
-    let [a, b] = rule.except;
-    let first = a
-        .min(b)
-        .min(rule.band.unwrap_or(NONE))
-        .min(wmax.saturating_add(1));
-    let low = rule.min.max(wmin);
-    let span = first.saturating_sub(low);
-    let min_intensity = k.min_intensity;
-    let three = k.median == Some(MedianWidth::Three);
-    let five = k.median == Some(MedianWidth::Five);
-    let (mut w, mut invalid, mut changed) = (0usize, 0usize, false);
-    // The counts in registers, added to `c` once.
-    let (mut error_code, mut out_of_range, mut low_intensity, mut speckle) =
-        (0usize, 0usize, 0usize, 0usize);
-    let (mut s1, mut m) = (*sp, *md);
-    for r in input {
-        let d = r.distance;
-        let mut x = (d, r.aux);
-        if d.wrapping_sub(low) >= span {
-            // Counts of at most the line's points: no wrap.
-            if !rule.is_range(d) || d == NONE {
-                if d != NONE && rule.is_sensor_range(d) {
-                    out_of_range = out_of_range.wrapping_add(1);
-                } else {
-                    error_code = error_code.wrapping_add(1);
-                }
-                x.0 = NONE;
-            }
-        }
-        if x.0 != NONE && r.aux < min_intensity {
-            low_intensity = low_intensity.wrapping_add(1);
-            x.0 = NONE;
-        }
-        if let Some(jump) = k.jump {
-            let Some((centre, before, after)) = s1.push1(x) else {
-                continue;
-            };
-            let (out, removed) = window::speckle3_line(centre.0, before, after, NONE, jump);
-            speckle = speckle.wrapping_add(usize::from(removed));
-            x = (out, centre.1);
-        }
-        if three {
-            let Some((centre, before, after)) = m.push1(x) else {
-                continue;
-            };
-            let out = window::median3_line(centre.0, before, after, NONE);
-            changed |= out != centre.0;
-            x = (out, centre.1);
-        } else if five {
-            let Some((centre, nb)) = m.push2(x) else {
-                continue;
-            };
-            let out = window::median_line(centre.0, nb, NONE);
-            changed |= out != centre.0;
-            x = (out, centre.1);
-        }
-        if !k.decimate {
-            invalid = invalid.wrapping_add(usize::from(x.0 == NONE));
-            x.0 = if x.0 == NONE { k.out_none } else { x.0.max(1) };
-        }
-        if let Some(slot) = buf.get_mut(w) {
-            slot.distance = x.0;
-            slot.aux = x.1;
-        }
-        // At most the line's points.
-        w = w.wrapping_add(1);
-    }
-    *sp = s1;
-    *md = m;
-    c.error_code = c.error_code.wrapping_add(error_code);
-    c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
-    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
-    c.speckle = c.speckle.wrapping_add(speckle);
-    (w, invalid, changed)
-}
-
-/// The classification of [`fused_line`] alone (error codes, range window, intensity
+/// The classification of [`smooth::line`] alone (error codes, range window, intensity
 /// threshold), `input` into `buf` (as long), no range as [`NONE`].
 #[inline(never)]
 fn classify_line(
@@ -2008,6 +1965,7 @@ mod tests {
                                 .map(|r| scip::Reading { index: 0, echo: 0, distance: r.distance, aux: r.intensity.unwrap_or(0) })
                                 .collect();
                             let mut cells = input.clone();
+                            cells.extend([scip::Reading::default(); LINE_HEADROOM]);
                             let k = p.filter_line(a[0].step, &input, &mut cells, can_wire::RangeRule::at_least(1), with_intensity, 7_777_777);
                             match k {
                                 Some(k) => {
@@ -2047,6 +2005,86 @@ mod tests {
                 proptest::prop_assert_eq!(counters(p.stats()), want_k, "mode {}", mode);
                 proptest::prop_assert_eq!(p.filtered(), want_filtered, "mode {}", mode);
             }
+        }
+
+        /// The line path mixed with the point path in one scan (a line out of order, or
+        /// with several echoes, goes point by point in the engine): the windows' state
+        /// passes between them. Ranges up to near `u32::MAX` and speckle thresholds up
+        /// to it take the exact speckle loop. Points, counters and `filtered` as the
+        /// whole-scan reference.
+        #[test]
+        fn line_and_point_paths_mixed_match_the_reference(
+            inputs in proptest::collection::vec(
+                (proptest::prop_oneof![0u32..3000, (u32::MAX - 3000)..(u32::MAX - 1)], 0u8..6),
+                1..60,
+            ),
+            speckle in proptest::option::of(proptest::prop_oneof![0u32..500, (u32::MAX - 5000)..u32::MAX]),
+            median in 0u8..3,
+            decimate in proptest::bool::ANY,
+            chunks in proptest::collection::vec((1usize..25, proptest::bool::ANY), 1..6),
+        ) {
+            let config = PipelineConfig {
+                speckle: speckle.map(|max_jump_mm| SpeckleFilter { max_jump_mm }),
+                median: [None, Some(MedianWidth::Three), Some(MedianWidth::Five)][usize::from(median)],
+                decimation: decimate.then_some(Decimation { factor: 2, mode: DecimationMode::Min }),
+                ..PipelineConfig::default()
+            };
+            let n = inputs.len() as u16;
+            let info = ScanInfo { seq: 0, timestamp_ms: 0, first_step: 0, last_step: n - 1, cluster: 1 };
+            let points: Vec<RawPoint> = inputs
+                .iter()
+                .enumerate()
+                .map(|(i, &(d, e))| RawPoint {
+                    step: i as u16,
+                    distance: if e == 0 { 0 } else { d.max(1) },
+                    intensity: None,
+                    valid: e != 0,
+                })
+                .collect();
+            let (mut want, want_k, want_filtered) = reference(&config, &points);
+            let mut p = Pipeline::new(config).unwrap();
+            let published = matches!(p.begin_scan(info), ScanStart::Publish { .. });
+            proptest::prop_assert!(published);
+            let mut out = Vec::new();
+            let (mut rest, mut i) = (&points[..], 0);
+            while !rest.is_empty() {
+                let (size, by_line) = chunks[i % chunks.len()];
+                let (a, b) = rest.split_at(size.min(rest.len()));
+                if by_line {
+                    let input: Vec<scip::Reading> = a
+                        .iter()
+                        .map(|r| scip::Reading { distance: r.distance, ..scip::Reading::default() })
+                        .collect();
+                    let mut cells = std::vec![scip::Reading::default(); a.len() + LINE_HEADROOM];
+                    let none = 7_777_777;
+                    let k = p.filter_line(a[0].step, &input, &mut cells, can_wire::RangeRule::at_least(1), false, none);
+                    let Some(k) = k else {
+                        // Every stage off: no line path.
+                        p.push_batch(a, &mut |x| out.push(x));
+                        rest = b;
+                        i += 1;
+                        continue;
+                    };
+                    let base = out.len();
+                    out.extend(cells[..k].iter().enumerate().map(|(j, c)| Point {
+                        step: want.get(base + j).map_or(0, |w| w.step),
+                        range_mm: (c.distance != none).then_some(c.distance),
+                        intensity: None,
+                    }));
+                } else {
+                    p.push_batch(a, &mut |x| out.push(x));
+                }
+                rest = b;
+                i += 1;
+            }
+            let end = p.end_scan(true, &mut |x| out.push(x));
+            proptest::prop_assert_eq!(end, ScanEnd::Complete { points: want.len() });
+            let norm = |p: &mut Point| p.range_mm = p.range_mm.map(|r| r.max(1));
+            want.iter_mut().for_each(norm);
+            out.iter_mut().for_each(norm);
+            proptest::prop_assert_eq!(&out, &want);
+            proptest::prop_assert_eq!(counters(p.stats()), want_k);
+            proptest::prop_assert_eq!(p.filtered(), want_filtered);
         }
     }
 }

@@ -111,10 +111,10 @@ impl CentredWindow {
     }
 }
 
-/// The state of a [`CentredWindow`] in the form the fused line loop
-/// ([`super::Pipeline::filter_line`]) carries in registers: distances with a "no range"
+/// The state of a [`CentredWindow`] in the form the line loops
+/// ([`super::Pipeline::filter_line`]) take it: distances with a "no range"
 /// value instead of options, intensities as plain values.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct Regs {
     /// The oldest pending point (distance, intensity).
     pub p0: (u32, u32),
@@ -128,52 +128,10 @@ pub(crate) struct Regs {
     pub b2: u32,
 }
 
-impl Regs {
-    /// [`CentredWindow::push`] for a window of half-width 1: the point that became
-    /// complete (distance, intensity) and the distances before and after it (`none`
-    /// where invalid or absent).
-    #[inline(always)]
-    pub fn push1(&mut self, x: (u32, u32)) -> Option<((u32, u32), u32, u32)> {
-        if self.np == 0 {
-            // Only a scan's first point.
-            self.p0 = x;
-            self.np = 1;
-            return None;
-        }
-        let c = self.p0;
-        let b = self.b1;
-        self.p0 = x;
-        self.b1 = c.0;
-        Some((c, b, x.0))
-    }
-
-    /// [`CentredWindow::push`] for a window of half-width 2: the point that became
-    /// complete and its neighbours' distances (`[second before, before, after, second
-    /// after]`, `none` where invalid or absent).
-    #[inline(always)]
-    pub fn push2(&mut self, x: (u32, u32)) -> Option<((u32, u32), [u32; 4])> {
-        if self.np < 2 {
-            // Only a scan's first two points.
-            if self.np == 0 {
-                self.p0 = x;
-            } else {
-                self.p1 = x;
-            }
-            self.np = self.np.wrapping_add(1);
-            return None;
-        }
-        let c = self.p0;
-        let nb = [self.b2, self.b1, self.p1.0, x.0];
-        self.p0 = self.p1;
-        self.p1 = x;
-        self.b2 = self.b1;
-        self.b1 = c.0;
-        Some((c, nb))
-    }
-}
-
 impl CentredWindow {
-    /// The window's state as [`Regs`] (`none` for no range).
+    /// The window's state as [`Regs`] (`none` for no range). (Never inlined: one copy
+    /// for both windows, it runs once a scan or after a point-by-point path.)
+    #[inline(never)]
     pub fn load(&self, none: u32) -> Regs {
         let d = |p: &Point| p.range_mm.unwrap_or(none);
         let [p0, p1] = self.pending;
@@ -190,6 +148,7 @@ impl CentredWindow {
     /// Takes the state back from [`Regs`] after a line: the points left pending get
     /// steps counted back from `last_step` (the step of the last point the window
     /// took), `cluster` apart; intensities only when `intensity`.
+    #[inline(never)]
     pub fn store(
         &mut self,
         r: &Regs,
@@ -226,18 +185,6 @@ pub(crate) fn speckle3_line(c: u32, b: u32, a: u32, none: u32, max_jump_mm: u32)
         (c, false)
     } else {
         (none, true)
-    }
-}
-
-/// The median of a window of 3 on distances with a "no range" value `none` (as
-/// [`median`]): the centre `c`, the distances before (`b`) and after (`a`) it.
-#[inline(always)]
-pub(crate) fn median3_line(c: u32, b: u32, a: u32, none: u32) -> u32 {
-    if c == none || b == none || a == none {
-        // No range, or a window of at most 2 ranges: the centre is one of the middle.
-        c
-    } else {
-        c.min(b).max(c.max(b).min(a))
     }
 }
 
