@@ -101,6 +101,7 @@
 mod config;
 mod decimate;
 mod point;
+mod reduce;
 mod stats;
 mod temporal;
 mod window;
@@ -500,11 +501,14 @@ impl Pipeline {
             // Step of the first point the decimator gets.
             let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
             let step = last_step.saturating_sub(back.saturating_mul(cluster));
-            m = self
-                .decimator
-                .run_line(part, none, intensity, step, cluster);
-        }
-        if decimate || !windows {
+            let args = reduce::LineArgs {
+                intensity,
+                step,
+                cluster,
+                out_none,
+            };
+            (m, invalid) = reduce::reduce_in_place(&mut self.decimator, part, args);
+        } else if !windows {
             let out = buf.get_mut(..m).unwrap_or_default();
             for r in out.iter_mut() {
                 r.distance = if r.distance == NONE {
@@ -838,27 +842,65 @@ fn classify_line(
     c: &mut Counts,
 ) {
     let rule = &k.rule;
+    let (low, span) = one_test_span(rule);
+    let min_intensity = k.min_intensity;
     let (mut error_code, mut out_of_range, mut low_intensity) = (0usize, 0usize, 0usize);
     for (cell, r) in buf.iter_mut().zip(input) {
-        let d = r.distance;
-        cell.aux = r.aux;
+        let mut d = r.distance;
         // Counts of at most the line's points: no wrap.
-        cell.distance = if !rule.is_sensor_range(d) || d == NONE {
-            error_code = error_code.wrapping_add(1);
-            NONE
-        } else if !rule.is_range(d) {
-            out_of_range = out_of_range.wrapping_add(1);
-            NONE
-        } else if r.aux < k.min_intensity {
+        if d.wrapping_sub(low) >= span {
+            match no_range(rule, d) {
+                0 => {}
+                1 => {
+                    error_code = error_code.wrapping_add(1);
+                    d = NONE;
+                }
+                _ => {
+                    out_of_range = out_of_range.wrapping_add(1);
+                    d = NONE;
+                }
+            }
+        }
+        if d != NONE && r.aux < min_intensity {
             low_intensity = low_intensity.wrapping_add(1);
-            NONE
-        } else {
-            d
-        };
+            d = NONE;
+        }
+        cell.distance = d;
+        cell.aux = r.aux;
     }
     c.error_code = c.error_code.wrapping_add(error_code);
     c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
     c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
+}
+
+/// The distances from `low` up to (not including) `low + span` are ranges inside the
+/// rule's window, found by one test (as the encoder's runs do); the others take the
+/// full one. The sensor's error codes at or above its minimum end the span (which never
+/// holds NONE, `u32::MAX`). Returns `(low, span)`.
+#[inline(always)]
+fn one_test_span(rule: &can_wire::RangeRule) -> (u32, u32) {
+    let [wmin, wmax] = rule.window;
+    let [a, b] = rule.except;
+    let first = a
+        .min(b)
+        .min(rule.band.unwrap_or(NONE))
+        .min(wmax.saturating_add(1));
+    let low = rule.min.max(wmin);
+    (low, first.saturating_sub(low))
+}
+
+/// Why the distance `d`, outside [`one_test_span`], is no range: 0 it is a range, 1
+/// an error code (or NONE), 2 a range outside the window.
+#[cold]
+#[inline(never)]
+fn no_range(rule: &can_wire::RangeRule, d: u32) -> u8 {
+    if d != NONE && rule.is_range(d) {
+        0
+    } else if d != NONE && rule.is_sensor_range(d) {
+        2
+    } else {
+        1
+    }
 }
 
 /// The part of a run that [`Pipeline::pass_run`] leaves to publish directly.
