@@ -434,6 +434,10 @@ impl Pipeline {
         if self.config.is_passthrough() || cells.len() < n {
             return None;
         }
+        let windows = self.config.speckle.is_some() || self.config.median.is_some();
+        if !windows && self.decimator.is_active() {
+            return self.decimate_line(first_step, input, cells, sensor, intensity, out_none);
+        }
         let cluster = self.take_run(first_step, n)?.cluster;
         let (lo, hi) = self.roi_slice(first_step, n, cluster);
         let input = input.get(lo..hi).unwrap_or_default();

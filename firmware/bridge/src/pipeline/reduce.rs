@@ -11,7 +11,8 @@
 
 use super::config::DecimationMode;
 use super::decimate::Decimator;
-use super::NONE;
+use super::stats::add;
+use super::{Pipeline, NONE};
 use core::cell::Cell;
 
 /// A group's running state, in the line loop's registers.
@@ -273,4 +274,296 @@ impl Decimator {
         self.intensity_sum = acc.aux_sum;
         self.intensities = acc.auxes;
     }
+}
+
+/// The classification of a line's readings (error codes, range window, intensity
+/// threshold) as [`Pipeline::decimate_line`] does it on the way into the groups.
+struct Classes {
+    /// The sensor's range test with the range window.
+    rule: can_wire::RangeRule,
+    /// The distances from `low` up to (not including) `low + span` are ranges inside
+    /// the window (one test); the others take the full one.
+    low: u32,
+    span: u32,
+    /// The intensity threshold (0: none, or no intensities).
+    min_intensity: u32,
+}
+
+/// The points the classification took the range of, by reason.
+#[derive(Default)]
+struct Rejected {
+    error_code: usize,
+    out_of_range: usize,
+    low_intensity: usize,
+}
+
+impl Classes {
+    /// The distance of `r` after the classification ([`NONE`] for no range); the
+    /// rejections are counted in `why` (rare: kept out of the loop's registers).
+    #[inline(always)]
+    fn of(&self, r: &scip::Reading, why: &mut Rejected) -> u32 {
+        let mut d = r.distance;
+        if d.wrapping_sub(self.low) >= self.span {
+            if d < self.rule.min {
+                // An error code below the sensor's minimum (the common one), at most
+                // the line's points.
+                why.error_code = why.error_code.wrapping_add(1);
+                d = NONE;
+            } else {
+                d = self.slow(d, why);
+            }
+        }
+        if r.aux < self.min_intensity && d != NONE {
+            // At most the line's points.
+            why.low_intensity = why.low_intensity.wrapping_add(1);
+            d = NONE;
+        }
+        d
+    }
+
+    /// [`Classes::of`] for a distance outside the one-test span.
+    #[cold]
+    #[inline(never)]
+    fn slow(&self, d: u32, why: &mut Rejected) -> u32 {
+        // Counts of at most the line's points: no wrap.
+        if d != NONE && self.rule.is_range(d) {
+            d
+        } else if d != NONE && self.rule.is_sensor_range(d) {
+            why.out_of_range = why.out_of_range.wrapping_add(1);
+            NONE
+        } else {
+            why.error_code = why.error_code.wrapping_add(1);
+            NONE
+        }
+    }
+}
+
+impl Pipeline {
+    /// [`Pipeline::filter_line`] when decimation is the only stage after the
+    /// classification (no speckle removal, no median): the line's readings classified
+    /// and decimated in one pass, the output points written to `cells` in the
+    /// encoder's form. The same arguments, result and effects as `filter_line`.
+    #[inline(never)]
+    pub(super) fn decimate_line(
+        &mut self,
+        first_step: u16,
+        input: &[scip::Reading],
+        cells: &mut [scip::Reading],
+        sensor: can_wire::RangeRule,
+        intensity: bool,
+        out_none: u32,
+    ) -> Option<usize> {
+        let n = input.len();
+        let cluster = self.take_run(first_step, n)?.cluster;
+        let (lo, hi) = self.roi_slice(first_step, n, cluster);
+        let input = input.get(lo..hi).unwrap_or_default();
+        // The slice is at most the run.
+        add(&mut self.stats.points_in, n);
+        add(
+            &mut self.stats.points_outside_roi,
+            n.wrapping_sub(input.len()),
+        );
+        let cfg = &self.config;
+        let window = cfg
+            .range_window
+            .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
+        let rule = can_wire::RangeRule { window, ..sensor };
+        let (low, span) = super::one_test_span(&rule);
+        let classes = Classes {
+            rule,
+            low,
+            span,
+            min_intensity: cfg.min_intensity.filter(|_| intensity).unwrap_or(0),
+        };
+        // The run fits the scan's u16 steps.
+        let back = u32::try_from(lo).unwrap_or(0).wrapping_mul(cluster);
+        let line = LineArgs {
+            intensity,
+            step: u32::from(first_step).wrapping_add(back),
+            cluster,
+            out_none,
+        };
+        let mut why = Rejected::default();
+        let (m, invalid) =
+            classify_reduce(&mut self.decimator, input, cells, &classes, line, &mut why);
+        let c = super::Counts {
+            error_code: why.error_code,
+            out_of_range: why.out_of_range,
+            low_intensity: why.low_intensity,
+            emitted: m,
+            invalid_out: invalid,
+            ..super::Counts::default()
+        };
+        Some(self.commit(&c))
+    }
+}
+
+/// The output side of [`classify_reduce`]: the points written so far and how many of
+/// them have no range.
+struct Written<'a> {
+    out: &'a mut [scip::Reading],
+    out_none: u32,
+    w: usize,
+    invalid: usize,
+}
+
+impl Written<'_> {
+    /// One output point (the encoder's form).
+    #[inline(always)]
+    fn emit(&mut self, d: u32, aux: u32) {
+        let none = d == NONE;
+        if let Some(slot) = self.out.get_mut(self.w) {
+            slot.distance = if none { self.out_none } else { d.max(1) };
+            slot.aux = aux;
+        }
+        // Both at most the line's points.
+        self.w = self.w.wrapping_add(1);
+        self.invalid = self.invalid.wrapping_add(usize::from(none));
+    }
+}
+
+/// The readings `input` classified by `classes` and decimated, continuing `dec`'s open
+/// group; the output points go to `out` from its front (as [`reduce_in_place`] leaves
+/// them). Returns their number and how many have no range.
+#[inline(never)]
+fn classify_reduce(
+    dec: &mut Decimator,
+    input: &[scip::Reading],
+    out: &mut [scip::Reading],
+    classes: &Classes,
+    line: LineArgs,
+    why: &mut Rejected,
+) -> (usize, usize) {
+    let k = usize::from(dec.factor.max(1));
+    // Points of the open group already seen (below `k`).
+    let pos = usize::from(dec.count);
+    let mut o = Written {
+        out,
+        out_none: line.out_none,
+        w: 0,
+        invalid: 0,
+    };
+    let n = input.len();
+    let mut class = |r: &scip::Reading| classes.of(r, why);
+    let pos = match dec.mode {
+        DecimationMode::First => {
+            // The open group's other points, then every group's first point emitted
+            // (`pos < k`: no wrap).
+            let skip = if pos == 0 { 0 } else { k.wrapping_sub(pos) };
+            let (head, rest) = input.split_at(skip.min(n));
+            for r in head {
+                class(r);
+            }
+            for g in rest.chunks(k) {
+                if let Some((first, others)) = g.split_first() {
+                    o.emit(class(first), first.aux);
+                    for r in others {
+                        class(r);
+                    }
+                }
+            }
+            pos.wrapping_add(n).checked_rem(k).unwrap_or(0)
+        }
+        DecimationMode::Min => {
+            let acc = dec.load();
+            let add = |(mut best, mut best_aux): (u32, u32), part: &[scip::Reading]| {
+                for r in part {
+                    // NONE is above every range: an invalid point never wins.
+                    let d = class(r);
+                    if d < best {
+                        best = d;
+                        best_aux = r.aux;
+                    }
+                }
+                (best, best_aux)
+            };
+            let close = |(best, best_aux): (u32, u32)| o.emit(best, best_aux);
+            let ((best, best_aux), pos) = by_groups(
+                input,
+                k,
+                pos,
+                (acc.best, acc.best_aux),
+                (NONE, 0),
+                add,
+                close,
+            );
+            let acc = Acc {
+                best,
+                best_aux,
+                ..Acc::EMPTY
+            };
+            dec.store(&acc, pos, dec.first_step, line.intensity);
+            pos
+        }
+        DecimationMode::Mean => {
+            let aux_mask = if line.intensity { u32::MAX } else { 0 };
+            let add = |mut acc: Acc, part: &[scip::Reading]| {
+                let (mut sum, mut aux_sum, mut valid) = (acc.sum, acc.aux_sum, 0u32);
+                for r in part {
+                    let d = class(r);
+                    let v = d != NONE;
+                    let m = if v { u32::MAX } else { 0 };
+                    sum = sum.wrapping_add(u64::from(d & m));
+                    aux_sum = aux_sum.wrapping_add(u64::from(r.aux & m & aux_mask));
+                    // At most the group's points.
+                    valid = valid.wrapping_add(u32::from(v));
+                }
+                acc.sum = sum;
+                acc.aux_sum = aux_sum;
+                acc.valid = acc.valid.wrapping_add(valid);
+                acc.auxes = acc.auxes.wrapping_add(valid & aux_mask);
+                acc
+            };
+            let close = |acc: Acc| {
+                let (d, aux) = acc.output(false);
+                o.emit(d, aux);
+            };
+            let (acc, pos) = by_groups(input, k, pos, dec.load(), Acc::EMPTY, add, close);
+            dec.store(&acc, pos, dec.first_step, line.intensity);
+            pos
+        }
+    };
+    // The group open after the line: `pos` points, its first in this line when there
+    // are at most the line's points in it (the run fits the scan's u16 steps).
+    dec.count = u16::try_from(pos).unwrap_or(0);
+    if pos > 0 && pos <= n {
+        let at = u32::try_from(n.wrapping_sub(pos)).unwrap_or(0);
+        let step = line.step.wrapping_add(at.wrapping_mul(line.cluster));
+        dec.first_step = u16::try_from(step).unwrap_or(u16::MAX);
+    }
+    (o.w, o.invalid)
+}
+
+/// The groups of `input` (decimation by `k`) that continue an open group of `pos`
+/// points (below `k`) with the state `acc`: `add` takes a group's points into its
+/// state (from `empty` for a new group), `close` takes a completed group's state.
+/// Returns the state of the group open after `input` and its number of points.
+#[inline(always)]
+fn by_groups<A: Copy>(
+    input: &[scip::Reading],
+    k: usize,
+    pos: usize,
+    acc: A,
+    empty: A,
+    mut add: impl FnMut(A, &[scip::Reading]) -> A,
+    mut close: impl FnMut(A),
+) -> (A, usize) {
+    let mut rest = input;
+    if pos > 0 {
+        // `pos < k`: no wrap.
+        let need = k.wrapping_sub(pos);
+        let (head, tail) = rest.split_at(need.min(rest.len()));
+        let acc = add(acc, head);
+        if head.len() < need {
+            return (acc, pos.wrapping_add(head.len()));
+        }
+        close(acc);
+        rest = tail;
+    }
+    let mut groups = rest.chunks_exact(k);
+    for g in &mut groups {
+        close(add(empty, g));
+    }
+    let tail = groups.remainder();
+    (add(empty, tail), tail.len())
 }
