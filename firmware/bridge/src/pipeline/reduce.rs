@@ -401,9 +401,9 @@ impl Pipeline {
 /// The output side of [`classify_reduce`]: the points written so far and how many of
 /// them have no range.
 struct Written<'a> {
-    out: &'a mut [scip::Reading],
+    /// The slots not written yet.
+    slots: core::slice::IterMut<'a, scip::Reading>,
     out_none: u32,
-    w: usize,
     invalid: usize,
 }
 
@@ -412,12 +412,11 @@ impl Written<'_> {
     #[inline(always)]
     fn emit(&mut self, d: u32, aux: u32) {
         let none = d == NONE;
-        if let Some(slot) = self.out.get_mut(self.w) {
+        if let Some(slot) = self.slots.next() {
             slot.distance = if none { self.out_none } else { d.max(1) };
             slot.aux = aux;
         }
-        // Both at most the line's points.
-        self.w = self.w.wrapping_add(1);
+        // At most the line's points.
         self.invalid = self.invalid.wrapping_add(usize::from(none));
     }
 }
@@ -437,13 +436,15 @@ fn classify_reduce(
     let k = usize::from(dec.factor.max(1));
     // Points of the open group already seen (below `k`).
     let pos = usize::from(dec.count);
+    let n = input.len();
+    // At most one output point per point: `out` (as long as `input`) never runs out.
+    let out = out.get_mut(..n).unwrap_or_default();
+    let room = out.len();
     let mut o = Written {
-        out,
+        slots: out.iter_mut(),
         out_none: line.out_none,
-        w: 0,
         invalid: 0,
     };
-    let n = input.len();
     let mut class = |r: &scip::Reading| classes.of(r, why);
     let pos = match dec.mode {
         DecimationMode::First => {
@@ -531,7 +532,8 @@ fn classify_reduce(
         let step = line.step.wrapping_add(at.wrapping_mul(line.cluster));
         dec.first_step = u16::try_from(step).unwrap_or(u16::MAX);
     }
-    (o.w, o.invalid)
+    // The slots written (at most `room`).
+    (room.wrapping_sub(o.slots.len()), o.invalid)
 }
 
 /// The groups of `input` (decimation by `k`) that continue an open group of `pos`
