@@ -434,10 +434,6 @@ impl Pipeline {
         if self.config.is_passthrough() || cells.len() < n {
             return None;
         }
-        let windows = self.config.speckle.is_some() || self.config.median.is_some();
-        if !windows && self.decimator.is_active() {
-            return self.decimate_line(first_step, input, cells, sensor, intensity, out_none);
-        }
         let cluster = self.take_run(first_step, n)?.cluster;
         let (lo, hi) = self.roi_slice(first_step, n, cluster);
         let input = input.get(lo..hi).unwrap_or_default();
@@ -470,12 +466,28 @@ impl Pipeline {
             decimate: self.decimator.is_active(),
             out_none,
         };
+        let windows = line.jump.is_some() || line.median.is_some();
+        if line.decimate && !windows {
+            // Classification and decimation in one pass (pipeline/reduce.rs).
+            let first =
+                last_step.saturating_sub(u32::try_from(last).unwrap_or(0).saturating_mul(cluster));
+            let (m, invalid) = reduce::classify_reduce(
+                &mut self.decimator,
+                input,
+                buf,
+                &line,
+                (first, cluster, intensity),
+                &mut c,
+            );
+            c.emitted = m;
+            c.invalid_out = invalid;
+            return Some(self.commit(&c));
+        }
         // The windows' state in registers for the line.
         let mut sp = self.speckle.load(NONE);
         let mut md = self.median.load(NONE);
         // Without a window stage, a plain classification pass (cheaper than the fused
         // loop's stage flags); the output is converted after decimation, or below.
-        let windows = line.jump.is_some() || line.median.is_some();
         let (w, mut invalid, changed) = if windows {
             fused_line(input, buf, &line, &mut sp, &mut md, &mut c)
         } else {
@@ -505,14 +517,11 @@ impl Pipeline {
             // Step of the first point the decimator gets.
             let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
             let step = last_step.saturating_sub(back.saturating_mul(cluster));
-            let args = reduce::LineArgs {
-                intensity,
-                step,
-                cluster,
-                out_none,
-            };
-            (m, invalid) = reduce::reduce_in_place(&mut self.decimator, part, args);
-        } else if !windows {
+            m = self
+                .decimator
+                .run_line(part, none, intensity, step, cluster);
+        }
+        if decimate || !windows {
             let out = buf.get_mut(..m).unwrap_or_default();
             for r in out.iter_mut() {
                 r.distance = if r.distance == NONE {
@@ -846,31 +855,23 @@ fn classify_line(
     c: &mut Counts,
 ) {
     let rule = &k.rule;
-    let (low, span) = one_test_span(rule);
-    let min_intensity = k.min_intensity;
     let (mut error_code, mut out_of_range, mut low_intensity) = (0usize, 0usize, 0usize);
     for (cell, r) in buf.iter_mut().zip(input) {
-        let mut d = r.distance;
-        // Counts of at most the line's points: no wrap.
-        if d.wrapping_sub(low) >= span {
-            match no_range(rule, d) {
-                0 => {}
-                1 => {
-                    error_code = error_code.wrapping_add(1);
-                    d = NONE;
-                }
-                _ => {
-                    out_of_range = out_of_range.wrapping_add(1);
-                    d = NONE;
-                }
-            }
-        }
-        if d != NONE && r.aux < min_intensity {
-            low_intensity = low_intensity.wrapping_add(1);
-            d = NONE;
-        }
-        cell.distance = d;
+        let d = r.distance;
         cell.aux = r.aux;
+        // Counts of at most the line's points: no wrap.
+        cell.distance = if !rule.is_sensor_range(d) || d == NONE {
+            error_code = error_code.wrapping_add(1);
+            NONE
+        } else if !rule.is_range(d) {
+            out_of_range = out_of_range.wrapping_add(1);
+            NONE
+        } else if r.aux < k.min_intensity {
+            low_intensity = low_intensity.wrapping_add(1);
+            NONE
+        } else {
+            d
+        };
     }
     c.error_code = c.error_code.wrapping_add(error_code);
     c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
@@ -891,20 +892,6 @@ fn one_test_span(rule: &can_wire::RangeRule) -> (u32, u32) {
         .min(wmax.saturating_add(1));
     let low = rule.min.max(wmin);
     (low, first.saturating_sub(low))
-}
-
-/// Why the distance `d`, outside [`one_test_span`], is no range: 0 it is a range, 1
-/// an error code (or NONE), 2 a range outside the window.
-#[cold]
-#[inline(never)]
-fn no_range(rule: &can_wire::RangeRule, d: u32) -> u8 {
-    if d != NONE && rule.is_range(d) {
-        0
-    } else if d != NONE && rule.is_sensor_range(d) {
-        2
-    } else {
-        1
-    }
 }
 
 /// The part of a run that [`Pipeline::pass_run`] leaves to publish directly.
