@@ -467,8 +467,8 @@ impl Pipeline {
             out_none,
         };
         let windows = line.jump.is_some() || line.median.is_some();
-        if line.decimate && !windows {
-            // Classification and decimation in one pass (pipeline/reduce.rs).
+        if !windows {
+            // Classification and decimation (if any) in one pass (pipeline/reduce.rs).
             let first =
                 last_step.saturating_sub(u32::try_from(last).unwrap_or(0).saturating_mul(cluster));
             let (m, invalid) = reduce::classify_reduce(
@@ -486,14 +486,8 @@ impl Pipeline {
         // The windows' state in registers for the line.
         let mut sp = self.speckle.load(NONE);
         let mut md = self.median.load(NONE);
-        // Without a window stage, a plain classification pass (cheaper than the fused
-        // loop's stage flags); the output is converted after decimation, or below.
-        let (w, mut invalid, changed) = if windows {
-            fused_line(input, buf, &line, &mut sp, &mut md, &mut c)
-        } else {
-            classify_line(input, buf, &line, &mut c);
-            (buf.len(), 0, false)
-        };
+        // The output is converted after decimation, or in the loop.
+        let (w, mut invalid, changed) = fused_line(input, buf, &line, &mut sp, &mut md, &mut c);
         let none = NONE;
         let jump = line.jump;
         let median = line.median.is_some();
@@ -521,7 +515,7 @@ impl Pipeline {
                 .decimator
                 .run_line(part, none, intensity, step, cluster);
         }
-        if decimate || !windows {
+        if decimate {
             let out = buf.get_mut(..m).unwrap_or_default();
             for r in out.iter_mut() {
                 r.distance = if r.distance == NONE {
@@ -843,39 +837,6 @@ fn fused_line(
     c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
     c.speckle = c.speckle.wrapping_add(speckle);
     (w, invalid, changed)
-}
-
-/// The classification of [`fused_line`] alone (error codes, range window, intensity
-/// threshold), `input` into `buf` (as long), no range as [`NONE`].
-#[inline(never)]
-fn classify_line(
-    input: &[scip::Reading],
-    buf: &mut [scip::Reading],
-    k: &LineConsts,
-    c: &mut Counts,
-) {
-    let rule = &k.rule;
-    let (mut error_code, mut out_of_range, mut low_intensity) = (0usize, 0usize, 0usize);
-    for (cell, r) in buf.iter_mut().zip(input) {
-        let d = r.distance;
-        cell.aux = r.aux;
-        // Counts of at most the line's points: no wrap.
-        cell.distance = if !rule.is_sensor_range(d) || d == NONE {
-            error_code = error_code.wrapping_add(1);
-            NONE
-        } else if !rule.is_range(d) {
-            out_of_range = out_of_range.wrapping_add(1);
-            NONE
-        } else if r.aux < k.min_intensity {
-            low_intensity = low_intensity.wrapping_add(1);
-            NONE
-        } else {
-            d
-        };
-    }
-    c.error_code = c.error_code.wrapping_add(error_code);
-    c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
-    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
 }
 
 /// The distances from `low` up to (not including) `low + span` are ranges inside the

@@ -250,7 +250,13 @@ pub(super) fn classify_reduce(
         invalid: 0,
     };
     let mut class = |r: &scip::Reading| classes.of(r, why);
-    let pos = match dec.mode {
+    // Without decimation (a factor of 1) every point is the first of its group.
+    let mode = if k > 1 {
+        dec.mode
+    } else {
+        DecimationMode::First
+    };
+    let pos = match mode {
         DecimationMode::First => {
             // Every group's first point, unchanged, as soon as it comes (the open
             // group's first was emitted in an earlier line).
