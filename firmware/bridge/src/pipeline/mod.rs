@@ -82,7 +82,9 @@
 //! a region of interest (a slice of the line) and a range window (part of the encoder's
 //! range rule). With a window stage or decimation on, [`Pipeline::filter_line`] runs the
 //! engine's data line through every stage: classification, speckle and median in one
-//! loop (the windows' state carried from line to line), decimation in a pass after it; and
+//! loop (the windows' state carried from line to line), decimation in a pass after it;
+//! without speckle or median, the classification and decimation in one pass
+//! (`reduce.rs`: the open group carried from line to line); and
 //! [`Pipeline::filter_run`] does the same for a run of points in one loop without a
 //! sink call per point; both give exactly what pushing the points one by one gives.
 
@@ -414,7 +416,8 @@ impl Pipeline {
     /// The stages write into `cells` (at least `n` long): the region of interest as a
     /// slice; error codes, range window and intensity threshold as one classification,
     /// speckle and median as sliding windows carried from line to line, all in one loop
-    /// over the line; decimation as a block reduction after it. The output points are left at the front
+    /// over the line; decimation as a block reduction after it (without speckle or median,
+    /// in the classification's pass). The output points are left at the front
     /// of `cells` as readings for the CAN encoder: `out_none` for no range, a range of
     /// 0 mm as 1 (the encodings code it so), `aux` the intensity (0 for none); their
     /// number is returned. Counters, the `filtered` flag and what
