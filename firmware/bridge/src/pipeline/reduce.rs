@@ -378,3 +378,73 @@ fn by_groups<A: Copy>(
     }
     (acc, pos)
 }
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::super::*;
+    use std::vec::Vec;
+
+    fn reading(distance: u32, aux: u32) -> scip::Reading {
+        scip::Reading {
+            index: 0,
+            echo: 0,
+            distance,
+            aux,
+        }
+    }
+
+    /// Min of 3 by hand, with intensities, a group across two lines and a short last
+    /// group: ties keep the first point and its own intensity (DecimationMode::Min).
+    #[test]
+    fn min_of_three_across_lines_by_hand() {
+        let config = PipelineConfig {
+            decimation: Some(Decimation {
+                factor: 3,
+                mode: DecimationMode::Min,
+            }),
+            ..PipelineConfig::default()
+        };
+        let mut p = Pipeline::new(config).unwrap();
+        let info = ScanInfo {
+            seq: 0,
+            timestamp_ms: 0,
+            first_step: 0,
+            last_step: 6,
+            cluster: 1,
+        };
+        assert_eq!(p.begin_scan(info), ScanStart::Publish { points: 3 });
+        // Steps 0..=6: 500 300 300 | 900 (error 0) 900 | 100, intensities 1..=7; the
+        // lines are steps 0..=3 and 4..=6.
+        let line1 = [(500, 1), (300, 2), (300, 3), (900, 4)].map(|(d, a)| reading(d, a));
+        let line2 = [(0, 5), (900, 6), (100, 7)].map(|(d, a)| reading(d, a));
+        let rule = can_wire::RangeRule::at_least(1);
+        let mut cells = [reading(0, 0); 8];
+        let none = 7_777_777;
+        let k = p.filter_line(0, &line1, &mut cells, rule, true, none);
+        assert_eq!(k, Some(1));
+        assert_eq!((cells[0].distance, cells[0].aux), (300, 2));
+        let k = p.filter_line(4, &line2, &mut cells, rule, true, none);
+        assert_eq!(k, Some(1));
+        assert_eq!((cells[0].distance, cells[0].aux), (900, 4));
+        let mut last = Vec::new();
+        assert_eq!(
+            p.end_scan(true, &mut |x: Point| last.push(x)),
+            ScanEnd::Complete { points: 3 }
+        );
+        assert_eq!(
+            last,
+            [Point {
+                step: 6,
+                range_mm: Some(100),
+                intensity: Some(7),
+            }]
+        );
+        let s = p.stats();
+        assert_eq!(
+            (s.invalid_error_code, s.points_out, s.points_out_invalid),
+            (1, 3, 0)
+        );
+        assert!(!p.filtered());
+    }
+}
