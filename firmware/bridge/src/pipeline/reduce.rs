@@ -41,8 +41,9 @@ impl Acc {
 }
 
 /// Rounded mean (halves up) of `sum / n` ([`NONE`] when `n` is 0), the division in 32
-/// bits when the sum fits (one instruction on the Cortex-M4).
-#[inline(always)]
+/// bits when the sum fits (one instruction on the Cortex-M4). Once per group: out of
+/// line (code size).
+#[inline(never)]
 fn mean(sum: u64, n: u32) -> u32 {
     let half = n >> 1;
     match u32::try_from(sum).ok().and_then(|s| s.checked_add(half)) {
@@ -152,14 +153,7 @@ impl Classes {
     fn of(&self, r: &scip::Reading, why: &mut Rejected) -> u32 {
         let mut d = r.distance;
         if d.wrapping_sub(self.low) >= self.span {
-            if d < self.rule.min {
-                // An error code below the sensor's minimum (the common one), at most
-                // the line's points.
-                why.error_code = why.error_code.wrapping_add(1);
-                d = NONE;
-            } else {
-                d = self.slow(d, why);
-            }
+            d = self.slow(d, why);
         }
         if r.aux < self.min_intensity && d != NONE {
             // At most the line's points.
@@ -221,13 +215,6 @@ pub(super) fn classify_reduce(
     (step, cluster, intensity): (u32, u32, bool),
     counts: &mut Counts,
 ) -> (usize, usize) {
-    let k = usize::from(dec.factor.max(1));
-    // Points of the open group already seen (below `k`).
-    let pos = usize::from(dec.count);
-    let n = input.len();
-    // At most one output point per point: `out` (as long as `input`) never runs out.
-    let out = out.get_mut(..n).unwrap_or_default();
-    let room = out.len();
     let rule = consts.rule;
     let (low, span) = super::one_test_span(&rule);
     let classes = Classes {
@@ -244,95 +231,62 @@ pub(super) fn classify_reduce(
     };
     let mut why = Rejected::default();
     let why = &mut why;
+    let n = input.len();
+    // At most one output point per point: `out` (as long as `input`) never runs out.
+    let out = out.get_mut(..n).unwrap_or_default();
+    let room = out.len();
     let mut o = Written {
         slots: out.iter_mut(),
         out_none: line.out_none,
         invalid: 0,
     };
-    let mut class = |r: &scip::Reading| classes.of(r, why);
+    let k = usize::from(dec.factor.max(1));
     // Without decimation (a factor of 1) every point is the first of its group.
     let mode = if k > 1 {
         dec.mode
     } else {
         DecimationMode::First
     };
-    let pos = match mode {
-        DecimationMode::First => {
-            // Every group's first point, unchanged, as soon as it comes (the open
-            // group's first was emitted in an earlier line).
-            let add = |(): (), part: &[scip::Reading], begins: bool| {
-                let mut rest = part;
-                if begins {
-                    if let Some((first, others)) = part.split_first() {
-                        o.emit(class(first), first.aux);
-                        rest = others;
-                    }
-                }
-                for r in rest {
-                    class(r);
-                }
-            };
-            by_groups(input, k, pos, (), (), add, |()| {}).1
+    let first = mode == DecimationMode::First;
+    let min = mode == DecimationMode::Min;
+    // `u32::MAX` when the points carry intensities, 0 otherwise.
+    let aux_mask = if line.intensity { u32::MAX } else { 0 };
+    // One loop for every mode (code size): each point goes into both the running
+    // minimum and the sums; `First` emits a group's first point as it comes, the
+    // others a group's output point when it closes. Points of the open group already
+    // seen: `pos` (below `k`; each count below the line's points plus `k`: no wrap).
+    let mut acc = dec.load();
+    let mut pos = usize::from(dec.count);
+    for r in input {
+        let d = classes.of(r, why);
+        if first && pos == 0 {
+            o.emit(d, r.aux);
         }
-        DecimationMode::Min => {
-            let acc = dec.load();
-            let add = |(mut best, mut best_aux): (u32, u32), part: &[scip::Reading], _| {
-                for r in part {
-                    // NONE is above every range: an invalid point never wins.
-                    let d = class(r);
-                    if d < best {
-                        best = d;
-                        best_aux = r.aux;
-                    }
-                }
-                (best, best_aux)
-            };
-            let close = |(best, best_aux): (u32, u32)| o.emit(best, best_aux);
-            let ((best, best_aux), pos) = by_groups(
-                input,
-                k,
-                pos,
-                (acc.best, acc.best_aux),
-                (NONE, 0),
-                add,
-                close,
-            );
-            let acc = Acc {
-                best,
-                best_aux,
-                ..Acc::EMPTY
-            };
-            dec.store(&acc, pos, dec.first_step, line.intensity);
-            pos
+        // NONE is above every range: an invalid point never wins.
+        if d < acc.best {
+            acc.best = d;
+            acc.best_aux = r.aux;
         }
-        DecimationMode::Mean => {
-            let aux_mask = if line.intensity { u32::MAX } else { 0 };
-            let add = |mut acc: Acc, part: &[scip::Reading], _| {
-                let (mut sum, mut aux_sum, mut valid) = (acc.sum, acc.aux_sum, 0u32);
-                for r in part {
-                    let d = class(r);
-                    let v = d != NONE;
-                    let m = if v { u32::MAX } else { 0 };
-                    sum = sum.wrapping_add(u64::from(d & m));
-                    aux_sum = aux_sum.wrapping_add(u64::from(r.aux & m & aux_mask));
-                    // At most the group's points.
-                    valid = valid.wrapping_add(u32::from(v));
-                }
-                acc.sum = sum;
-                acc.aux_sum = aux_sum;
-                acc.valid = acc.valid.wrapping_add(valid);
-                acc.auxes = acc.auxes.wrapping_add(valid & aux_mask);
-                acc
-            };
-            let close = |acc: Acc| {
-                let (d, aux) = acc.output(false);
+        let v = d != NONE;
+        let m = if v { u32::MAX } else { 0 };
+        acc.sum = acc.sum.wrapping_add(u64::from(d & m));
+        acc.aux_sum = acc.aux_sum.wrapping_add(u64::from(r.aux & m & aux_mask));
+        acc.valid = acc.valid.wrapping_add(u32::from(v));
+        acc.auxes = acc.auxes.wrapping_add(u32::from(v) & aux_mask);
+        pos = pos.wrapping_add(1);
+        if pos >= k {
+            if !first {
+                let (d, aux) = acc.output(min);
                 o.emit(d, aux);
-            };
-            let (acc, pos) = by_groups(input, k, pos, dec.load(), Acc::EMPTY, add, close);
-            dec.store(&acc, pos, dec.first_step, line.intensity);
-            pos
+            }
+            acc = Acc::EMPTY;
+            pos = 0;
         }
-    };
+    }
+    if first {
+        acc = Acc::EMPTY;
+    }
+    dec.store(&acc, pos, dec.first_step, line.intensity);
     // The group open after the line: `pos` points, its first in this line when there
     // are at most the line's points in it (the run fits the scan's u16 steps).
     dec.count = u16::try_from(pos).unwrap_or(0);
@@ -346,37 +300,6 @@ pub(super) fn classify_reduce(
     counts.low_intensity = why.low_intensity;
     // The slots written (at most `room`).
     (room.wrapping_sub(o.slots.len()), o.invalid)
-}
-
-/// The groups of `input` (decimation by `k`) that continue an open group of `pos`
-/// points (below `k`) with the state `acc`: `add` takes part of a group's points into
-/// its state (`true` when they begin the group), `close` takes a completed group's
-/// state, after which the next group starts from `empty`. Returns the state of the
-/// group open after `input` and its number of points. One copy of `add` and `close`
-/// serves the open group, the whole groups and the last one (code size).
-#[inline(always)]
-fn by_groups<A: Copy>(
-    input: &[scip::Reading],
-    k: usize,
-    mut pos: usize,
-    mut acc: A,
-    empty: A,
-    mut add: impl FnMut(A, &[scip::Reading], bool) -> A,
-    mut close: impl FnMut(A),
-) -> (A, usize) {
-    let mut rest = input;
-    while !rest.is_empty() {
-        // `pos < k`: no wrap; at most the rest.
-        let (part, tail) = rest.split_at(k.wrapping_sub(pos).min(rest.len()));
-        acc = add(acc, part, pos == 0);
-        pos = pos.wrapping_add(part.len());
-        rest = tail;
-        if pos >= k {
-            close(acc);
-            (acc, pos) = (empty, 0);
-        }
-    }
-    (acc, pos)
 }
 
 #[cfg(test)]
