@@ -2,7 +2,7 @@
 //! [`super::Pipeline::filter_line`] when decimation is the only stage after the
 //! classification (error codes, range window, intensity threshold).
 //!
-//! [`Pipeline::decimate_line`] classifies a line's readings and reduces them group by
+//! [`classify_reduce`] classifies a line's readings and reduces them group by
 //! group in one pass, carrying the open group from line to line in the
 //! [`Decimator`]'s state, so that it gives exactly what [`Decimator::push`] gives
 //! point by point (the groups span lines; the end of the scan flushes the last one
@@ -96,7 +96,7 @@ impl Acc {
 }
 
 impl Decimator {
-    /// The open group's state as [`reduce_line`] keeps it.
+    /// The open group's state as [`classify_reduce`] keeps it.
     fn load(&self) -> Acc {
         let (best, best_aux) = match self.best {
             Some((r, i)) => (r, i.unwrap_or(0)),
@@ -112,7 +112,7 @@ impl Decimator {
         }
     }
 
-    /// Keeps [`reduce_line`]'s open group: `count` points (below the factor), the first
+    /// Keeps [`classify_reduce`]'s open group: `count` points (below the factor), the first
     /// at `first_step`.
     fn store(&mut self, acc: &Acc, count: usize, first_step: u16, intensity: bool) {
         self.count = u16::try_from(count).unwrap_or(0);
@@ -126,7 +126,7 @@ impl Decimator {
 }
 
 /// The classification of a line's readings (error codes, range window, intensity
-/// threshold) as [`Pipeline::decimate_line`] does it on the way into the groups.
+/// threshold) as [`classify_reduce`] does it on the way into the groups.
 struct Classes {
     /// The sensor's range test with the range window.
     rule: can_wire::RangeRule,
@@ -205,7 +205,7 @@ impl Written<'_> {
 
 /// The readings `input` classified by `classes` and decimated, continuing `dec`'s open
 /// group; the output points go to `out` from its front, in the encoder's form (as
-/// [`Pipeline::filter_line`] leaves them). Returns their number and how many have no range.
+/// [`super::Pipeline::filter_line`] leaves them). Returns their number and how many have no range.
 #[inline(never)]
 pub(super) fn classify_reduce(
     dec: &mut Decimator,
