@@ -9,20 +9,20 @@ use super::point::Point;
 /// Running state of one group.
 #[derive(Debug, Clone)]
 pub(crate) struct Decimator {
-    factor: u16,
-    mode: DecimationMode,
+    pub(super) factor: u16,
+    pub(super) mode: DecimationMode,
     /// Points of the current group seen so far.
-    count: u16,
+    pub(super) count: u16,
     /// Step of the group's first point.
-    first_step: u16,
+    pub(super) first_step: u16,
     /// `Min`: the best valid point so far (range, intensity).
-    best: Option<(u32, Option<u32>)>,
+    pub(super) best: Option<(u32, Option<u32>)>,
     /// `Mean`: sum and count of valid ranges.
-    sum: u64,
-    valid: u32,
+    pub(super) sum: u64,
+    pub(super) valid: u32,
     /// `Mean`: sum and count of the intensities of valid points.
-    intensity_sum: u64,
-    intensities: u32,
+    pub(super) intensity_sum: u64,
+    pub(super) intensities: u32,
 }
 
 /// Rounded mean (halves up) of `sum / n`, or `None` when `n` is 0.

@@ -81,9 +81,11 @@
 //! [`Pipeline::pass_run`] lets the bridge engine publish a data line directly, also with
 //! a region of interest (a slice of the line) and a range window (part of the encoder's
 //! range rule). With a window stage or decimation on, [`Pipeline::filter_line`] runs the
-//! engine's data line through every stage: classification, then speckle and median a
-//! loop each over the line in place (the points the windows hold from the line before
-//! copied in front of it), decimation in a pass after them; and
+//! engine's data line through every stage: without speckle or median, the
+//! classification and decimation in one pass (`reduce.rs`: the open group carried from
+//! line to line); with them, classification, then speckle and median a loop each over
+//! the line in place (the points the windows hold from the line before copied in front
+//! of it, `smooth.rs`), decimation in a pass after them; and
 //! [`Pipeline::filter_run`] does the same for a run of points in one loop without a
 //! sink call per point; both give exactly what pushing the points one by one gives.
 
@@ -102,6 +104,7 @@
 mod config;
 mod decimate;
 mod point;
+mod reduce;
 mod smooth;
 mod stats;
 mod temporal;
@@ -441,8 +444,9 @@ impl Pipeline {
     /// window is not used; `u32::MAX` is never a range), an error code otherwise; `aux`
     /// is the intensity when `intensity` (the `index` and `echo` fields are not used).
     /// The stages write into `cells` (at least `n` + [`LINE_HEADROOM`] long): the
-    /// region of interest as a slice; error codes, range window and intensity threshold
-    /// as one classification of the line into `cells`, behind the points the windows
+    /// region of interest as a slice; without speckle or median, error codes, range
+    /// window, intensity threshold and decimation in one pass; otherwise those three as
+    /// one classification of the line into `cells`, behind the points the windows
     /// hold from the line before; speckle removal and median as one loop each over
     /// those cells, chosen per line and width; decimation as a block reduction after
     /// them. The output points are left at the front
@@ -497,6 +501,23 @@ impl Pipeline {
             decimate: self.decimator.is_active(),
             out_none,
         };
+        let windows = line.jump.is_some() || line.median.is_some();
+        if !windows {
+            // Classification and decimation (if any) in one pass (pipeline/reduce.rs).
+            let first =
+                last_step.saturating_sub(u32::try_from(last).unwrap_or(0).saturating_mul(cluster));
+            let (m, invalid) = reduce::classify_reduce(
+                &mut self.decimator,
+                input,
+                buf,
+                &line,
+                (first, cluster, intensity),
+                &mut c,
+            );
+            c.emitted = m;
+            c.invalid_out = invalid;
+            return Some(self.commit(&c));
+        }
         // The windows' state for the line: as the last line left it, or loaded.
         let h = &mut self.held;
         if !h.live {
@@ -504,24 +525,15 @@ impl Pipeline {
             h.median = self.median.load(NONE);
         }
         let (sp, md) = (&mut h.speckle, &mut h.median);
-        // Without a window stage, a plain classification pass; the output is converted
-        // after decimation, or below.
-        let windows = line.jump.is_some() || line.median.is_some();
-        let (w, mut invalid, changed) = if windows {
-            smooth::line(input, buf, &line, sp, md, &mut c)
-        } else {
-            classify_line(input, buf, &line, &mut c);
-            (input.len(), 0, false)
-        };
+        // The output is converted after decimation, or in the loops.
+        let (w, mut invalid, changed) = smooth::line(input, buf, &line, sp, md, &mut c);
         let decimate = line.decimate;
         c.filtered = changed;
         // Points held back by the windows (steps count back from `last_step`).
         let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
         let lag = held(line.jump.is_some(), sp).saturating_add(held(line.median.is_some(), md));
         let lag = u32::try_from(lag).unwrap_or(0);
-        if windows {
-            (h.live, h.last_step, h.cluster, h.intensity) = (true, last_step, cluster, intensity);
-        }
+        (h.live, h.last_step, h.cluster, h.intensity) = (true, last_step, cluster, intensity);
         let mut m = w;
         if decimate {
             let part = buf.get_mut(..m).unwrap_or_default();
@@ -532,7 +544,7 @@ impl Pipeline {
                 .decimator
                 .run_line(part, NONE, intensity, step, cluster);
         }
-        if decimate || !windows {
+        if decimate {
             let out = buf.get_mut(..m).unwrap_or_default();
             for r in out.iter_mut() {
                 r.distance = if r.distance == NONE {
@@ -785,37 +797,20 @@ struct LineConsts {
     out_none: u32,
 }
 
-/// The classification of [`smooth::line`] alone (error codes, range window, intensity
-/// threshold), `input` into `buf` (as long), no range as [`NONE`].
-#[inline(never)]
-fn classify_line(
-    input: &[scip::Reading],
-    buf: &mut [scip::Reading],
-    k: &LineConsts,
-    c: &mut Counts,
-) {
-    let rule = &k.rule;
-    let (mut error_code, mut out_of_range, mut low_intensity) = (0usize, 0usize, 0usize);
-    for (cell, r) in buf.iter_mut().zip(input) {
-        let d = r.distance;
-        cell.aux = r.aux;
-        // Counts of at most the line's points: no wrap.
-        cell.distance = if !rule.is_sensor_range(d) || d == NONE {
-            error_code = error_code.wrapping_add(1);
-            NONE
-        } else if !rule.is_range(d) {
-            out_of_range = out_of_range.wrapping_add(1);
-            NONE
-        } else if r.aux < k.min_intensity {
-            low_intensity = low_intensity.wrapping_add(1);
-            NONE
-        } else {
-            d
-        };
-    }
-    c.error_code = c.error_code.wrapping_add(error_code);
-    c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
-    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
+/// The distances from `low` up to (not including) `low + span` are ranges inside the
+/// rule's window, found by one test (as the encoder's runs do); the others take the
+/// full one. The sensor's error codes at or above its minimum end the span (which never
+/// holds NONE, `u32::MAX`). Returns `(low, span)`.
+#[inline(always)]
+fn one_test_span(rule: &can_wire::RangeRule) -> (u32, u32) {
+    let [wmin, wmax] = rule.window;
+    let [a, b] = rule.except;
+    let first = a
+        .min(b)
+        .min(rule.band.unwrap_or(NONE))
+        .min(wmax.saturating_add(1));
+    let low = rule.min.max(wmin);
+    (low, first.saturating_sub(low))
 }
 
 /// The part of a run that [`Pipeline::pass_run`] leaves to publish directly.
