@@ -410,14 +410,16 @@ impl ScanEncoder {
         let s = self.open.fixed().ok_or(Error::NoScan)?;
         let classic = !self.format.is_fd();
         let (db, ib) = (s.distance_bits, s.intensity_bits);
-        // D16 without intensity on classic CAN gets a loop compiled for its width; the
-        // other fixed-width cases share one per frame kind with the widths as values
-        // (smaller, a bit slower: flash is the boards' tight budget, and the lossless
-        // coding is the compact one).
+        // D16 without intensity on classic CAN gets a loop compiled for its width (not
+        // with the `compact` feature: about 4 KB of M4 code); the other fixed-width
+        // cases share one per frame kind with the widths as values (smaller, a bit
+        // slower: flash is the boards' tight budget, and the lossless coding is the
+        // compact one). The frames are the same either way.
         match (classic, db, ib) {
             (false, _, _) => {
                 self.run_fixed::<false, 0, 0, _, _, _>(db, ib, points, rule, &point, sink)
             }
+            #[cfg(not(feature = "compact"))]
             (true, 16, 0) => {
                 self.run_fixed::<true, 16, 0, _, _, _>(db, ib, points, rule, &point, sink)
             }
