@@ -49,7 +49,7 @@
 //! the model keeps within ±2^30 µs (about 18 minutes): marks and a `TM` anchor farther
 //! from the latest scan are dropped, and two scans more than [`GAP_MAX_MS`] apart
 //! start a new stream. Periods are µs × 2^8 in `i32`. The few products that need 64
-//! bits go through one helper ([`mul_div`]); the least-squares fit sums in `i64`.
+//! bits go through one helper (`mul_div`); the least-squares fit sums in `i64`.
 //! Fixed memory (a few hundred bytes), no floating point, no 128-bit arithmetic;
 //! every operation saturating, or wrapping where its ranges are checked first.
 
