@@ -16,7 +16,8 @@
 //!   stop a stream; other commands are answered in between.
 //! - The timestamp of a scan is the 24-bit ms clock at the scan's start; the clock wraps
 //!   and RS sets it to 0. TM0 enters adjust mode (02 if already), TM1 reads the clock
-//!   (04 outside adjust mode), TM2 leaves (03 if already out).
+//!   0 to [`TM_LATENCY_US`] after the request and answers then (04 outside adjust
+//!   mode), TM2 leaves (03 if already out).
 //! - Statuses of bad commands: see [`Sensor::malformed_status`] and the checks in the
 //!   command handlers below.
 //! - SCIP 2.2 `RB`: `01` first; a second `RB` within a second is answered `00` and the
@@ -47,6 +48,12 @@ pub const TX_CAP: usize = 4096;
 const TX_FIFO: u64 = 32;
 /// SCIP 2.2 `RB`: the second `RB` must follow the first within this time, µs.
 const RB_WINDOW_US: u64 = 1_000_000;
+/// A `TM1` is taken by the sensor's main loop up to this long after it arrived, µs
+/// (uniform, drawn per request): the sensor reads its clock then and answers at once.
+/// Without it the simulator answered in the instant of the request, so that on a link
+/// without byte times (TCP, the in-process link) a calibration's 24 readings fell
+/// within a few µs of each other, at one phase of the sensor's millisecond.
+pub const TM_LATENCY_US: u64 = 500;
 
 /// The sensor's oscillator against the caller's clock.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -133,6 +140,8 @@ pub struct Sensor {
     clock_model: ClockModel,
     /// State of the jitter draws.
     jitter_rng: u64,
+    /// State of the `TM1` latency draws.
+    tm_rng: u64,
     epoch_us: u64,
     epoch_scan: u64,
     stream: Option<Stream>,
@@ -196,6 +205,7 @@ impl Sensor {
             timer_offset_ms: i64::from(clock_start_ms),
             clock_model: ClockModel::default(),
             jitter_rng: 0,
+            tm_rng: 0x5DEE_CE66_D1CE_5EED,
             epoch_us: 0,
             epoch_scan: 0,
             stream: None,
@@ -319,6 +329,7 @@ impl Sensor {
     pub fn set_clock_model(&mut self, model: ClockModel) {
         self.clock_model = model;
         self.jitter_rng = model.seed;
+        self.tm_rng = model.seed ^ 0x5DEE_CE66_D1CE_5EED;
     }
 
     /// The sensor's free-running oscillator at `now` µs of the caller's clock, µs:
@@ -350,6 +361,15 @@ impl Sensor {
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
         (self.jitter_rng >> 33) % (self.clock_model.jitter_us + 1)
+    }
+
+    /// A draw of the `TM1` latency, µs (0..=[`TM_LATENCY_US`]).
+    fn tm_latency(&mut self) -> u64 {
+        self.tm_rng = self
+            .tm_rng
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.tm_rng >> 33) % (TM_LATENCY_US + 1)
     }
 
     /// The host closed the connection: a stream stops (laser stays as it is).
@@ -836,6 +856,7 @@ impl Sensor {
             }
             TimeMode::Read if !self.adjust => self.simple(now, line, *b"04"),
             TimeMode::Read => {
+                let now = now + self.tm_latency();
                 let clock = self.clock_ms(now);
                 let mut buf = Vec::new();
                 let mut w = ResponseWriter::new(|b: &[u8]| buf.extend_from_slice(b));
@@ -1137,6 +1158,44 @@ ARES:1024;\\\nAMIN:44;7\nAMAX:725;o\nAFRT:384;6\nSCAN:600;e\n\n"[..]
         let out = ask(&mut s, 45_000, b"TM1\n");
         scip::value::encode(5, &mut t).unwrap();
         assert_eq!(&out[8..12], &t);
+    }
+
+    /// A TM1 is answered when the sensor reads its clock, 0 to 500 µs after the
+    /// request: a calibration's readings fall at different phases of its millisecond
+    /// even on a link that carries the request in no time.
+    #[test]
+    fn tm1_is_read_and_answered_up_to_half_a_millisecond_later() {
+        let mut s = sensor(ModelKind::Utm30lx, false);
+        // The sensor's ticks fall 700 µs into each millisecond of the caller's clock.
+        s.set_clock_model(ClockModel {
+            phase_us: 300,
+            ..ClockModel::default()
+        });
+        ask(&mut s, 0, b"TM0\n");
+        let (mut latencies, mut readings) = (Vec::new(), Vec::new());
+        for k in 0..24u64 {
+            // 500 µs past a caller's millisecond: 200 µs before a tick.
+            let t = 1_000_500 + k * 10_000;
+            s.receive(t, b"TM1\n");
+            let (d, out) = (0..=TM_LATENCY_US + 1)
+                .map(|d| (d, s.take_output(t + d)))
+                .find(|(_, out)| !out.is_empty())
+                .expect("answered");
+            assert!(d <= TM_LATENCY_US, "answered {d} µs after the request");
+            // The clock as it read when the answer left.
+            let mut want = [0u8; 4];
+            scip::value::encode(1_000 + k as u32 * 10 + u32::from(d >= 200), &mut want).unwrap();
+            assert_eq!(&out[8..12], &want, "request at {t} µs, answer {d} µs later");
+            latencies.push(d);
+            readings.push(d >= 200);
+        }
+        let (lo, hi) = (latencies.iter().min(), latencies.iter().max());
+        assert!(
+            hi.zip(lo).is_some_and(|(h, l)| h - l >= TM_LATENCY_US / 2),
+            "{latencies:?}"
+        );
+        // Some readings before the tick, some after it: they pin where it falls.
+        assert!(readings.contains(&true) && readings.contains(&false));
     }
 
     #[test]
