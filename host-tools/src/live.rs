@@ -140,11 +140,8 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
     // date its bytes back by, no UART time for frames to drain in (`bridge::link`).
     let burst = !matches!(spec, SensorSpec::Serial { .. });
     if burst {
-        config.link = bridge::link::LinkKind::Tcp;
-        // Bytes within a piece are a network's byte time apart (as the Ethernet boards
-        // configure it), not a UART's.
-        config.uart_bit_rate = 100_000_000;
-        config.session.bit_rate = None;
+        // As the Ethernet boards configure it.
+        config = config.on_network();
     }
     let mut link = link::open(&spec, Duration::from_secs(2))
         .with_context(|| format!("opening the sensor {}", args.sensor))?;

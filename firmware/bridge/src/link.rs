@@ -20,6 +20,12 @@
 //! [`Bridge::link_up`]: crate::engine::Bridge::link_up
 //! [`Bridge::link_down`]: crate::engine::Bridge::link_down
 
+/// The speed of a network link to the sensor, bit/s, taken as its byte time
+/// ([`crate::engine::BridgeConfig::on_network`]): 100 Mbit/s, so a scan arrives as one
+/// burst and must fit the queue's free room (the TCP link is never the bottleneck, the
+/// CAN bus is), and the bytes of a chunk are dated a network's byte time apart.
+pub const NETWORK_BIT_RATE: u32 = 100_000_000;
+
 /// The kind of link to the sensor.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

@@ -71,3 +71,29 @@ fn new_in_an_extended_window_budgets_extended_identifiers() {
     assert_eq!(config.ids.window(), window);
     assert!(Bridge::<64>::new(config).is_ok());
 }
+
+/// A network link: a TCP stream at 100 Mbit/s of byte time, no `SS`; everything else as
+/// it was.
+#[test]
+fn on_network_is_a_tcp_stream_without_bit_rate_steps() {
+    let ids = IdWindow::DEFAULT.node(1).unwrap();
+    let serial = BridgeConfig {
+        session: SessionConfig {
+            bit_rate: Some(500_000),
+            ..SessionConfig::default()
+        },
+        ..BridgeConfig::new(ids, FrameFormat::Classic)
+    };
+    let config = serial.on_network();
+    assert_eq!(config.link, LinkKind::Tcp);
+    assert_eq!(config.uart_bit_rate, 100_000_000);
+    assert_eq!(config.session.bit_rate, None);
+    let back = BridgeConfig {
+        link: LinkKind::Uart,
+        uart_bit_rate: serial.uart_bit_rate,
+        session: serial.session,
+        ..config
+    };
+    assert_eq!(back, serial);
+    assert!(Bridge::<64>::new(config).is_ok());
+}

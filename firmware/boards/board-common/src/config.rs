@@ -31,10 +31,8 @@ pub const SENSOR_POWER_UP_BIT_RATE: u32 = 19_200;
 /// specified for, and enough for a URG-04LX's full stream (about 23 kB/s).
 pub const SENSOR_BIT_RATE: u32 = 250_000;
 
-/// The sensor link's speed on Ethernet, bit/s, for the governor's estimate of how long a
-/// scan takes to arrive: 100 Mbit/s, i.e. a scan arrives as one burst and must fit the
-/// queue's free room (the TCP link is never the bottleneck, the CAN bus is).
-pub const ETHERNET_BIT_RATE: u32 = 100_000_000;
+/// The sensor link's speed on Ethernet, bit/s: [`bridge::link::NETWORK_BIT_RATE`].
+pub const ETHERNET_BIT_RATE: u32 = bridge::link::NETWORK_BIT_RATE;
 
 /// The bridge's node number in the default identifier window (0x100).
 pub const NODE: u8 = 0;
@@ -145,14 +143,10 @@ pub fn bridge(bus: CanBus) -> Result<Bridge, BridgeError> {
 /// a UST-10LX/20LX, UTM-30LX-EW, ...): as [`bridge_config`], but no SCIP bit-rate steps
 /// (`SS` is for serial links; the session's `bit_rate` is `None`), the link's speed
 /// is [`ETHERNET_BIT_RATE`] and the link a TCP stream ([`bridge::link::LinkKind::Tcp`]:
-/// the session starts when the board reports the connection up).
+/// the session starts when the board reports the connection up):
+/// [`BridgeConfig::on_network`].
 pub fn ethernet_bridge_config(bus: CanBus) -> Result<BridgeConfig, BridgeError> {
-    let mut config = bridge_config(bus)?;
-    config.session.bit_rate = None;
-    config.uart_bit_rate = ETHERNET_BIT_RATE;
-    // A TCP stream: the session waits for `Bridge::link_up` and holds on `link_down`.
-    config.link = bridge::link::LinkKind::Tcp;
-    Ok(config)
+    Ok(bridge_config(bus)?.on_network())
 }
 
 /// The bridge of an Ethernet board on `bus`, with [`ethernet_bridge_config`]; its session

@@ -123,6 +123,18 @@ impl BridgeConfig {
             link: LinkKind::Uart,
         }
     }
+
+    /// This configuration for a sensor on a network link (an Ethernet sensor's TCP
+    /// connection, or a simulator that hands over whole responses as one does): a TCP
+    /// stream ([`LinkKind::Tcp`]: the session waits for [`Bridge::link_up`] and holds on
+    /// [`Bridge::link_down`]), no SCIP bit-rate steps (`SS` is for serial links), and
+    /// the bytes of a chunk [`crate::link::NETWORK_BIT_RATE`] apart.
+    pub fn on_network(mut self) -> Self {
+        self.link = LinkKind::Tcp;
+        self.uart_bit_rate = crate::link::NETWORK_BIT_RATE;
+        self.session.bit_rate = None;
+        self
+    }
 }
 
 /// Why a bridge configuration is refused.
