@@ -211,24 +211,10 @@ fn open_pipes(dir: &std::path::Path) -> anyhow::Result<(File, File)> {
 }
 
 fn accept(listener: &TcpListener, what: &str) -> anyhow::Result<TcpStream> {
-    listener.set_nonblocking(true)?;
-    let until = Instant::now() + Duration::from_secs(20);
-    loop {
-        match listener.accept() {
-            Ok((s, _)) => {
-                s.set_nonblocking(false)?;
-                s.set_nodelay(true)?;
-                return Ok(s);
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                if Instant::now() > until {
-                    bail!("QEMU did not connect {what}");
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            Err(e) => return Err(e).context("accepting QEMU's connection"),
-        }
-    }
+    // No stop flag: the co-simulation waits for QEMU or gives up after 20 s.
+    let never = std::sync::atomic::AtomicBool::new(false);
+    crate::emulate::qemu::accept(listener, &never, Duration::from_secs(20))
+        .with_context(|| format!("QEMU did not connect {what}"))
 }
 
 fn u64_le(r: &mut impl Read) -> std::io::Result<u64> {

@@ -29,7 +29,7 @@
 mod build;
 mod cli;
 mod link;
-mod qemu;
+pub(crate) mod qemu;
 mod report;
 
 pub use build::{

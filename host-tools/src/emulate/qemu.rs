@@ -102,7 +102,13 @@ impl Write for Tee {
     }
 }
 
-fn accept(listener: &TcpListener, stop: &AtomicBool, timeout: Duration) -> io::Result<TcpStream> {
+/// QEMU's connection to `listener` (a socket chardev), without Nagle's delay; gives up
+/// after `timeout`, or once `stop` is set.
+pub(crate) fn accept(
+    listener: &TcpListener,
+    stop: &AtomicBool,
+    timeout: Duration,
+) -> io::Result<TcpStream> {
     listener.set_nonblocking(true)?;
     let until = Instant::now() + timeout;
     loop {
