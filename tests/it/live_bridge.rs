@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use can_wire::control::{Command as Ctl, DecimationMode};
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
-use can_wire::{Control, Frame, IdWindow, Kind};
+use can_wire::{Control, Frame, IdWindow, Kind, ScanHeader};
 use clap::Parser;
 use scip2can_host::live::{self, BridgeArgs};
 
@@ -25,38 +25,46 @@ fn args(extra: &[&str]) -> BridgeArgs {
     Cli::parse_from(argv).args
 }
 
-/// Scans of a frame sequence: (step increment, points, intact).
-fn scans(frames: &[Frame]) -> Vec<(u8, u16, bool)> {
+/// The scans of a frame sequence: each header and whether the scan is intact.
+fn decoded(frames: &[Frame]) -> Vec<(ScanHeader, bool)> {
     let mut dec: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
     let mut out = Vec::new();
     for f in frames {
         if let Ok(Some(CanEvent::Scan { scan, .. })) = dec.push_frame(f) {
-            let h = scan.header();
-            out.push((h.step_increment, h.point_count, scan.is_intact()));
+            out.push((*scan.header(), scan.is_intact()));
         }
     }
     out
 }
 
-#[test]
-fn the_simulator_streams_into_a_candump_log() {
-    let dir = std::env::temp_dir().join(format!("scip2can-live-{}", std::process::id()));
+/// Scans of a frame sequence: (step increment, points, intact).
+fn scans(frames: &[Frame]) -> Vec<(u8, u16, bool)> {
+    decoded(frames)
+        .into_iter()
+        .map(|(h, ok)| (h.step_increment, h.point_count, ok))
+        .collect()
+}
+
+/// `scip2can bridge` with `extra` arguments into a candump log of its own (`name`),
+/// and the frames the log holds.
+fn bridge_to_log(name: &str, extra: &[&str]) -> Vec<Frame> {
+    let dir = std::env::temp_dir().join(format!("scip2can-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let log = dir.join("bridge.log");
     let can = format!("candump:{}", log.display());
-    live::run(args(&[
-        "sim:model=urg04lx,speed=4",
-        "--can",
-        &can,
-        "--seconds",
-        "2",
-    ]))
-    .expect("bridge runs");
-    let text = std::fs::read_to_string(&log).unwrap();
-    let frames: Vec<Frame> = text
+    let mut argv = vec!["--can", can.as_str()];
+    argv.extend_from_slice(extra);
+    live::run(args(&argv)).expect("bridge runs");
+    std::fs::read_to_string(&log)
+        .unwrap()
         .lines()
         .filter_map(|l| scip2can_host::candump::parse_line(l).ok()?.to_frame())
-        .collect();
+        .collect()
+}
+
+#[test]
+fn the_simulator_streams_into_a_candump_log() {
+    let frames = bridge_to_log("live", &["sim:model=urg04lx,speed=4", "--seconds", "2"]);
     let s = scans(&frames);
     // URG-04LX at 10 Hz × speed 4 for 2 s: ~80 scans; the simulator starts in SCIP 1.1.
     assert!(s.len() >= 20, "only {} scans", s.len());
@@ -170,33 +178,14 @@ fn an_slcan_adapter_carries_the_scans_and_a_control_frame_changes_decimation() {
 /// and nine scans were dropped.
 #[test]
 fn the_default_simulator_loses_no_scan_from_the_first() {
-    let dir = std::env::temp_dir().join(format!("scip2can-live-first-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let log = dir.join("bridge.log");
-    let can = format!("candump:{}", log.display());
-    live::run(args(&[
-        "--can",
-        &can,
-        "--seconds",
-        "1.5",
-        "--time-estimate",
-        "false",
-    ]))
-    .expect("bridge runs");
-    let text = std::fs::read_to_string(&log).unwrap();
-    let mut dec: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
+    let frames = bridge_to_log(
+        "live-first",
+        &["--seconds", "1.5", "--time-estimate", "false"],
+    );
     let mut stamps = Vec::new();
-    for l in text.lines() {
-        let Some(f) = scip2can_host::candump::parse_line(l)
-            .ok()
-            .and_then(|r| r.to_frame())
-        else {
-            continue;
-        };
-        if let Ok(Some(CanEvent::Scan { scan, .. })) = dec.push_frame(&f) {
-            assert!(scan.is_intact(), "a damaged scan");
-            stamps.push(scan.header().timestamp_ms);
-        }
+    for (header, intact) in decoded(&frames) {
+        assert!(intact, "a damaged scan");
+        stamps.push(header.timestamp_ms);
     }
     // A UTM-30LX turns at 2 400 rpm: a scan every 25 ms of its clock (1 ms resolution).
     assert!(stamps.len() >= 40, "only {} scans in 1.5 s", stamps.len());
@@ -219,33 +208,13 @@ fn the_default_simulator_loses_no_scan_from_the_first() {
 /// of the sensor's millisecond, and pinned nothing: no scan was ever estimated.
 #[test]
 fn the_live_bridge_estimates_scan_times() {
-    let dir = std::env::temp_dir().join(format!("scip2can-live-time-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let log = dir.join("bridge.log");
-    let can = format!("candump:{}", log.display());
-    live::run(args(&[
-        "sim:drift_ppm=100,clock_phase_us=500",
-        "--can",
-        &can,
-        "--seconds",
-        "9",
-    ]))
-    .expect("bridge runs");
-    let text = std::fs::read_to_string(&log).unwrap();
-    let mut dec: Box<CanDecoder<1440, 1>> = Box::new(CanDecoder::new(IdWindow::DEFAULT));
-    let (mut scans, mut estimated) = (0, 0);
-    for l in text.lines() {
-        let Some(f) = scip2can_host::candump::parse_line(l)
-            .ok()
-            .and_then(|r| r.to_frame())
-        else {
-            continue;
-        };
-        if let Ok(Some(CanEvent::Scan { scan, .. })) = dec.push_frame(&f) {
-            scans += 1;
-            estimated += usize::from(scan.header().time_estimated);
-        }
-    }
+    let frames = bridge_to_log(
+        "live-time",
+        &["sim:drift_ppm=100,clock_phase_us=500", "--seconds", "9"],
+    );
+    let scans = decoded(&frames);
+    let estimated = scans.iter().filter(|(h, _)| h.time_estimated).count();
+    let scans = scans.len();
     // 40 scans a second; estimated from about 6.5 s on (a scan or two less under load).
     assert!(scans >= 300, "only {scans} scans in 9 s");
     assert!(estimated >= 40, "{estimated} of {scans} scans estimated");
