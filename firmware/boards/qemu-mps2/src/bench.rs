@@ -161,7 +161,7 @@ fn measure(
             bytes += data.len() as u64;
             // The core's clock: when the chunk's last byte arrived at the nominal rate.
             let now = bytes * 10 * 1000 / u64::from(config::BAUD);
-            let ((), t) = hw::measure(|| prof_on_uart(bridge, data, now));
+            let ((), t) = hw::measure(|| bridge.on_uart(data, now));
             ticks += u64::from(t);
             max_ticks = max_ticks.max(t);
             chunks = chunks.wrapping_add(1);
@@ -199,8 +199,3 @@ const BANNER: &str = concat!(
     env!("CARGO_PKG_VERSION"),
     " mps2-an386: UART0=sensor stream, EOT ends it; UART1=result"
 );
-
-#[inline(never)]
-fn prof_on_uart(bridge: &mut Bridge<{ config::QUEUE }>, data: &[u8], now: u64) {
-    bridge.on_uart(data, now)
-}

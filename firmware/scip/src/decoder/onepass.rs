@@ -88,10 +88,7 @@ impl Decoder {
             self.carry_n
         };
         // At most 7 + 64 chars over at least 3 a step: no wrap, at most 23 steps.
-        let steps = usize::from(n)
-            .wrapping_add(DATA_CHARS)
-            .checked_div(width)
-            .unwrap_or(0) as u16;
+        let steps = (usize::from(n).wrapping_add(DATA_CHARS) / width) as u16;
         if self.values.saturating_add(steps) > s.expected {
             return false;
         }
@@ -117,45 +114,61 @@ impl Decoder {
         &mut self,
         input: &[u8],
     ) -> Progress {
-        let mut cur = Cursor {
-            at: 0,
-            pos: self.len,
-            n: usize::from(self.fast_n),
-            carry: self.fast_carry,
-            dist: self.fast_dist,
-            sum: self.sum,
-            k: self.n_readings,
-            base: self.values,
-        };
+        let mut pos = self.len;
+        let mut at: usize = 0;
+        let mut n = usize::from(self.fast_n);
+        let mut carry = self.fast_carry;
+        let mut dist = self.fast_dist;
+        let mut sum = self.sum;
+        let mut k = self.n_readings;
+        let base = self.values;
         // The chars of `input` that are data in a full line.
-        let data_end = input.len().min(DATA_CHARS.saturating_sub(cur.pos));
-        let (buf, readings) = (&mut self.buf, &mut self.readings);
-        while cur.at < data_end {
-            if cur.n == 0 {
-                // Where a step begins: a group of whole steps, else (3-char steps) one
-                // step read as a word (its fourth byte in the input).
-                let left = data_end.wrapping_sub(cur.at);
-                if left >= GROUP && put_group_at::<D, A, S>(buf, readings, input, &mut cur) {
-                    continue;
-                }
-                if W == 3 && left >= 3 && put_step3_at(buf, readings, input, &mut cur) {
-                    continue;
-                }
-            }
-            if !one_char::<D, A, W>(buf, readings, input, &mut cur) {
+        let data_end = input.len().min(DATA_CHARS.saturating_sub(pos));
+        let mut ok = true;
+        // The step begun before, char by char.
+        while n != 0 && at < data_end {
+            let c = input.get(at).copied().unwrap_or(0);
+            ok = self.one_char::<D, A, W>(c, pos, &mut n, &mut carry, &mut dist, &mut k, base);
+            if !ok {
                 break;
             }
+            sum = sum.wrapping_add(u32::from(c));
+            // Within the line and the input: no wrap.
+            at = at.wrapping_add(1);
+            pos = pos.wrapping_add(1);
         }
-        let Cursor {
-            mut at,
-            mut pos,
-            n,
-            carry,
-            dist,
-            mut sum,
-            k,
-            base,
-        } = cur;
+        if ok && n == 0 {
+            // Whole groups, then (3-char steps) whole steps, each read as a word (its
+            // fourth byte in the input).
+            while data_end.saturating_sub(at) >= GROUP {
+                if !self.put_group_at::<D, A, S>(input, at, pos, k, base, &mut sum) {
+                    break;
+                }
+                // Within the line, the input and the readings: no wrap.
+                at = at.wrapping_add(GROUP);
+                pos = pos.wrapping_add(GROUP);
+                k = k.wrapping_add(S);
+            }
+            while W == 3 && data_end.saturating_sub(at) >= 3 {
+                if !self.put_step3_at(input, at, pos, k, base, &mut sum) {
+                    break;
+                }
+                at = at.wrapping_add(3);
+                pos = pos.wrapping_add(3);
+                k = k.wrapping_add(1);
+            }
+        }
+        // The rest of the data chars (a step begun, or what the groups left), one by one.
+        while ok && at < data_end {
+            let c = input.get(at).copied().unwrap_or(0);
+            ok = self.one_char::<D, A, W>(c, pos, &mut n, &mut carry, &mut dist, &mut k, base);
+            if !ok {
+                break;
+            }
+            sum = sum.wrapping_add(u32::from(c));
+            at = at.wrapping_add(1);
+            pos = pos.wrapping_add(1);
+        }
         let progress = if at < data_end {
             // A char that is not a value char (or no room, which cannot happen).
             Progress::Bail(at)
@@ -180,8 +193,7 @@ impl Decoder {
             }
             if pos > DATA_CHARS {
                 let s = self.buf.get(DATA_CHARS).copied().unwrap_or(0);
-                let expected =
-                    ((sum.wrapping_sub(u32::from(s)) & 0x3F) as u8).wrapping_add(0x30);
+                let expected = ((sum.wrapping_sub(u32::from(s)) & 0x3F) as u8).wrapping_add(0x30);
                 match input.get(at) {
                     Some(&b'\n') if expected == s => progress = Progress::Line(at.wrapping_add(1)),
                     Some(_) => progress = Progress::Bail(at),
@@ -232,166 +244,150 @@ impl Decoder {
         }
         progress
     }
-}
 
-/// Where the one-pass path stands in a call: the bytes of the input taken, the line's
-/// bytes so far, the step begun (`n` chars, their value `carry`, and the step's distance
-/// `dist` once its second value has begun), the sum of the line's bytes, the readings
-/// of the line so far and the index of its first.
-struct Cursor {
-    at: usize,
-    pos: usize,
-    n: usize,
-    carry: u32,
-    dist: u32,
-    sum: u32,
-    k: usize,
-    base: u16,
-}
-
-/// Takes the data char at `input[cur.at]` into the line buffer and the step begun,
-/// writing the step's reading when it completes. False, having taken nothing, when it
-/// is not a value char (or there is none, or no room, which cannot happen).
-#[inline(always)]
-fn one_char<const D: usize, const A: usize, const W: usize>(
-    buf: &mut [u8; LINE_CAP],
-    readings: &mut [Reading; MAX_READINGS],
-    input: &[u8],
-    cur: &mut Cursor,
-) -> bool {
-    let (Some(&c), Some(slot)) = (input.get(cur.at), buf.get_mut(cur.pos)) else {
-        return false;
-    };
-    let v = c.wrapping_sub(CHAR_MIN);
-    if v >= 0x40 {
-        return false;
-    }
-    *slot = c;
-    cur.sum = cur.sum.wrapping_add(u32::from(c));
-    cur.carry = (cur.carry << 6) | u32::from(v);
-    // Below W (at most 7): no wrap; `at` and `pos` stay within the input and the line.
-    cur.n = cur.n.wrapping_add(1);
-    cur.at = cur.at.wrapping_add(1);
-    cur.pos = cur.pos.wrapping_add(1);
-    if A > 0 && cur.n == D {
-        cur.dist = cur.carry;
-        cur.carry = 0;
-    } else if cur.n == W {
-        let Some(slot) = readings.get_mut(cur.k) else {
+    /// Takes data char `c` at `pos` of the line into the line buffer and the step begun
+    /// (`n` chars so far, their value `carry`, the step's distance `dist` once its
+    /// second value has begun), writing the step's reading at `k` when it completes.
+    /// False, having taken nothing, when `c` is not a value char.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn one_char<const D: usize, const A: usize, const W: usize>(
+        &mut self,
+        c: u8,
+        pos: usize,
+        n: &mut usize,
+        carry: &mut u32,
+        dist: &mut u32,
+        k: &mut usize,
+        base: u16,
+    ) -> bool {
+        let v = c.wrapping_sub(CHAR_MIN);
+        let Some(slot) = self.buf.get_mut(pos).filter(|_| v < 0x40) else {
             return false;
         };
-        // Below MAX_READINGS: fits.
-        let index = cur.base.wrapping_add(cur.k as u16);
-        if A == 0 {
-            slot.distance = cur.carry;
-            slot.index = index;
-        } else {
-            *slot = Reading {
-                index,
-                echo: 0,
-                distance: cur.dist,
-                aux: cur.carry,
+        *slot = c;
+        *carry = (*carry << 6) | u32::from(v);
+        // Below W (at most 7): no wrap.
+        *n = n.wrapping_add(1);
+        if A > 0 && *n == D {
+            *dist = *carry;
+            *carry = 0;
+        } else if *n == W {
+            let Some(slot) = self.readings.get_mut(*k) else {
+                return false;
             };
+            // Below MAX_READINGS: fits.
+            let index = base.wrapping_add(*k as u16);
+            if A == 0 {
+                slot.distance = *carry;
+                slot.index = index;
+            } else {
+                *slot = Reading {
+                    index,
+                    echo: 0,
+                    distance: *dist,
+                    aux: *carry,
+                };
+            }
+            *k = k.wrapping_add(1);
+            *n = 0;
+            *carry = 0;
         }
-        cur.k = cur.k.wrapping_add(1);
-        cur.n = 0;
-        cur.carry = 0;
+        true
     }
-    true
-}
 
-/// Decodes the group of [`GROUP`] chars at `input[cur.at..]` (at a step's start) into
-/// the line buffer and the readings, adding its chars to the sum. False, having taken
-/// nothing, when one is not a value char (or the group does not fit, which cannot
-/// happen).
-#[inline(always)]
-fn put_group_at<const D: usize, const A: usize, const S: usize>(
-    buf: &mut [u8; LINE_CAP],
-    readings: &mut [Reading; MAX_READINGS],
-    input: &[u8],
-    cur: &mut Cursor,
-) -> bool {
-    const CHARS: u32 = 0x3030_3030;
-    const FLAGS: u32 = 0xC0C0_C0C0;
-    let (Some(src), Some(dst), Some(slots)) = (
-        input.get(cur.at..).and_then(|r| r.first_chunk::<GROUP>()),
-        buf.get_mut(cur.pos..)
-            .and_then(|r| r.first_chunk_mut::<GROUP>()),
-        readings
-            .get_mut(cur.k..)
-            .and_then(|r| r.first_chunk_mut::<S>()),
-    ) else {
-        return false;
-    };
-    let [a0, a1, a2, a3, b0, b1, b2, b3, c0, c1, c2, c3] = *src;
-    let w0 = u32::from_le_bytes([a0, a1, a2, a3]);
-    let w1 = u32::from_le_bytes([b0, b1, b2, b3]);
-    let w2 = u32::from_le_bytes([c0, c1, c2, c3]);
-    let (v0, v1, v2) = (
-        w0.wrapping_sub(CHARS),
-        w1.wrapping_sub(CHARS),
-        w2.wrapping_sub(CHARS),
-    );
-    if (v0 | v1 | v2) & FLAGS != 0 {
-        return false;
+    /// Decodes the group of [`GROUP`] chars at `input[at..]` into the line buffer at
+    /// `pos` and the readings at `k` (indices from `base + k`), adding its chars to
+    /// `sum`. False, having taken nothing, when one is not a value char (or the group
+    /// does not fit, which cannot happen).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn put_group_at<const D: usize, const A: usize, const S: usize>(
+        &mut self,
+        input: &[u8],
+        at: usize,
+        pos: usize,
+        k: usize,
+        base: u16,
+        sum: &mut u32,
+    ) -> bool {
+        const CHARS: u32 = 0x3030_3030;
+        const FLAGS: u32 = 0xC0C0_C0C0;
+        let (Some(src), Some(dst), Some(slots)) = (
+            input.get(at..).and_then(|r| r.first_chunk::<GROUP>()),
+            self.buf
+                .get_mut(pos..)
+                .and_then(|r| r.first_chunk_mut::<GROUP>()),
+            self.readings
+                .get_mut(k..)
+                .and_then(|r| r.first_chunk_mut::<S>()),
+        ) else {
+            return false;
+        };
+        let [a0, a1, a2, a3, b0, b1, b2, b3, c0, c1, c2, c3] = *src;
+        let w0 = u32::from_le_bytes([a0, a1, a2, a3]);
+        let w1 = u32::from_le_bytes([b0, b1, b2, b3]);
+        let w2 = u32::from_le_bytes([c0, c1, c2, c3]);
+        let (v0, v1, v2) = (
+            w0.wrapping_sub(CHARS),
+            w1.wrapping_sub(CHARS),
+            w2.wrapping_sub(CHARS),
+        );
+        if (v0 | v1 | v2) & FLAGS != 0 {
+            return false;
+        }
+        *dst = *src;
+        // Bytes below 0x40, so their sum mod 64 per byte lane, and the lanes' sum in the
+        // top byte of the product (no lane carries). The 0x30 of each of 12 chars is 0
+        // mod 64.
+        let lanes = v0.wrapping_add(v1).wrapping_add(v2) & 0x3F3F_3F3F;
+        *sum = sum.wrapping_add(lanes.wrapping_mul(0x0101_0101) >> 24);
+        // Below MAX_READINGS: fits.
+        put_group::<D, A, S>(slots, [v0, v1, v2], base.wrapping_add(k as u16));
+        true
     }
-    let (d0, rest) = dst.split_at_mut(4);
-    let (d1, d2) = rest.split_at_mut(4);
-    d0.copy_from_slice(&w0.to_le_bytes());
-    d1.copy_from_slice(&w1.to_le_bytes());
-    d2.copy_from_slice(&w2.to_le_bytes());
-    // Bytes below 0x40, so their sum mod 64 per byte lane, and the lanes' sum in the top
-    // byte of the product (no lane carries). The 0x30 of each of 12 chars is 0 mod 64.
-    let lanes = v0.wrapping_add(v1).wrapping_add(v2) & 0x3F3F_3F3F;
-    cur.sum = cur.sum.wrapping_add(lanes.wrapping_mul(0x0101_0101) >> 24);
-    // Below MAX_READINGS: fits.
-    put_group::<D, A, S>(slots, [v0, v1, v2], cur.base.wrapping_add(cur.k as u16));
-    // Within the line, the input and the readings: no wrap.
-    cur.at = cur.at.wrapping_add(GROUP);
-    cur.pos = cur.pos.wrapping_add(GROUP);
-    cur.k = cur.k.wrapping_add(S);
-    true
-}
 
-/// Decodes the 3-char distance at `input[cur.at..]` (at a step's start), read as a
-/// word (the input has a byte more), into the line buffer and the readings, adding its
-/// chars to the sum. False, having taken nothing, when one is not a value char or the
-/// input has no byte after it.
-#[inline(always)]
-fn put_step3_at(
-    buf: &mut [u8; LINE_CAP],
-    readings: &mut [Reading; MAX_READINGS],
-    input: &[u8],
-    cur: &mut Cursor,
-) -> bool {
-    let (Some(&word), Some(dst), Some(slot)) = (
-        input.get(cur.at..).and_then(|r| r.first_chunk::<4>()),
-        buf.get_mut(cur.pos..)
-            .and_then(|r| r.first_chunk_mut::<4>()),
-        readings.get_mut(cur.k),
-    ) else {
-        return false;
-    };
-    let v = u32::from_le_bytes(word).wrapping_sub(0x3030_3030);
-    if v & 0x00C0_C0C0 != 0 {
-        return false;
+    /// Decodes the 3-char distance at `input[at..]` (read as a word: the input has a
+    /// byte more) into the line buffer at `pos` and the reading at `k` (index
+    /// `base + k`), adding its chars to `sum`. False, having taken nothing, when one is
+    /// not a value char or the input has no byte after it.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn put_step3_at(
+        &mut self,
+        input: &[u8],
+        at: usize,
+        pos: usize,
+        k: usize,
+        base: u16,
+        sum: &mut u32,
+    ) -> bool {
+        let (Some(&word), Some(dst), Some(slot)) = (
+            input.get(at..).and_then(|r| r.first_chunk::<4>()),
+            self.buf
+                .get_mut(pos..)
+                .and_then(|r| r.first_chunk_mut::<4>()),
+            self.readings.get_mut(k),
+        ) else {
+            return false;
+        };
+        let v = u32::from_le_bytes(word).wrapping_sub(0x3030_3030);
+        if v & 0x00C0_C0C0 != 0 {
+            return false;
+        }
+        // The fourth byte lands past the step, where the next byte will be written.
+        *dst = word;
+        // Three bytes below 0x40: their sum in the top byte, with the three 0x30 (0x90)
+        // put back.
+        *sum = sum
+            .wrapping_add((v & 0x003F_3F3F).wrapping_mul(0x0101_0101) >> 24)
+            .wrapping_add(0x90);
+        let c = |i: u32| (v >> (8 * i)) & 0xFF;
+        slot.distance = (c(0) << 12) | (c(1) << 6) | c(2);
+        // Below MAX_READINGS: fits.
+        slot.index = base.wrapping_add(k as u16);
+        true
     }
-    // The fourth byte lands past the step, where the next byte will be written.
-    *dst = word;
-    // Three bytes below 0x40: their sum in the top byte, with the three 0x30 (0x90) put
-    // back.
-    cur.sum = cur
-        .sum
-        .wrapping_add((v & 0x003F_3F3F).wrapping_mul(0x0101_0101) >> 24)
-        .wrapping_add(0x90);
-    slot.distance = ((v & 0xFF) << 12) | (((v >> 8) & 0xFF) << 6) | ((v >> 16) & 0xFF);
-    // Below MAX_READINGS: fits.
-    slot.index = cur.base.wrapping_add(cur.k as u16);
-    // Within the line, the input and the readings: no wrap.
-    cur.at = cur.at.wrapping_add(3);
-    cur.pos = cur.pos.wrapping_add(3);
-    cur.k = cur.k.wrapping_add(1);
-    true
 }
 
 /// Writes the `S` steps of a group of [`GROUP`] value chars, less `0x30` each, in the
@@ -406,7 +402,7 @@ fn put_group<const D: usize, const A: usize, const S: usize>(
 ) {
     let [v0, v1, v2] = v;
     // Char `k` (0..4) of word `w`.
-    let c = |w: u32, k: u32| (w >> k.wrapping_mul(8)) & 0xFF;
+    let c = |w: u32, k: u32| (w >> (8 * k)) & 0xFF;
     let three = |x: u32, y: u32, z: u32| (x << 12) | (y << 6) | z;
     if let Ok([s0, s1, s2, s3]) = <&mut [Reading; 4]>::try_from(slots.as_mut_slice()) {
         if D == 3 && A == 0 {
