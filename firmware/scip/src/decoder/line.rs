@@ -19,10 +19,6 @@ impl Decoder {
         }
         #[cfg(not(target_pointer_width = "32"))]
         {
-            #[cfg(any(test, fuzzing))]
-            if self.one_pass {
-                return self.take_line_bytes_fused(bytes);
-            }
             self.take_line_bytes_plain(bytes)
         }
     }

@@ -23,7 +23,6 @@ use crate::value::CHAR_MIN;
 mod fields;
 mod line;
 mod machine;
-mod onepass;
 #[cfg(test)]
 mod tests;
 mod values;
@@ -250,19 +249,9 @@ pub struct Decoder {
     pp: SensorParams,
     limits: RangeLimits,
     stats: DecoderStats,
-    /// The data line being read is taken by the one-pass path (see `onepass`), which
-    /// keeps its step begun in `fast_n` chars, `fast_carry` and `fast_dist` (the
-    /// distance, once a second value has begun).
-    fast: bool,
-    fast_n: u8,
-    fast_carry: u32,
-    fast_dist: u32,
     /// Tests and fuzzing only: never take the whole-step fast path.
     #[cfg(any(test, fuzzing))]
     char_by_char: bool,
-    /// Tests and fuzzing only: take data lines on the one-pass path of 32-bit targets.
-    #[cfg(any(test, fuzzing))]
-    one_pass: bool,
 }
 
 impl Default for Decoder {
@@ -333,14 +322,8 @@ impl Decoder {
                 by_kind: [0; ErrorKind::COUNT],
                 resyncs: 0,
             },
-            fast: false,
-            fast_n: 0,
-            fast_carry: 0,
-            fast_dist: 0,
             #[cfg(any(test, fuzzing))]
             char_by_char: false,
-            #[cfg(any(test, fuzzing))]
-            one_pass: false,
         }
     }
 
@@ -352,17 +335,6 @@ impl Decoder {
     pub fn char_by_char() -> Self {
         let mut d = Self::new();
         d.char_by_char = true;
-        d
-    }
-
-    /// A decoder that takes data lines on the one-pass path of 32-bit targets (and the
-    /// rest of each line as they do), on any target. Only in tests and under
-    /// `cfg(fuzzing)`.
-    #[cfg(any(test, fuzzing))]
-    #[doc(hidden)]
-    pub fn one_pass() -> Self {
-        let mut d = Self::new();
-        d.one_pass = true;
         d
     }
 
@@ -412,7 +384,6 @@ impl Decoder {
     /// responses. Learned limits and counters stay.
     pub fn reset(&mut self) {
         self.len = 0;
-        self.fast = false;
         self.overflow = false;
         self.state = State::Idle;
     }
@@ -428,25 +399,11 @@ impl Decoder {
     /// without a copy into the line buffer; the events are the same.
     #[inline]
     pub fn feed(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
-        let mut consumed: usize = 0;
-        // 32-bit targets: data lines in one pass, unless it hands the line over.
-        if self.one_pass_enabled()
-            && self.state == State::Payload(Payload::Data)
-            && !self.overflow
-            && (self.fast || self.len == 0)
-        {
-            match self.feed_fast(input) {
-                onepass::Progress::More => return (input.len(), None),
-                onepass::Progress::Line(used) => return (used, Some(self.data_event())),
-                onepass::Progress::Bail(used) => consumed = used,
-            }
-        }
         // 64-bit hosts, in a data line: with the state, the overflow flag and the line's
         // length so far tested once, either a full data line ends in `input` or all of
         // `input` continues the line without reaching a full line's LF.
         #[cfg(not(target_pointer_width = "32"))]
-        if self.state == State::Payload(Payload::Data) && !self.overflow && !self.one_pass_enabled()
-        {
+        if self.state == State::Payload(Payload::Data) && !self.overflow {
             let buffered = self.len;
             // Bytes of `input` up to a full line's LF, excluded: the line buffer has at
             // most that much of the line (more go the general path).
@@ -468,7 +425,8 @@ impl Decoder {
                 }
             }
         }
-        let mut rest = input.get(consumed..).unwrap_or(&[]);
+        let mut consumed: usize = 0;
+        let mut rest = input;
         loop {
             // The stream offset and the byte counter wrap (after 2^64 bytes).
             let Some(lf) = self.take_line_bytes(rest) else {
@@ -496,7 +454,6 @@ impl Decoder {
         let partial = self.len > 0 || self.overflow;
         let in_response = self.state != State::Idle || partial;
         self.len = 0;
-        self.fast = false;
         self.overflow = false;
         // The line cut short is the one after the last complete line.
         let line = match self.state {
