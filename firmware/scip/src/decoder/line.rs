@@ -49,8 +49,12 @@ impl Decoder {
     /// [`Self::take_line_bytes`] as 32-bit MCUs do it best: one pass of
     /// [`copy_value_words`] and a byte loop for the rest, the sum and char check taken
     /// on the way.
+    ///
+    /// Kept out of line: [`Decoder::feed`] is inlined into its callers, and in a caller
+    /// optimised for size (as the boards' main code is) the word loop inlined with it
+    /// is compiled for size too, about a third slower on a Cortex-M4.
     #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
-    #[inline]
+    #[inline(never)]
     pub(super) fn take_line_bytes_fused(&mut self, bytes: &[u8]) -> Option<usize> {
         if self.overflow {
             return find_lf(bytes);
