@@ -19,6 +19,9 @@ impl Decoder {
         }
         #[cfg(not(target_pointer_width = "32"))]
         {
+            if self.on_m4_paths() {
+                return self.take_line_bytes_fused(bytes);
+            }
             self.take_line_bytes_plain(bytes)
         }
     }

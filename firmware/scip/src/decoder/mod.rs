@@ -252,6 +252,9 @@ pub struct Decoder {
     /// Tests and fuzzing only: never take the whole-step fast path.
     #[cfg(any(test, fuzzing))]
     char_by_char: bool,
+    /// Tests and fuzzing only: take the paths of 32-bit targets.
+    #[cfg(any(test, fuzzing))]
+    m4: bool,
 }
 
 impl Default for Decoder {
@@ -324,6 +327,8 @@ impl Decoder {
             },
             #[cfg(any(test, fuzzing))]
             char_by_char: false,
+            #[cfg(any(test, fuzzing))]
+            m4: false,
         }
     }
 
@@ -335,6 +340,17 @@ impl Decoder {
     pub fn char_by_char() -> Self {
         let mut d = Self::new();
         d.char_by_char = true;
+        d
+    }
+
+    /// A decoder that takes the paths of 32-bit targets (the line copy that checks and
+    /// sums, the full-line shortcut) on any target: how the Cortex-M boards decode, for
+    /// tests on the host. Only in tests and under `cfg(fuzzing)`.
+    #[cfg(any(test, fuzzing))]
+    #[doc(hidden)]
+    pub fn m4_paths() -> Self {
+        let mut d = Self::new();
+        d.m4 = true;
         d
     }
 
@@ -403,7 +419,7 @@ impl Decoder {
         // length so far tested once, either a full data line ends in `input` or all of
         // `input` continues the line without reaching a full line's LF.
         #[cfg(not(target_pointer_width = "32"))]
-        if self.state == State::Payload(Payload::Data) && !self.overflow {
+        if self.state == State::Payload(Payload::Data) && !self.overflow && !self.on_m4_paths() {
             let buffered = self.len;
             // Bytes of `input` up to a full line's LF, excluded: the line buffer has at
             // most that much of the line (more go the general path).

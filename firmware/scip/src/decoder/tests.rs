@@ -330,8 +330,118 @@ fn assert_same(stream: &[u8]) -> Vec<String> {
             "chunk {chunk}, stream {:?}",
             stream.escape_ascii().to_string()
         );
+        let (m4, _) = decode(Decoder::m4_paths(), stream, chunk);
+        assert_eq!(
+            m4,
+            reference,
+            "m4 paths, chunk {chunk}, stream {:?}",
+            stream.escape_ascii().to_string()
+        );
     }
     reference
+}
+
+/// Every event of `stream` fed to `dec` in two pieces, split at `at`.
+fn decode_split(dec: Decoder, stream: &[u8], at: usize) -> (Vec<String>, Vec<Reading>) {
+    let (log_a, mut readings) = (Vec::new(), Vec::new());
+    let mut log = log_a;
+    let mut dec = dec;
+    for piece in [&stream[..at], &stream[at..]] {
+        let mut rest = piece;
+        while !rest.is_empty() {
+            let (used, ev) = dec.feed(rest);
+            assert!(used > 0 || ev.is_some(), "no progress at {at}");
+            rest = &rest[used..];
+            if let Some(ev) = ev {
+                if let Event::Data(line) = &ev {
+                    readings.extend_from_slice(line.readings);
+                }
+                log.push(format!("{ev:?}"));
+            }
+        }
+    }
+    if let Some(ev) = dec.finish() {
+        log.push(format!("{ev:?}"));
+    }
+    log.push(format!("{:?}", dec.stats()));
+    (log, readings)
+}
+
+/// The paths of 32-bit targets (the checking line copy, the full-line shortcut), with
+/// the stream split in two at every byte, give the char-by-char reference's events and
+/// the values the writer wrote: every data line split at each of its columns, the step
+/// carried at a line's end in each phase, the last (short) line to the general rules.
+#[test]
+fn m4_paths_read_every_split_of_every_line() {
+    for data in [DataSet::Distance, DataSet::DistanceIntensity] {
+        for n in [21, 22, 23, 43, 64, 65, 66] {
+            let (stream, values) = scan(data, n);
+            let (reference, _) = decode(Decoder::char_by_char(), &stream, stream.len());
+            assert!(reference.iter().any(|l| l.starts_with("End(")));
+            for at in 0..=stream.len() {
+                let (log, readings) = decode_split(Decoder::m4_paths(), &stream, at);
+                assert_eq!(log, reference, "{data:?} {n}, split at {at}");
+                let got: Vec<(u32, u32)> = readings.iter().map(|r| (r.distance, r.aux)).collect();
+                assert_eq!(got, values, "{data:?} {n}, split at {at}");
+                let indices: Vec<u16> = readings.iter().map(|r| r.index).collect();
+                assert_eq!(indices, (0..n).collect::<Vec<_>>());
+            }
+        }
+    }
+}
+
+/// Short last lines of every length after full ones on the paths of 32-bit targets: the
+/// shortcut takes full lines only, and the sum char of a short line (a value char like
+/// the data before it) is never taken for a step.
+#[test]
+fn m4_paths_short_lines_of_every_length() {
+    // 3 chars a step: 22 + k steps leave a last line of 2 + 3k mod 64 chars.
+    for n in 1..=130 {
+        let (stream, values) = scan(DataSet::Distance, n);
+        let (reference, _) = decode(Decoder::char_by_char(), &stream, stream.len());
+        for chunk in [1, 4, 13, 64, stream.len()] {
+            let (log, readings) = decode(Decoder::m4_paths(), &stream, chunk);
+            assert_eq!(log, reference, "{n} steps, chunk {chunk}");
+            let got: Vec<u32> = readings.iter().map(|r| r.distance).collect();
+            let want: Vec<u32> = values.iter().map(|&(d, _)| d).collect();
+            assert_eq!(got, want, "{n} steps, chunk {chunk}");
+        }
+    }
+}
+
+/// A full data line with a wrong sum char, split at every byte: the paths of 32-bit
+/// targets report the bad sum of that line as the reference does, and none of its
+/// readings.
+#[test]
+fn m4_paths_bad_sum_at_every_split() {
+    let (stream, values) = scan(DataSet::Distance, 100);
+    let lfs: Vec<usize> = (0..stream.len()).filter(|&i| stream[i] == b'\n').collect();
+    // The second data line (after echo, status, timestamp and the first data line).
+    let line = lfs[3] + 1;
+    assert_eq!(lfs[4] - line, 65);
+    for wrong in [b'0', b'1', b'o', b'/', b'\n'] {
+        if stream[line + 64] == wrong {
+            continue;
+        }
+        let mut s = stream.clone();
+        s[line + 64] = wrong;
+        let (reference, _) = decode(Decoder::char_by_char(), &s, s.len());
+        let first = reference.iter().find(|l| l.starts_with("Error(")).unwrap();
+        if wrong != b'\n' {
+            assert!(
+                first.contains("BadSum") && first.contains(&format!("offset: {line},")),
+                "{first}"
+            );
+        }
+        for at in 0..=s.len() {
+            let (log, readings) = decode_split(Decoder::m4_paths(), &s, at);
+            assert_eq!(log, reference, "sum {wrong}, split at {at}");
+            // Only the first line's readings (21 steps and one char of the 22nd).
+            let got: Vec<u32> = readings.iter().map(|r| r.distance).collect();
+            let want: Vec<u32> = values.iter().take(21).map(|&(d, _)| d).collect();
+            assert_eq!(got, want, "sum {wrong}, split at {at}");
+        }
+    }
 }
 
 /// GE over steps 0..=10: distance 1000 + i, intensity 100 i + 7. 66 value chars: the
@@ -634,6 +744,8 @@ fn full_line_shortcut_leaves_damaged_framing_to_the_line_rules() {
         for chunk in (1..=140).chain([s.len()]) {
             let (fast, _) = decode(Decoder::new(), &s, chunk);
             assert_eq!(fast, reference, "{what}, chunk {chunk}");
+            let (m4, _) = decode(Decoder::m4_paths(), &s, chunk);
+            assert_eq!(m4, reference, "{what}, m4 paths, chunk {chunk}");
         }
     }
 }
