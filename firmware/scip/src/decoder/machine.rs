@@ -78,12 +78,6 @@ impl Decoder {
         self.line_start = self.offset;
         if overflow {
             self.fail(ErrorKind::LineTooLong)
-        } else if len == DATA_CHARS + 1
-            && self.state == State::Payload(Payload::Data)
-            && self.on_m4_paths()
-            && self.full_line3()
-        {
-            Some(self.data_event())
         } else {
             self.line(len)
         }

@@ -344,8 +344,9 @@ impl Decoder {
     }
 
     /// A decoder that takes the paths of 32-bit targets (the line copy that checks and
-    /// sums, the full-line shortcut) on any target: how the Cortex-M boards decode, for
-    /// tests on the host. Only in tests and under `cfg(fuzzing)`.
+    /// sums, then the line decoded from the line buffer) on any target: how the
+    /// Cortex-M boards decode, for tests on the host. Only in tests and under
+    /// `cfg(fuzzing)`.
     #[cfg(any(test, fuzzing))]
     #[doc(hidden)]
     pub fn m4_paths() -> Self {

@@ -367,8 +367,8 @@ fn decode_split(dec: Decoder, stream: &[u8], at: usize) -> (Vec<String>, Vec<Rea
     (log, readings)
 }
 
-/// The paths of 32-bit targets (the checking line copy, the full-line shortcut), with
-/// the stream split in two at every byte, give the char-by-char reference's events and
+/// The paths of 32-bit targets (the line copy that checks and sums), with the stream
+/// split in two at every byte, give the char-by-char reference's events and
 /// the values the writer wrote: every data line split at each of its columns, the step
 /// carried at a line's end in each phase, the last (short) line to the general rules.
 #[test]
@@ -391,8 +391,8 @@ fn m4_paths_read_every_split_of_every_line() {
 }
 
 /// Short last lines of every length after full ones on the paths of 32-bit targets: the
-/// shortcut takes full lines only, and the sum char of a short line (a value char like
-/// the data before it) is never taken for a step.
+/// sum char of a short line (a value char like the data before it) is never taken for
+/// a step.
 #[test]
 fn m4_paths_short_lines_of_every_length() {
     // 3 chars a step: 22 + k steps leave a last line of 2 + 3k mod 64 chars.

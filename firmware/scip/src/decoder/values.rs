@@ -36,8 +36,9 @@ impl Decoder {
         Some(self.data_event())
     }
 
-    /// True where the decoder takes the paths of 32-bit targets: there, and in tests
-    /// and fuzzing for a decoder made by [`Decoder::m4_paths`].
+    /// True where the decoder takes the paths of 32-bit targets (the line copy that
+    /// checks and sums): there, and in tests and fuzzing for a decoder made by
+    /// [`Decoder::m4_paths`].
     #[inline(always)]
     pub(super) fn on_m4_paths(&self) -> bool {
         #[cfg(any(test, fuzzing))]
@@ -45,105 +46,6 @@ impl Decoder {
             return true;
         }
         cfg!(target_pointer_width = "32")
-    }
-
-    /// The shortcut of [`Self::line_event`] on 32-bit targets for a full data line of
-    /// 3-char distances (MD, GD and the like) in the line buffer, whose 64 data chars and
-    /// sum char were found to be value chars and summed while copied: the sum checked
-    /// and the steps decoded without the general dispatch, with the readings, state and
-    /// counters [`Self::data_line`] gives. False, having changed nothing, for anything
-    /// else (a bad sum, a line after a short one, too many values, a data set with
-    /// second values ...), which then takes the general path.
-    #[inline(always)]
-    pub(super) fn full_line3(&mut self) -> bool {
-        #[cfg(any(test, fuzzing))]
-        if self.char_by_char {
-            return false;
-        }
-        let shape = self.shape;
-        if shape.dist_width != 3
-            || shape.aux_width != 0
-            || shape.multi_echo
-            || self.short_line_seen
-            || !self.readings_plain
-            || self.in_aux
-            || self.bad & 0xC0 != 0
-        {
-            return false;
-        }
-        let Some((data, &[s])) = self
-            .buf
-            .first_chunk::<{ DATA_CHARS + 1 }>()
-            .and_then(|line| line.split_first_chunk::<DATA_CHARS>())
-        else {
-            return false;
-        };
-        // 0x30..=0x6F: no wrap.
-        let expected = ((self.sum.wrapping_sub(u32::from(s)) & 0x3F) as u8).wrapping_add(0x30);
-        // The step begun on the previous line: 0..=2 chars of 3.
-        let carried = usize::from(self.carry_n);
-        // At most 2 + 64 chars: no wrap; at most 22 steps.
-        let total = carried.wrapping_add(DATA_CHARS) / 3;
-        if expected != s
-            || carried > 2
-            || usize::from(self.values).wrapping_add(total) > usize::from(shape.expected)
-        {
-            return false;
-        }
-        // The chars completing the carried step, if any (3 - carried, or none).
-        let head = if carried == 0 {
-            0
-        } else {
-            3usize.wrapping_sub(carried)
-        };
-        let (Some((first, rest)), Some(slots)) =
-            (data.split_at_checked(head), self.readings.get_mut(..total))
-        else {
-            return false;
-        };
-        let mut index = self.values;
-        let mut slots = slots.iter_mut();
-        if carried != 0 {
-            if let Some(slot) = slots.next() {
-                slot.distance = continue_valid(self.carry, first);
-                slot.index = index;
-                index = index.wrapping_add(1);
-            }
-        }
-        // Whole steps of `rest`: within the line, no wrap.
-        let whole = rest.len() / 3;
-        let (mid, tail) = rest.split_at(whole.wrapping_mul(3));
-        // Four steps a round, each char at a constant offset of the round's twelve.
-        let slots = slots.into_slice();
-        let mut mid4 = mid.chunks_exact(12);
-        let mut slots4 = slots.chunks_exact_mut(4);
-        for (m, s) in (&mut mid4).zip(&mut slots4) {
-            if let (Ok(m), Ok([s0, s1, s2, s3])) =
-                (<&[u8; 12]>::try_from(m), <&mut [Reading; 4]>::try_from(s))
-            {
-                s0.distance = decode_valid(&[m[0], m[1], m[2]]);
-                s1.distance = decode_valid(&[m[3], m[4], m[5]]);
-                s2.distance = decode_valid(&[m[6], m[7], m[8]]);
-                s3.distance = decode_valid(&[m[9], m[10], m[11]]);
-                // Indices of one scan's steps: no wrap.
-                s0.index = index;
-                s1.index = index.wrapping_add(1);
-                s2.index = index.wrapping_add(2);
-                s3.index = index.wrapping_add(3);
-                index = index.wrapping_add(4);
-            }
-        }
-        self.values = put_step_run::<3, 0, true>(slots4.into_remainder(), mid4.remainder(), index);
-        self.n_readings = total;
-        if total > 0 {
-            self.echo_no = 0;
-        }
-        self.carry = continue_valid(0, tail);
-        // At most 2 chars: fits.
-        self.carry_n = tail.len() as u8;
-        self.want = 3;
-        self.line_no = self.line_no.saturating_add(1);
-        true
     }
 
     /// The readings of the data line just decoded, as an event.
