@@ -169,22 +169,32 @@ pub fn check(data: &[u8]) {
         whole, bytewise,
         "byte-by-byte feeding differs from one-shot"
     );
-    let chunked = if sel < 0x80 {
-        // Fixed chunks of 1..=128 bytes.
-        let size = usize::from(sel) + 1;
-        run(stream, || size)
-    } else {
-        // Varying chunks of 1..=80 bytes from a small xorshift sequence.
-        let mut x = u32::from(sel) | 0x9E37_7900;
-        run(stream, || {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            (x % 80) as usize + 1
-        })
-    };
+    let chunked = run(stream, chunking(sel));
     assert_eq!(
         whole, chunked,
         "chunked feeding (selector {sel}) differs from one-shot"
     );
+    // The paths of 32-bit targets (the line copy that checks and sums), as the
+    // Cortex-M boards take them.
+    let m4 = run_with(Decoder::m4_paths(), stream, chunking(sel));
+    assert_eq!(
+        whole, m4,
+        "the 32-bit paths (selector {sel}) differ from one-shot"
+    );
+}
+
+/// The chunk sizes of selector `sel`: fixed chunks of 1..=128 bytes below 0x80, else
+/// varying chunks of 1..=80 bytes from a small xorshift sequence.
+fn chunking(sel: u8) -> impl FnMut() -> usize {
+    let fixed = (sel < 0x80).then_some(usize::from(sel) + 1);
+    let mut x = u32::from(sel) | 0x9E37_7900;
+    move || match fixed {
+        Some(size) => size,
+        None => {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            (x % 80) as usize + 1
+        }
+    }
 }
