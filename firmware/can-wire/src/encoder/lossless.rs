@@ -9,6 +9,7 @@ use crate::lossless::code;
 use crate::lossless::stream::ScanStream;
 use crate::trailer::{Trailer, TrailerFlags};
 use crate::Error;
+use core::cell::Cell;
 
 /// The most range units a lossless distance code carries.
 const MAX_RANGE_UNITS: u32 = crate::lossless::MAX_VALUE - code::RANGE_BASE;
@@ -87,17 +88,22 @@ impl ScanEncoder {
             .min(too_long)
             .min(hi.saturating_add(1))
             .saturating_sub(low);
+        // Points that are no range: only the full test makes any.
+        let misses = Cell::new(0u32);
         let code = |p: &T| {
             let (d, i) = point(p);
             let dc = if d.wrapping_sub(low) < span {
                 // d < too_long: d + bias stays below 2^32 and the code below MAX_VALUE.
                 d.wrapping_add(bias) >> e
             } else {
-                lossless_code(&rule, d, e)
+                let c = lossless_code(&rule, d, e);
+                // At most one per point of the run: no wrap.
+                misses.set(misses.get().wrapping_add(u32::from(!code::is_range(c))));
+                c
             };
             (dc, ((u32::from(i) >> ishift) & imask) as u16)
         };
-        let (taken, invalid) = l.stream.push_run(points, code, &mut out);
+        let (taken, invalid) = l.stream.push_run(points, code, &misses, &mut out);
         let stop = if out.lost > 0 {
             Some(RunStop::NoSlot)
         } else if taken < points.len() {

@@ -8,6 +8,7 @@ use super::{segment_points, BLOCK_POINTS, MAX_VALUE, SEGMENT_POINTS, WIDTH_BITS}
 use crate::crc::ScanCrc;
 use crate::encoder::FrameSink;
 use crate::Error;
+use core::cell::Cell;
 
 /// One scan being coded.
 #[derive(Debug, Clone)]
@@ -20,8 +21,9 @@ pub struct ScanStream {
     pushed: u16,
     /// Points of the segments ended so far (sent whole).
     sent: u16,
-    /// Range codes among the points taken, and among those sent.
-    valid: u16,
+    /// Codes that are no range among the points taken before the current run (the run
+    /// counts its own), and range codes among the points sent.
+    nonrange: u16,
     valid_sent: u16,
     /// Position of the next point in its segment (0: the next point is an anchor).
     in_segment: usize,
@@ -38,28 +40,20 @@ pub struct ScanStream {
     crc: ScanCrc,
 }
 
-/// The codes of `points` into `d` (and `i` if `INTENSITY`); returns how many are ranges.
+/// The codes of `points` into `d` (and `i` if `INTENSITY`). The code counts what is no
+/// range itself: the common case, a range, costs no test here.
 #[inline(always)]
-fn gather<const INTENSITY: bool, T, F>(
-    points: &[T],
-    code: &F,
-    d: &mut [u32],
-    i: &mut [u32],
-) -> usize
+fn gather<const INTENSITY: bool, T, F>(points: &[T], code: &F, d: &mut [u32], i: &mut [u32])
 where
     F: Fn(&T) -> (u32, u16),
 {
-    let mut valid = 0usize;
     for ((p, d), i) in points.iter().zip(d.iter_mut()).zip(i.iter_mut()) {
         let (dc, ic) = code(p);
         *d = dc;
         if INTENSITY {
             *i = u32::from(ic);
         }
-        // At most the run's length: no wrap.
-        valid = valid.wrapping_add(usize::from(dc >= code::RANGE_BASE));
     }
-    valid
 }
 
 impl ScanStream {
@@ -80,7 +74,7 @@ impl ScanStream {
             intensity,
             pushed: 0,
             sent: 0,
-            valid: 0,
+            nonrange: 0,
             valid_sent: 0,
             in_segment: 0,
             segment_len: 0,
@@ -136,29 +130,39 @@ impl ScanStream {
         if self.pushed >= self.point_count {
             return Err(Error::TooManyPoints);
         }
-        self.push_run(&[(distance.min(MAX_VALUE), intensity)], |p| *p, out);
+        let misses = Cell::new(0u32);
+        let code = |p: &(u32, u16)| {
+            misses.set(misses.get().wrapping_add(u32::from(!code::is_range(p.0))));
+            *p
+        };
+        self.push_run(&[(distance.min(MAX_VALUE), intensity)], code, &misses, out);
         Ok(())
     }
 
     /// Take `points` in order, each turned by `code` into its distance code (at most
-    /// [`MAX_VALUE`]: the caller's guarantee, not checked per point) and intensity code, like [`ScanStream::push`] for each but a block
-    /// at a time. Stops when the scan is full or after a frame the sink had no slot for.
-    /// Returns the points taken and how many of them were no range.
+    /// [`MAX_VALUE`]: the caller's guarantee, not checked per point) and intensity code,
+    /// like [`ScanStream::push`] for each but a block at a time; `code` adds 1 to
+    /// `misses` for each distance code it returns that is no range (below
+    /// [`code::RANGE_BASE`]), so the common case costs no test. Stops when the scan is
+    /// full or after a frame the sink had no slot for. Returns the points taken and how
+    /// many of them were no range.
     #[inline(always)]
     pub fn push_run<T, F, S>(
         &mut self,
         points: &[T],
         code: F,
+        misses: &Cell<u32>,
         out: &mut Out<'_, S>,
     ) -> (usize, usize)
     where
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        // The counters stay below the scan's points (at most 4096), `ranges <= taken`,
-        // `gathered < BLOCK_POINTS` and `in_segment < segment_len` at the top of the
-        // loop (a full block or segment is sent at once): nothing here wraps.
-        let (mut taken, mut ranges) = (0usize, 0usize);
+        // The counters stay below the scan's points (at most 4096), `misses` grows by at
+        // most `taken`, `gathered < BLOCK_POINTS` and `in_segment < segment_len` at the
+        // top of the loop (a full block or segment is sent at once): nothing here wraps.
+        let base = misses.get();
+        let mut taken = 0usize;
         let mut rest = points;
         while !rest.is_empty() && self.pushed < self.point_count && out.lost == 0 {
             if self.in_segment == 0 {
@@ -167,12 +171,10 @@ impl ScanStream {
                 };
                 let (d, i) = code(first);
                 let d = d.min(MAX_VALUE);
-                ranges = ranges.wrapping_add(usize::from(code::is_range(d)));
-                self.valid = self.valid.wrapping_add(u16::from(code::is_range(d)));
                 self.pushed = self.pushed.wrapping_add(1);
                 self.begin_segment(d, u32::from(i), out);
                 if self.in_segment >= self.segment_len {
-                    self.end_segment(out);
+                    self.end_segment(misses.get().wrapping_sub(base), out);
                 }
                 rest = later;
                 taken = taken.wrapping_add(1);
@@ -191,13 +193,11 @@ impl ScanStream {
                 break;
             };
             // Without the intensity channel the loop neither computes nor stores any.
-            let valid = if self.intensity {
-                gather::<true, _, _>(now, &code, dd, ii)
+            if self.intensity {
+                gather::<true, _, _>(now, &code, dd, ii);
             } else {
-                gather::<false, _, _>(now, &code, dd, ii)
-            };
-            ranges = ranges.wrapping_add(valid);
-            self.valid = self.valid.wrapping_add(valid as u16);
+                gather::<false, _, _>(now, &code, dd, ii);
+            }
             self.pushed = self.pushed.wrapping_add(room as u16);
             self.gathered = self.gathered.wrapping_add(room);
             self.in_segment = self.in_segment.wrapping_add(room);
@@ -207,10 +207,12 @@ impl ScanStream {
                 self.put_blocks(out);
             }
             if self.in_segment >= self.segment_len {
-                self.end_segment(out);
+                self.end_segment(misses.get().wrapping_sub(base), out);
             }
         }
-        (taken, taken.wrapping_sub(ranges))
+        let missed = misses.get().wrapping_sub(base);
+        self.nonrange = self.nonrange.wrapping_add(missed as u16);
+        (taken, missed as usize)
     }
 
     #[cold]
@@ -259,14 +261,18 @@ impl ScanStream {
         self.gathered = 0;
     }
 
-    fn end_segment<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+    /// End the segment; `missed` codes that are no range among the run's points so far.
+    fn end_segment<S: FrameSink + ?Sized>(&mut self, missed: u32, out: &mut Out<'_, S>) {
         if self.gathered > 0 {
             self.put_blocks(out);
         }
         let crc = self.w.end_segment(out);
         self.crc.bytes(&crc.to_le_bytes());
         self.sent = self.pushed;
-        self.valid_sent = self.valid;
+        // At most `pushed` points are no range: no wrap.
+        self.valid_sent = self
+            .pushed
+            .wrapping_sub(self.nonrange.wrapping_add(missed as u16));
         self.in_segment = 0;
         self.segment_len = 0;
     }
