@@ -2,7 +2,7 @@
 //! frames out, and the scan CRC over the headers and the segments' CRCs.
 
 use super::bits::{Out, Writer};
-use super::block::{put_block, width, History, Scratch};
+use super::block::{put_block, width, Block, History};
 use super::code;
 use super::{segment_points, BLOCK_POINTS, MAX_VALUE, SEGMENT_POINTS, WIDTH_BITS};
 use crate::crc::ScanCrc;
@@ -29,13 +29,12 @@ pub struct ScanStream {
     in_segment: usize,
     /// Points in the segment being coded.
     segment_len: usize,
-    /// The block being gathered.
-    d: [u32; BLOCK_POINTS],
-    i: [u32; BLOCK_POINTS],
+    /// The block being gathered, of each channel.
+    d: Block,
+    i: Block,
     gathered: usize,
     hd: History,
     hi: History,
-    scratch: Scratch,
     /// Headers, then each segment's CRC.
     crc: ScanCrc,
 }
@@ -78,12 +77,11 @@ impl ScanStream {
             valid_sent: 0,
             in_segment: 0,
             segment_len: 0,
-            d: [0; BLOCK_POINTS],
-            i: [0; BLOCK_POINTS],
+            d: Block::default(),
+            i: Block::default(),
             gathered: 0,
             hd: History::default(),
             hi: History::default(),
-            scratch: Scratch::default(),
             crc: ScanCrc::new(a, b),
         }
     }
@@ -189,7 +187,8 @@ impl ScanStream {
             let (now, later) = rest.split_at(room);
             let at = self.gathered;
             let end = at.wrapping_add(room);
-            let (Some(dd), Some(ii)) = (self.d.get_mut(at..end), self.i.get_mut(at..end)) else {
+            let (Some(dd), Some(ii)) = (self.d.v.get_mut(at..end), self.i.v.get_mut(at..end))
+            else {
                 break;
             };
             // Without the intensity channel the loop neither computes nor stores any.
@@ -241,22 +240,9 @@ impl ScanStream {
 
     fn put_blocks<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
         let n = self.gathered;
-        let (w, scratch) = (&mut self.w, &mut self.scratch);
-        put_block(
-            self.d.get(..n).unwrap_or(&[]),
-            &mut self.hd,
-            scratch,
-            w,
-            out,
-        );
+        put_block(&mut self.d, n, &mut self.hd, &mut self.w, out);
         if self.intensity {
-            put_block(
-                self.i.get(..n).unwrap_or(&[]),
-                &mut self.hi,
-                scratch,
-                w,
-                out,
-            );
+            put_block(&mut self.i, n, &mut self.hi, &mut self.w, out);
         }
         self.gathered = 0;
     }
