@@ -17,7 +17,7 @@ pub struct ScanStream {
     seq_low: u8,
     point_count: u16,
     intensity: bool,
-    /// Points taken so far.
+    /// Points taken before the block being gathered (its `gathered` points not counted).
     pushed: u16,
     /// Points of the segments ended so far (sent whole).
     sent: u16,
@@ -25,13 +25,15 @@ pub struct ScanStream {
     /// counts its own), and range codes among the points sent.
     nonrange: u16,
     valid_sent: u16,
-    /// Position of the next point in its segment (0: the next point is an anchor).
-    in_segment: usize,
-    /// Points in the segment being coded.
-    segment_len: usize,
+    /// Points the block being gathered still takes (0: the next point is an anchor):
+    /// the run's one test per pass for the block's, the segment's and the scan's end.
+    block_left: usize,
+    /// Points of the segment after the block being gathered.
+    segment_left: usize,
     /// The block being gathered, of each channel.
     d: Block,
     i: Block,
+    /// Its points so far.
     gathered: usize,
     hd: History,
     hi: History,
@@ -75,8 +77,8 @@ impl ScanStream {
             sent: 0,
             nonrange: 0,
             valid_sent: 0,
-            in_segment: 0,
-            segment_len: 0,
+            block_left: 0,
+            segment_left: 0,
             d: Block::default(),
             i: Block::default(),
             gathered: 0,
@@ -88,7 +90,8 @@ impl ScanStream {
 
     /// Points taken so far.
     pub fn pushed(&self) -> u16 {
-        self.pushed
+        // At most the scan's points: no wrap.
+        self.pushed.wrapping_add(self.gathered as u16)
     }
 
     /// Points in segments sent whole: the trailer's `points_sent`.
@@ -108,7 +111,7 @@ impl ScanStream {
 
     /// Whether every point of the scan was taken.
     pub fn is_full(&self) -> bool {
-        self.pushed >= self.point_count
+        self.pushed() >= self.point_count
     }
 
     /// The scan CRC, finished with the trailer's first six bytes.
@@ -125,7 +128,7 @@ impl ScanStream {
         intensity: u16,
         out: &mut Out<'_, S>,
     ) -> Result<(), Error> {
-        if self.pushed >= self.point_count {
+        if self.is_full() {
             return Err(Error::TooManyPoints);
         }
         let misses = Cell::new(0u32);
@@ -157,33 +160,30 @@ impl ScanStream {
         S: FrameSink + ?Sized,
     {
         // The counters stay below the scan's points (at most 4096), `misses` grows by at
-        // most `taken`, `gathered < BLOCK_POINTS` and `in_segment < segment_len` at the
-        // top of the loop (a full block or segment is sent at once): nothing here wraps.
+        // most `taken`, `gathered + block_left <= BLOCK_POINTS` and `segment_left` is
+        // what the segment has left: nothing here wraps.
         let base = misses.get();
         let mut taken = 0usize;
         let mut rest = points;
-        while !rest.is_empty() && self.pushed < self.point_count && out.lost == 0 {
-            if self.in_segment == 0 {
+        while !rest.is_empty() && out.lost == 0 {
+            if self.block_left == 0 {
+                // The next point begins a segment, if the scan has one left.
+                if self.pushed >= self.point_count {
+                    break;
+                }
                 let Some((first, later)) = rest.split_first() else {
                     break;
                 };
                 let (d, i) = code(first);
-                let d = d.min(MAX_VALUE);
-                self.pushed = self.pushed.wrapping_add(1);
-                self.begin_segment(d, u32::from(i), out);
-                if self.in_segment >= self.segment_len {
+                self.begin_segment(d.min(MAX_VALUE), u32::from(i), out);
+                if self.block_left == 0 {
                     self.end_segment(misses.get().wrapping_sub(base), out);
                 }
                 rest = later;
                 taken = taken.wrapping_add(1);
                 continue;
             }
-            let left = usize::from(self.point_count.wrapping_sub(self.pushed));
-            let room = BLOCK_POINTS
-                .wrapping_sub(self.gathered)
-                .min(self.segment_len.wrapping_sub(self.in_segment))
-                .min(rest.len())
-                .min(left);
+            let room = self.block_left.min(rest.len());
             let (now, later) = rest.split_at(room);
             let at = self.gathered;
             let end = at.wrapping_add(room);
@@ -197,16 +197,17 @@ impl ScanStream {
             } else {
                 gather::<false, _, _>(now, &code, dd, ii);
             }
-            self.pushed = self.pushed.wrapping_add(room as u16);
-            self.gathered = self.gathered.wrapping_add(room);
-            self.in_segment = self.in_segment.wrapping_add(room);
+            self.gathered = end;
+            self.block_left = self.block_left.wrapping_sub(room);
             taken = taken.wrapping_add(room);
             rest = later;
-            if self.gathered == BLOCK_POINTS {
+            if self.block_left == 0 {
                 self.put_blocks(out);
-            }
-            if self.in_segment >= self.segment_len {
-                self.end_segment(misses.get().wrapping_sub(base), out);
+                if self.segment_left == 0 {
+                    self.end_segment(misses.get().wrapping_sub(base), out);
+                } else {
+                    self.next_block();
+                }
             }
         }
         let missed = misses.get().wrapping_sub(base);
@@ -214,11 +215,21 @@ impl ScanStream {
         (taken, missed as usize)
     }
 
+    /// The next block of the segment: at most [`BLOCK_POINTS`] of the points it has left.
+    #[inline(always)]
+    fn next_block(&mut self) {
+        self.block_left = self.segment_left.min(BLOCK_POINTS);
+        self.segment_left = self.segment_left.wrapping_sub(self.block_left);
+    }
+
+    /// Begin a segment with its first point, the anchor `d` (and `i`).
     #[cold]
     fn begin_segment<S: FrameSink + ?Sized>(&mut self, d: u32, i: u32, out: &mut Out<'_, S>) {
-        // Called after the segment's first point was counted: `pushed >= 1`.
-        let index = usize::from(self.pushed.wrapping_sub(1)) / SEGMENT_POINTS;
-        self.segment_len = segment_points(usize::from(self.point_count), index);
+        let index = usize::from(self.pushed) / SEGMENT_POINTS;
+        // The anchor is one of the segment's points (at least one: the scan is not full).
+        self.pushed = self.pushed.wrapping_add(1);
+        self.segment_left = segment_points(usize::from(self.point_count), index).saturating_sub(1);
+        self.next_block();
         self.w.begin_segment(self.seq_low, index as u8, out);
         self.w.put(
             width(d) | d << WIDTH_BITS,
@@ -234,7 +245,6 @@ impl ScanStream {
             );
             self.hi = History::anchor(i);
         }
-        self.in_segment = 1;
         self.gathered = 0;
     }
 
@@ -244,6 +254,8 @@ impl ScanStream {
         if self.intensity {
             put_block(&mut self.i, n, &mut self.hi, &mut self.w, out);
         }
+        // At most the scan's points: no wrap.
+        self.pushed = self.pushed.wrapping_add(n as u16);
         self.gathered = 0;
     }
 
@@ -259,7 +271,7 @@ impl ScanStream {
         self.valid_sent = self
             .pushed
             .wrapping_sub(self.nonrange.wrapping_add(missed as u16));
-        self.in_segment = 0;
-        self.segment_len = 0;
+        self.block_left = 0;
+        self.segment_left = 0;
     }
 }
