@@ -19,6 +19,55 @@ const MAX_RANGE_UNITS: u32 = crate::lossless::MAX_VALUE - code::RANGE_BASE;
 pub(super) struct Lossless {
     pub(super) header: ScanHeader,
     pub(super) stream: ScanStream,
+    /// What a run needs of the scan's encoding, worked out once per scan.
+    units: Units,
+}
+
+/// The per-point constants of a run that follow from the scan's encoding alone: the
+/// unit's shift `e`, the bias `half + 128·2^e` of a range's code (`(d + bias) >> e`),
+/// the first distance too long for that (or whose sum with the bias would wrap), and
+/// the intensity code as a shift and a mask (none: mask 0).
+#[derive(Debug, Clone, Copy)]
+struct Units {
+    e: u32,
+    bias: u32,
+    too_long: u32,
+    ishift: u32,
+    imask: u32,
+}
+
+impl Units {
+    fn of(enc: &crate::encoding::Encoding) -> Units {
+        let e = u32::from(enc.unit_exp & 0xF);
+        let half = (1u32 << e) >> 1;
+        let bias = half.wrapping_add(code::RANGE_BASE << e); // at most 2^14 + 2^22
+        let too_long = (u64::from(MAX_RANGE_UNITS) + 1) << e;
+        let too_long = too_long
+            .saturating_sub(u64::from(half))
+            .min(u64::from(u32::MAX.wrapping_sub(bias))) as u32; // bias < 2^23
+        Units {
+            e,
+            bias,
+            too_long,
+            ishift: 16u32.wrapping_sub(enc.intensity.bits().min(16)),
+            imask: if enc.intensity.is_present() {
+                u32::MAX
+            } else {
+                0
+            },
+        }
+    }
+}
+
+impl Lossless {
+    /// A lossless scan with `header`, coded into `stream`.
+    pub(super) fn new(header: ScanHeader, stream: ScanStream) -> Lossless {
+        Lossless {
+            units: Units::of(&header.encoding),
+            header,
+            stream,
+        }
+    }
 }
 
 /// The lossless distance code of raw distance `d` as `rule` classifies it, ranges in
@@ -58,29 +107,22 @@ impl ScanEncoder {
         S: FrameSink + ?Sized,
     {
         let l = self.open.lossless_mut().ok_or(Error::NoScan)?;
-        let enc = l.header.encoding;
         let mut out = Out::new(sink, self.ids.id(Kind::Data), self.format.is_fd());
-        // The per-point work with every constant worked out once: the rule's band, the
-        // unit's rounding, the intensity code as a shift and a mask (none: mask 0).
+        // The per-point work with every constant worked out once: those of the encoding
+        // once per scan, the rule's here.
         let (min, [a, b]) = (rule.min, rule.except);
-        let e = u32::from(enc.unit_exp & 0xF);
-        let half = (1u32 << e) >> 1;
-        let ishift = 16u32.wrapping_sub(enc.intensity.bits().min(16));
-        let imask = if enc.intensity.is_present() {
-            u32::MAX
-        } else {
-            0
-        };
+        let Units {
+            e,
+            bias,
+            too_long,
+            ishift,
+            imask,
+        } = l.units;
         // The common case in one test: the distances from `min` up to (not including)
         // the first of the rule's error codes, its band and the first distance too long
         // for a code are ranges, coded `(d + half + 128·2^e) >> e` (the rounded units
         // plus the range base) without any further check. An error code or band below
         // `min` leaves the span empty: every distance takes the full test.
-        let bias = half.wrapping_add(code::RANGE_BASE << e); // at most 2^14 + 2^22
-        let too_long = (u64::from(MAX_RANGE_UNITS) + 1) << e;
-        let too_long = too_long
-            .saturating_sub(u64::from(half))
-            .min(u64::from(u32::MAX.wrapping_sub(bias))) as u32; // bias < 2^23
         let first_other = a.min(b).min(rule.band.unwrap_or(u32::MAX));
         let [lo, hi] = rule.window;
         let low = min.max(lo);
