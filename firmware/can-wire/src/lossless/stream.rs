@@ -30,9 +30,11 @@ pub struct ScanStream {
     block_left: usize,
     /// Points of the segment after the block being gathered.
     segment_left: usize,
-    /// The block being gathered, of each channel.
+    /// The block being gathered: the distance channel's values (and room for the
+    /// residuals of either channel), the intensity channel's values (into `d` once the
+    /// distances are written: the scan stream stays as small as it was).
     d: Block,
-    i: Block,
+    i: [u32; BLOCK_POINTS],
     /// Its points so far.
     gathered: usize,
     hd: History,
@@ -80,7 +82,7 @@ impl ScanStream {
             block_left: 0,
             segment_left: 0,
             d: Block::default(),
-            i: Block::default(),
+            i: [0; BLOCK_POINTS],
             gathered: 0,
             hd: History::default(),
             hi: History::default(),
@@ -187,8 +189,7 @@ impl ScanStream {
             let (now, later) = rest.split_at(room);
             let at = self.gathered;
             let end = at.wrapping_add(room);
-            let (Some(dd), Some(ii)) = (self.d.v.get_mut(at..end), self.i.v.get_mut(at..end))
-            else {
+            let (Some(dd), Some(ii)) = (self.d.v.get_mut(at..end), self.i.get_mut(at..end)) else {
                 break;
             };
             // Without the intensity channel the loop neither computes nor stores any.
@@ -252,7 +253,8 @@ impl ScanStream {
         let n = self.gathered;
         put_block(&mut self.d, n, &mut self.hd, &mut self.w, out);
         if self.intensity {
-            put_block(&mut self.i, n, &mut self.hi, &mut self.w, out);
+            self.d.v = self.i;
+            put_block(&mut self.d, n, &mut self.hi, &mut self.w, out);
         }
         // At most the scan's points: no wrap.
         self.pushed = self.pushed.wrapping_add(n as u16);
