@@ -41,10 +41,14 @@ impl Units {
         let e = u32::from(enc.unit_exp & 0xF);
         let half = (1u32 << e) >> 1;
         let bias = half.wrapping_add(code::RANGE_BASE << e); // at most 2^14 + 2^22
-        let too_long = (u64::from(MAX_RANGE_UNITS) + 1) << e;
-        let too_long = too_long
-            .saturating_sub(u64::from(half))
-            .min(u64::from(u32::MAX.wrapping_sub(bias))) as u32; // bias < 2^23
+                                                             // In 32 bits (no 64-bit shift on the MCU): `(MAX_RANGE_UNITS + 1) << e` is
+                                                             // below 2^32 up to e = 12; from 13 on it is past any distance with a bias.
+        let too_long = if e <= 12 {
+            ((MAX_RANGE_UNITS + 1) << e).saturating_sub(half)
+        } else {
+            u32::MAX
+        };
+        let too_long = too_long.min(u32::MAX.wrapping_sub(bias)); // bias < 2^23
         Units {
             e,
             bias,
@@ -184,5 +188,33 @@ impl ScanEncoder {
         let f = self.frame(Kind::Trailer, &t.emit()?)?;
         out.push(f).map_err(|_| Error::FrameTooLong)?;
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::encoding::{DistanceEncoding, Encoding, IntensityEncoding};
+
+    /// The first distance too long for a code, against the same bound worked out in 64
+    /// bits from SPEC 4.2's code range, for every unit.
+    #[test]
+    fn too_long_in_32_bits_for_every_unit() {
+        for unit_exp in 0..16u8 {
+            let enc = Encoding {
+                distance: DistanceEncoding::Lossless,
+                intensity: IntensityEncoding::None,
+                unit_exp,
+            };
+            let u = Units::of(&enc);
+            let e = u32::from(unit_exp);
+            let half = (1u64 << e) >> 1;
+            let bias = half + (128u64 << e);
+            let want = (((1u64 << 20) - 128) << e)
+                .saturating_sub(half)
+                .min(u64::from(u32::MAX) - bias);
+            assert_eq!(u64::from(u.too_long), want, "unit_exp {unit_exp}");
+            assert_eq!(u64::from(u.bias), bias);
+        }
     }
 }
