@@ -132,6 +132,12 @@ impl Writer {
     /// that reaches the frame's end fills it, sends it, and begins the next frame.
     #[inline(never)]
     fn word<S: FrameSink + ?Sized>(&mut self, word: u32, out: &mut Out<'_, S>) {
+        self.word_inline(word, out);
+    }
+
+    /// [`Writer::word`], inlined where its call would cost most: the Rice code loop.
+    #[inline(always)]
+    fn word_inline<S: FrameSink + ?Sized>(&mut self, word: u32, out: &mut Out<'_, S>) {
         // `len < full <= MAX_LEN` between calls, and the buffer has 4 bytes of room
         // past `MAX_LEN`: the word always fits (bytes past `full` go to the next frame).
         let at = self.len;
@@ -211,7 +217,8 @@ impl Writer {
         let k = k.min(ESCAPE_ONES - 1);
         let mask = (1u32 << k).wrapping_sub(1);
         let (mut acc, mut nbits) = (self.acc, self.nbits);
-        let mut code1 = |w: &mut Writer, x: u32| {
+        // `inline`: the word goes into the frame without a call (the loop's two sites).
+        let mut code1 = |w: &mut Writer, x: u32, inline: bool| {
             // q < 16 (checked by the caller) and k <= 15: the code has q + 1 + k <= 31
             // bits; `(2·low + 1) << q` less 1 is the low bits after q ones and a zero.
             let q = x >> k;
@@ -221,7 +228,11 @@ impl Writer {
             acc |= code.wrapping_shl(nbits);
             let total = nbits.wrapping_add(bits);
             if total >= 32 {
-                w.word(acc, out);
+                if inline {
+                    w.word_inline(acc, out);
+                } else {
+                    w.word(acc, out);
+                }
                 // Here `nbits` >= 1 (a code has at most 31 bits): the bits that did not fit.
                 acc = code.wrapping_shr(32u32.wrapping_sub(nbits));
                 nbits = total.wrapping_sub(32);
@@ -234,12 +245,12 @@ impl Writer {
         let last = pairs.remainder().first().copied();
         for pair in pairs {
             if let [x0, x1] = pair {
-                code1(self, *x0);
-                code1(self, *x1);
+                code1(self, *x0, true);
+                code1(self, *x1, true);
             }
         }
         if let Some(x) = last {
-            code1(self, x);
+            code1(self, x, false);
         }
         self.acc = acc;
         self.nbits = nbits;

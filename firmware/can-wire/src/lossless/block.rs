@@ -71,8 +71,9 @@ pub const fn width(v: u32) -> u32 {
 #[inline(always)]
 fn rice_k(sum: u32, n: u32) -> u32 {
     let mean = sum.checked_div(n).unwrap_or(sum); // no residual: their sum
-    width(mean)
-        .saturating_sub(1)
+                                                  // One less than the width: the width of `mean | 1` is at least 1.
+    width(mean | 1)
+        .wrapping_sub(1)
         .min((1u32 << K_BITS).wrapping_sub(1))
 }
 
