@@ -217,8 +217,7 @@ impl Writer {
         let k = k.min(ESCAPE_ONES - 1);
         let mask = (1u32 << k).wrapping_sub(1);
         let (mut acc, mut nbits) = (self.acc, self.nbits);
-        // `inline`: the word goes into the frame without a call (the loop's two sites).
-        let mut code1 = |w: &mut Writer, x: u32, inline: bool| {
+        for &x in u {
             // q < 16 (checked by the caller) and k <= 15: the code has q + 1 + k <= 31
             // bits; `(2·low + 1) << q` less 1 is the low bits after q ones and a zero.
             let q = x >> k;
@@ -228,29 +227,13 @@ impl Writer {
             acc |= code.wrapping_shl(nbits);
             let total = nbits.wrapping_add(bits);
             if total >= 32 {
-                if inline {
-                    w.word_inline(acc, out);
-                } else {
-                    w.word(acc, out);
-                }
+                self.word_inline(acc, out);
                 // Here `nbits` >= 1 (a code has at most 31 bits): the bits that did not fit.
                 acc = code.wrapping_shr(32u32.wrapping_sub(nbits));
                 nbits = total.wrapping_sub(32);
             } else {
                 nbits = total;
             }
-        };
-        // Two codes per turn (no register moves between them), then an odd last one.
-        let pairs = u.chunks_exact(2);
-        let last = pairs.remainder().first().copied();
-        for pair in pairs {
-            if let [x0, x1] = pair {
-                code1(self, *x0, true);
-                code1(self, *x1, true);
-            }
-        }
-        if let Some(x) = last {
-            code1(self, x, false);
         }
         self.acc = acc;
         self.nbits = nbits;

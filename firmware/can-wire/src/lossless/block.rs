@@ -40,22 +40,12 @@ impl History {
 /// predictors, kept by the sender between blocks (a fresh array per block would be
 /// cleared each time). The three arrays side by side: the residual pass reaches all
 /// three from one pointer.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct Block {
     /// The values (the block's first `n`).
     pub v: [u32; BLOCK_POINTS],
     u1: [u32; BLOCK_POINTS],
     u2: [u32; BLOCK_POINTS],
-}
-
-impl Default for Block {
-    fn default() -> Block {
-        Block {
-            v: [0; BLOCK_POINTS],
-            u1: [0; BLOCK_POINTS],
-            u2: [0; BLOCK_POINTS],
-        }
-    }
 }
 
 /// Width of a value: bits up to its highest one bit (0 for 0).
