@@ -9,6 +9,7 @@ use crate::lossless::code;
 use crate::lossless::stream::ScanStream;
 use crate::trailer::{Trailer, TrailerFlags};
 use crate::Error;
+use core::cell::Cell;
 
 /// The most range units a lossless distance code carries.
 const MAX_RANGE_UNITS: u32 = crate::lossless::MAX_VALUE - code::RANGE_BASE;
@@ -18,6 +19,59 @@ const MAX_RANGE_UNITS: u32 = crate::lossless::MAX_VALUE - code::RANGE_BASE;
 pub(super) struct Lossless {
     pub(super) header: ScanHeader,
     pub(super) stream: ScanStream,
+    /// What a run needs of the scan's encoding, worked out once per scan.
+    units: Units,
+}
+
+/// The per-point constants of a run that follow from the scan's encoding alone: the
+/// unit's shift `e`, the bias `half + 128·2^e` of a range's code (`(d + bias) >> e`),
+/// the first distance too long for that (or whose sum with the bias would wrap), and
+/// the intensity code as a shift and a mask (none: mask 0).
+#[derive(Debug, Clone, Copy)]
+struct Units {
+    e: u32,
+    bias: u32,
+    too_long: u32,
+    ishift: u32,
+    imask: u32,
+}
+
+impl Units {
+    fn of(enc: &crate::encoding::Encoding) -> Units {
+        let e = u32::from(enc.unit_exp & 0xF);
+        let half = (1u32 << e) >> 1;
+        let bias = half.wrapping_add(code::RANGE_BASE << e); // at most 2^14 + 2^22
+                                                             // In 32 bits (no 64-bit shift on the MCU): `(MAX_RANGE_UNITS + 1) << e` is
+                                                             // below 2^32 up to e = 12; from 13 on it is past any distance with a bias.
+        let too_long = if e <= 12 {
+            ((MAX_RANGE_UNITS + 1) << e).saturating_sub(half)
+        } else {
+            u32::MAX
+        };
+        let too_long = too_long.min(u32::MAX.wrapping_sub(bias)); // bias < 2^23
+        Units {
+            e,
+            bias,
+            too_long,
+            ishift: 16u32.wrapping_sub(enc.intensity.bits().min(16)),
+            imask: if enc.intensity.is_present() {
+                u32::MAX
+            } else {
+                0
+            },
+        }
+    }
+}
+
+impl Lossless {
+    /// A lossless scan with `header`, coded into `stream`.
+    pub(super) fn new(header: ScanHeader, stream: ScanStream) -> Lossless {
+        Lossless {
+            units: Units::of(&header.encoding),
+            header,
+            stream,
+        }
+    }
 }
 
 /// The lossless distance code of raw distance `d` as `rule` classifies it, ranges in
@@ -57,29 +111,22 @@ impl ScanEncoder {
         S: FrameSink + ?Sized,
     {
         let l = self.open.lossless_mut().ok_or(Error::NoScan)?;
-        let enc = l.header.encoding;
         let mut out = Out::new(sink, self.ids.id(Kind::Data), self.format.is_fd());
-        // The per-point work with every constant worked out once: the rule's band, the
-        // unit's rounding, the intensity code as a shift and a mask (none: mask 0).
+        // The per-point work with every constant worked out once: those of the encoding
+        // once per scan, the rule's here.
         let (min, [a, b]) = (rule.min, rule.except);
-        let e = u32::from(enc.unit_exp & 0xF);
-        let half = (1u32 << e) >> 1;
-        let ishift = 16u32.wrapping_sub(enc.intensity.bits().min(16));
-        let imask = if enc.intensity.is_present() {
-            u32::MAX
-        } else {
-            0
-        };
+        let Units {
+            e,
+            bias,
+            too_long,
+            ishift,
+            imask,
+        } = l.units;
         // The common case in one test: the distances from `min` up to (not including)
         // the first of the rule's error codes, its band and the first distance too long
         // for a code are ranges, coded `(d + half + 128·2^e) >> e` (the rounded units
         // plus the range base) without any further check. An error code or band below
         // `min` leaves the span empty: every distance takes the full test.
-        let bias = half.wrapping_add(code::RANGE_BASE << e); // at most 2^14 + 2^22
-        let too_long = (u64::from(MAX_RANGE_UNITS) + 1) << e;
-        let too_long = too_long
-            .saturating_sub(u64::from(half))
-            .min(u64::from(u32::MAX.wrapping_sub(bias))) as u32; // bias < 2^23
         let first_other = a.min(b).min(rule.band.unwrap_or(u32::MAX));
         let [lo, hi] = rule.window;
         let low = min.max(lo);
@@ -87,17 +134,22 @@ impl ScanEncoder {
             .min(too_long)
             .min(hi.saturating_add(1))
             .saturating_sub(low);
+        // Points that are no range: only the full test makes any.
+        let misses = Cell::new(0u32);
         let code = |p: &T| {
             let (d, i) = point(p);
             let dc = if d.wrapping_sub(low) < span {
                 // d < too_long: d + bias stays below 2^32 and the code below MAX_VALUE.
                 d.wrapping_add(bias) >> e
             } else {
-                lossless_code(&rule, d, e)
+                let c = lossless_code(&rule, d, e);
+                // At most one per point of the run: no wrap.
+                misses.set(misses.get().wrapping_add(u32::from(!code::is_range(c))));
+                c
             };
             (dc, ((u32::from(i) >> ishift) & imask) as u16)
         };
-        let (taken, invalid) = l.stream.push_run(points, code, &mut out);
+        let (taken, invalid) = l.stream.push_run(points, code, &misses, &mut out);
         let stop = if out.lost > 0 {
             Some(RunStop::NoSlot)
         } else if taken < points.len() {
@@ -136,5 +188,33 @@ impl ScanEncoder {
         let f = self.frame(Kind::Trailer, &t.emit()?)?;
         out.push(f).map_err(|_| Error::FrameTooLong)?;
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::encoding::{DistanceEncoding, Encoding, IntensityEncoding};
+
+    /// The first distance too long for a code, against the same bound worked out in 64
+    /// bits from SPEC 4.2's code range, for every unit.
+    #[test]
+    fn too_long_in_32_bits_for_every_unit() {
+        for unit_exp in 0..16u8 {
+            let enc = Encoding {
+                distance: DistanceEncoding::Lossless,
+                intensity: IntensityEncoding::None,
+                unit_exp,
+            };
+            let u = Units::of(&enc);
+            let e = u32::from(unit_exp);
+            let half = (1u64 << e) >> 1;
+            let bias = half + (128u64 << e);
+            let want = (((1u64 << 20) - 128) << e)
+                .saturating_sub(half)
+                .min(u64::from(u32::MAX) - bias);
+            assert_eq!(u64::from(u.too_long), want, "unit_exp {unit_exp}");
+            assert_eq!(u64::from(u.bias), bias);
+        }
     }
 }

@@ -347,9 +347,9 @@ impl ScanEncoder {
         ];
         let enc = header.encoding;
         if enc.distance.is_lossless() {
-            self.open = Open::Lossless(Lossless {
-                header: *header,
-                stream: ScanStream::new(
+            self.open = Open::Lossless(Lossless::new(
+                *header,
+                ScanStream::new(
                     header.seq,
                     header.point_count,
                     enc.intensity.is_present(),
@@ -357,7 +357,7 @@ impl ScanEncoder {
                     &a,
                     &b,
                 ),
-            });
+            ));
             return Ok(frames);
         }
         let distance_bits = enc.distance.bits();

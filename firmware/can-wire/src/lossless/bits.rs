@@ -132,6 +132,12 @@ impl Writer {
     /// that reaches the frame's end fills it, sends it, and begins the next frame.
     #[inline(never)]
     fn word<S: FrameSink + ?Sized>(&mut self, word: u32, out: &mut Out<'_, S>) {
+        self.word_inline(word, out);
+    }
+
+    /// [`Writer::word`], inlined where its call would cost most: the Rice code loop.
+    #[inline(always)]
+    fn word_inline<S: FrameSink + ?Sized>(&mut self, word: u32, out: &mut Out<'_, S>) {
         // `len < full <= MAX_LEN` between calls, and the buffer has 4 bytes of room
         // past `MAX_LEN`: the word always fits (bytes past `full` go to the next frame).
         let at = self.len;
@@ -221,7 +227,7 @@ impl Writer {
             acc |= code.wrapping_shl(nbits);
             let total = nbits.wrapping_add(bits);
             if total >= 32 {
-                self.word(acc, out);
+                self.word_inline(acc, out);
                 // Here `nbits` >= 1 (a code has at most 31 bits): the bits that did not fit.
                 acc = code.wrapping_shr(32u32.wrapping_sub(nbits));
                 nbits = total.wrapping_sub(32);

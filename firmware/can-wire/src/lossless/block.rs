@@ -36,10 +36,14 @@ impl History {
     }
 }
 
-/// Room for a block's residuals under both predictors, kept by the sender between blocks
-/// (a fresh array per block would be cleared each time).
+/// A block being gathered: its values, and room for their residuals under both
+/// predictors, kept by the sender between blocks (a fresh array per block would be
+/// cleared each time). The three arrays side by side: the residual pass reaches all
+/// three from one pointer.
 #[derive(Debug, Clone, Default)]
-pub struct Scratch {
+pub struct Block {
+    /// The values (the block's first `n`).
+    pub v: [u32; BLOCK_POINTS],
     u1: [u32; BLOCK_POINTS],
     u2: [u32; BLOCK_POINTS],
 }
@@ -57,8 +61,9 @@ pub const fn width(v: u32) -> u32 {
 #[inline(always)]
 fn rice_k(sum: u32, n: u32) -> u32 {
     let mean = sum.checked_div(n).unwrap_or(sum); // no residual: their sum
-    width(mean)
-        .saturating_sub(1)
+                                                  // One less than the width: the width of `mean | 1` is at least 1.
+    width(mean | 1)
+        .wrapping_sub(1)
         .min((1u32 << K_BITS).wrapping_sub(1))
 }
 
@@ -86,8 +91,8 @@ fn or_all(values: &[u32]) -> u32 {
     values.iter().fold(0, |a, &v| a | v)
 }
 
-/// Write the block `values` (at most [`BLOCK_POINTS`], each at most [`MAX_VALUE`]) of a
-/// channel whose history is `h`, in the cheaper of a Rice-coded prediction and its
+/// Write the block of the first `n` values of `b` (at most [`BLOCK_POINTS`], each at
+/// most [`MAX_VALUE`]) of a channel whose history is `h`, in the cheaper of a Rice-coded prediction and its
 /// verbatim form (or constant); returns the mode. Not inlined: one copy serves both
 /// channels (flash is the boards' tight budget).
 ///
@@ -98,15 +103,14 @@ fn or_all(values: &[u32]) -> u32 {
 /// reach an escape has its cost counted value by value.
 #[inline(never)]
 pub fn put_block<S: FrameSink + ?Sized>(
-    values: &[u32],
+    b: &mut Block,
+    n: usize,
     h: &mut History,
-    scratch: &mut Scratch,
     w: &mut Writer,
     out: &mut Out<'_, S>,
 ) -> Mode {
-    let values = values.get(..values.len().min(BLOCK_POINTS)).unwrap_or(&[]);
-    let n = values.len();
-    let Scratch { u1, u2 } = scratch;
+    let n = n.min(BLOCK_POINTS);
+    let Block { v: values, u1, u2 } = b;
     // `or` gathers both predictors' residuals: a quotient of either may escape.
     let (mut s1, mut s2, mut or) = (0u32, 0u32, 0u32);
     // The last value and the last order-1 residual (the order-2 prediction is `a + p`).
@@ -132,7 +136,8 @@ pub fn put_block<S: FrameSink + ?Sized>(
     let pairs = values
         .chunks_exact(2)
         .zip(u1.chunks_exact_mut(2))
-        .zip(u2.chunks_exact_mut(2));
+        .zip(u2.chunks_exact_mut(2))
+        .take(n / 2);
     for ((v, x1), x2) in pairs {
         if let ([v0, v1], [a0, a1], [b0, b1]) = (v, x1, x2) {
             step(*v0, a0, b0);
@@ -161,6 +166,7 @@ pub fn put_block<S: FrameSink + ?Sized>(
         (Mode::Order1, &*u1, s1)
     };
     let u = u.get(..n).unwrap_or(&[]);
+    let values = values.get(..n).unwrap_or(&[]);
     let k = rice_k(sum, n32);
     // Whether a quotient of the chosen residuals may reach an escape (`or` bounds both
     // predictors' residuals: a few blocks take the exact path without need).
@@ -275,9 +281,10 @@ mod tests {
         w.begin_segment(0, 0, &mut out);
         let mut h = History::anchor(anchor);
         let mut modes = vec![];
-        let mut scratch = Scratch::default();
+        let mut block = Block::default();
         for b in blocks {
-            modes.push(put_block(b, &mut h, &mut scratch, &mut w, &mut out));
+            block.v[..b.len()].copy_from_slice(b);
+            modes.push(put_block(&mut block, b.len(), &mut h, &mut w, &mut out));
         }
         w.end_segment(&mut out);
         let mut stream = vec![];

@@ -2,12 +2,13 @@
 //! frames out, and the scan CRC over the headers and the segments' CRCs.
 
 use super::bits::{Out, Writer};
-use super::block::{put_block, width, History, Scratch};
+use super::block::{put_block, width, Block, History};
 use super::code;
 use super::{segment_points, BLOCK_POINTS, MAX_VALUE, SEGMENT_POINTS, WIDTH_BITS};
 use crate::crc::ScanCrc;
 use crate::encoder::FrameSink;
 use crate::Error;
+use core::cell::Cell;
 
 /// One scan being coded.
 #[derive(Debug, Clone)]
@@ -16,50 +17,46 @@ pub struct ScanStream {
     seq_low: u8,
     point_count: u16,
     intensity: bool,
-    /// Points taken so far.
+    /// Points taken before the block being gathered (its `gathered` points not counted).
     pushed: u16,
     /// Points of the segments ended so far (sent whole).
     sent: u16,
-    /// Range codes among the points taken, and among those sent.
-    valid: u16,
+    /// Codes that are no range among the points taken before the current run (the run
+    /// counts its own), and range codes among the points sent.
+    nonrange: u16,
     valid_sent: u16,
-    /// Position of the next point in its segment (0: the next point is an anchor).
-    in_segment: usize,
-    /// Points in the segment being coded.
-    segment_len: usize,
-    /// The block being gathered.
-    d: [u32; BLOCK_POINTS],
+    /// Points the block being gathered still takes (0: the next point is an anchor):
+    /// the run's one test per pass for the block's, the segment's and the scan's end.
+    block_left: usize,
+    /// Points of the segment after the block being gathered.
+    segment_left: usize,
+    /// The block being gathered: the distance channel's values (and room for the
+    /// residuals of either channel), the intensity channel's values (into `d` once the
+    /// distances are written: the scan stream stays as small as it was).
+    d: Block,
     i: [u32; BLOCK_POINTS],
+    /// Its points so far.
     gathered: usize,
     hd: History,
     hi: History,
-    scratch: Scratch,
     /// Headers, then each segment's CRC.
     crc: ScanCrc,
 }
 
-/// The codes of `points` into `d` (and `i` if `INTENSITY`); returns how many are ranges.
+/// The codes of `points` into `d` (and `i` if `INTENSITY`). The code counts what is no
+/// range itself: the common case, a range, costs no test here.
 #[inline(always)]
-fn gather<const INTENSITY: bool, T, F>(
-    points: &[T],
-    code: &F,
-    d: &mut [u32],
-    i: &mut [u32],
-) -> usize
+fn gather<const INTENSITY: bool, T, F>(points: &[T], code: &F, d: &mut [u32], i: &mut [u32])
 where
     F: Fn(&T) -> (u32, u16),
 {
-    let mut valid = 0usize;
     for ((p, d), i) in points.iter().zip(d.iter_mut()).zip(i.iter_mut()) {
         let (dc, ic) = code(p);
         *d = dc;
         if INTENSITY {
             *i = u32::from(ic);
         }
-        // At most the run's length: no wrap.
-        valid = valid.wrapping_add(usize::from(dc >= code::RANGE_BASE));
     }
-    valid
 }
 
 impl ScanStream {
@@ -80,23 +77,23 @@ impl ScanStream {
             intensity,
             pushed: 0,
             sent: 0,
-            valid: 0,
+            nonrange: 0,
             valid_sent: 0,
-            in_segment: 0,
-            segment_len: 0,
-            d: [0; BLOCK_POINTS],
+            block_left: 0,
+            segment_left: 0,
+            d: Block::default(),
             i: [0; BLOCK_POINTS],
             gathered: 0,
             hd: History::default(),
             hi: History::default(),
-            scratch: Scratch::default(),
             crc: ScanCrc::new(a, b),
         }
     }
 
     /// Points taken so far.
     pub fn pushed(&self) -> u16 {
-        self.pushed
+        // At most the scan's points: no wrap.
+        self.pushed.wrapping_add(self.gathered as u16)
     }
 
     /// Points in segments sent whole: the trailer's `points_sent`.
@@ -116,7 +113,7 @@ impl ScanStream {
 
     /// Whether every point of the scan was taken.
     pub fn is_full(&self) -> bool {
-        self.pushed >= self.point_count
+        self.pushed() >= self.point_count
     }
 
     /// The scan CRC, finished with the trailer's first six bytes.
@@ -133,91 +130,107 @@ impl ScanStream {
         intensity: u16,
         out: &mut Out<'_, S>,
     ) -> Result<(), Error> {
-        if self.pushed >= self.point_count {
+        if self.is_full() {
             return Err(Error::TooManyPoints);
         }
-        self.push_run(&[(distance.min(MAX_VALUE), intensity)], |p| *p, out);
+        let misses = Cell::new(0u32);
+        let code = |p: &(u32, u16)| {
+            misses.set(misses.get().wrapping_add(u32::from(!code::is_range(p.0))));
+            *p
+        };
+        self.push_run(&[(distance.min(MAX_VALUE), intensity)], code, &misses, out);
         Ok(())
     }
 
     /// Take `points` in order, each turned by `code` into its distance code (at most
-    /// [`MAX_VALUE`]: the caller's guarantee, not checked per point) and intensity code, like [`ScanStream::push`] for each but a block
-    /// at a time. Stops when the scan is full or after a frame the sink had no slot for.
-    /// Returns the points taken and how many of them were no range.
+    /// [`MAX_VALUE`]: the caller's guarantee, not checked per point) and intensity code,
+    /// like [`ScanStream::push`] for each but a block at a time; `code` adds 1 to
+    /// `misses` for each distance code it returns that is no range (below
+    /// [`code::RANGE_BASE`]), so the common case costs no test. Stops when the scan is
+    /// full or after a frame the sink had no slot for. Returns the points taken and how
+    /// many of them were no range.
     #[inline(always)]
     pub fn push_run<T, F, S>(
         &mut self,
         points: &[T],
         code: F,
+        misses: &Cell<u32>,
         out: &mut Out<'_, S>,
     ) -> (usize, usize)
     where
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        // The counters stay below the scan's points (at most 4096), `ranges <= taken`,
-        // `gathered < BLOCK_POINTS` and `in_segment < segment_len` at the top of the
-        // loop (a full block or segment is sent at once): nothing here wraps.
-        let (mut taken, mut ranges) = (0usize, 0usize);
+        // The counters stay below the scan's points (at most 4096), `misses` grows by at
+        // most `taken`, `gathered + block_left <= BLOCK_POINTS` and `segment_left` is
+        // what the segment has left: nothing here wraps.
+        let base = misses.get();
+        let mut taken = 0usize;
         let mut rest = points;
-        while !rest.is_empty() && self.pushed < self.point_count && out.lost == 0 {
-            if self.in_segment == 0 {
+        while !rest.is_empty() && out.lost == 0 {
+            if self.block_left == 0 {
+                // The next point begins a segment, if the scan has one left.
+                if self.pushed >= self.point_count {
+                    break;
+                }
                 let Some((first, later)) = rest.split_first() else {
                     break;
                 };
                 let (d, i) = code(first);
-                let d = d.min(MAX_VALUE);
-                ranges = ranges.wrapping_add(usize::from(code::is_range(d)));
-                self.valid = self.valid.wrapping_add(u16::from(code::is_range(d)));
-                self.pushed = self.pushed.wrapping_add(1);
-                self.begin_segment(d, u32::from(i), out);
-                if self.in_segment >= self.segment_len {
-                    self.end_segment(out);
+                self.begin_segment(d.min(MAX_VALUE), u32::from(i), out);
+                if self.block_left == 0 {
+                    self.end_segment(misses.get().wrapping_sub(base), out);
                 }
                 rest = later;
                 taken = taken.wrapping_add(1);
                 continue;
             }
-            let left = usize::from(self.point_count.wrapping_sub(self.pushed));
-            let room = BLOCK_POINTS
-                .wrapping_sub(self.gathered)
-                .min(self.segment_len.wrapping_sub(self.in_segment))
-                .min(rest.len())
-                .min(left);
+            let room = self.block_left.min(rest.len());
             let (now, later) = rest.split_at(room);
             let at = self.gathered;
             let end = at.wrapping_add(room);
-            let (Some(dd), Some(ii)) = (self.d.get_mut(at..end), self.i.get_mut(at..end)) else {
+            let (Some(dd), Some(ii)) = (self.d.v.get_mut(at..end), self.i.get_mut(at..end)) else {
                 break;
             };
             // Without the intensity channel the loop neither computes nor stores any.
-            let valid = if self.intensity {
-                gather::<true, _, _>(now, &code, dd, ii)
+            if self.intensity {
+                gather::<true, _, _>(now, &code, dd, ii);
             } else {
-                gather::<false, _, _>(now, &code, dd, ii)
-            };
-            ranges = ranges.wrapping_add(valid);
-            self.valid = self.valid.wrapping_add(valid as u16);
-            self.pushed = self.pushed.wrapping_add(room as u16);
-            self.gathered = self.gathered.wrapping_add(room);
-            self.in_segment = self.in_segment.wrapping_add(room);
+                gather::<false, _, _>(now, &code, dd, ii);
+            }
+            self.gathered = end;
+            self.block_left = self.block_left.wrapping_sub(room);
             taken = taken.wrapping_add(room);
             rest = later;
-            if self.gathered == BLOCK_POINTS {
+            if self.block_left == 0 {
                 self.put_blocks(out);
-            }
-            if self.in_segment >= self.segment_len {
-                self.end_segment(out);
+                if self.segment_left == 0 {
+                    self.end_segment(misses.get().wrapping_sub(base), out);
+                } else {
+                    self.next_block();
+                }
             }
         }
-        (taken, taken.wrapping_sub(ranges))
+        let missed = misses.get().wrapping_sub(base);
+        self.nonrange = self.nonrange.wrapping_add(missed as u16);
+        (taken, missed as usize)
     }
 
+    /// The next block of the segment: at most [`BLOCK_POINTS`] of the points it has left.
+    #[inline(always)]
+    fn next_block(&mut self) {
+        self.block_left = self.segment_left.min(BLOCK_POINTS);
+        self.segment_left = self.segment_left.wrapping_sub(self.block_left);
+    }
+
+    /// Begin a segment with its first point, the anchor `d` (and `i`).
     #[cold]
     fn begin_segment<S: FrameSink + ?Sized>(&mut self, d: u32, i: u32, out: &mut Out<'_, S>) {
-        // Called after the segment's first point was counted: `pushed >= 1`.
-        let index = usize::from(self.pushed.wrapping_sub(1)) / SEGMENT_POINTS;
-        self.segment_len = segment_points(usize::from(self.point_count), index);
+        let index = usize::from(self.pushed) / SEGMENT_POINTS;
+        // The anchor is one of the segment's points (at least one: the scan is not full).
+        self.pushed = self.pushed.wrapping_add(1);
+        self.segment_left = segment_points(usize::from(self.point_count), index).saturating_sub(1);
+        self.next_block();
         self.w.begin_segment(self.seq_low, index as u8, out);
         self.w.put(
             width(d) | d << WIDTH_BITS,
@@ -233,41 +246,34 @@ impl ScanStream {
             );
             self.hi = History::anchor(i);
         }
-        self.in_segment = 1;
         self.gathered = 0;
     }
 
     fn put_blocks<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
         let n = self.gathered;
-        let (w, scratch) = (&mut self.w, &mut self.scratch);
-        put_block(
-            self.d.get(..n).unwrap_or(&[]),
-            &mut self.hd,
-            scratch,
-            w,
-            out,
-        );
+        put_block(&mut self.d, n, &mut self.hd, &mut self.w, out);
         if self.intensity {
-            put_block(
-                self.i.get(..n).unwrap_or(&[]),
-                &mut self.hi,
-                scratch,
-                w,
-                out,
-            );
+            self.d.v = self.i;
+            put_block(&mut self.d, n, &mut self.hi, &mut self.w, out);
         }
+        // At most the scan's points: no wrap.
+        self.pushed = self.pushed.wrapping_add(n as u16);
         self.gathered = 0;
     }
 
-    fn end_segment<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+    /// End the segment; `missed` codes that are no range among the run's points so far.
+    fn end_segment<S: FrameSink + ?Sized>(&mut self, missed: u32, out: &mut Out<'_, S>) {
         if self.gathered > 0 {
             self.put_blocks(out);
         }
         let crc = self.w.end_segment(out);
         self.crc.bytes(&crc.to_le_bytes());
         self.sent = self.pushed;
-        self.valid_sent = self.valid;
-        self.in_segment = 0;
-        self.segment_len = 0;
+        // At most `pushed` points are no range: no wrap.
+        self.valid_sent = self
+            .pushed
+            .wrapping_sub(self.nonrange.wrapping_add(missed as u16));
+        self.block_left = 0;
+        self.segment_left = 0;
     }
 }
