@@ -489,7 +489,8 @@ impl Pipeline {
                 .saturating_mul(cluster),
         );
         let cfg = self.config;
-        let mut c = Counts::default();
+        // Four words (a `Counts::default()` here was a call to clear 25 bytes a line).
+        let mut t = Tally::default();
         let window = cfg
             .range_window
             .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
@@ -512,11 +513,9 @@ impl Pipeline {
                 buf,
                 &line,
                 (first, cluster, intensity),
-                &mut c,
+                &mut t,
             );
-            c.emitted = m;
-            c.invalid_out = invalid;
-            return Some(self.commit(&c));
+            return Some(self.commit(&t.counts(m, invalid, false)));
         }
         // The windows' state for the line: as the last line left it, or loaded.
         let h = &mut self.held;
@@ -526,9 +525,8 @@ impl Pipeline {
         }
         let (sp, md) = (&mut h.speckle, &mut h.median);
         // The output is converted after decimation, or in the loops.
-        let (w, mut invalid, changed) = smooth::line(input, buf, &line, sp, md, &mut c);
+        let (w, mut invalid, changed) = smooth::line(input, buf, &line, sp, md, &mut t);
         let decimate = line.decimate;
-        c.filtered = changed;
         // Points held back by the windows (steps count back from `last_step`).
         let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
         let lag = held(line.jump.is_some(), sp).saturating_add(held(line.median.is_some(), md));
@@ -556,9 +554,7 @@ impl Pipeline {
                 };
             }
         }
-        c.emitted = m;
-        c.invalid_out = invalid;
-        Some(self.commit(&c))
+        Some(self.commit(&t.counts(m, invalid, changed)))
     }
 
     /// The slice of a run of `n` points from `first_step`, `cluster` steps apart, that
@@ -795,6 +791,33 @@ struct LineConsts {
     decimate: bool,
     /// The encoder's value for no range.
     out_none: u32,
+}
+
+/// What [`Pipeline::filter_line`]'s classification and speckle removal rejected in a
+/// line (each at most the line's points).
+#[derive(Default)]
+struct Tally {
+    error_code: usize,
+    out_of_range: usize,
+    low_intensity: usize,
+    speckle: usize,
+}
+
+impl Tally {
+    /// The line's [`Counts`]: these, `emitted` output points, `invalid_out` of them
+    /// without a range, `filtered` when the median changed a range.
+    #[inline(always)]
+    fn counts(&self, emitted: usize, invalid_out: usize, filtered: bool) -> Counts {
+        Counts {
+            error_code: self.error_code,
+            out_of_range: self.out_of_range,
+            low_intensity: self.low_intensity,
+            speckle: self.speckle,
+            emitted,
+            invalid_out,
+            filtered,
+        }
+    }
 }
 
 /// The distances from `low` up to (not including) `low + span` are ranges inside the

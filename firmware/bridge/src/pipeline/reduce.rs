@@ -14,7 +14,7 @@
 
 use super::config::DecimationMode;
 use super::decimate::Decimator;
-use super::{Counts, LineConsts, NONE};
+use super::{LineConsts, Tally, NONE};
 
 /// A group's running state, in the line loop's registers.
 #[derive(Clone, Copy)]
@@ -213,7 +213,7 @@ pub(super) fn classify_reduce(
     out: &mut [scip::Reading],
     consts: &LineConsts,
     (step, cluster, intensity): (u32, u32, bool),
-    counts: &mut Counts,
+    counts: &mut Tally,
 ) -> (usize, usize) {
     let rule = consts.rule;
     let (low, span) = super::one_test_span(&rule);

@@ -14,7 +14,7 @@
 use scip::Reading;
 
 use super::window::{median_line, speckle3_line, Regs};
-use super::{Counts, LineConsts, MedianWidth};
+use super::{LineConsts, MedianWidth, Tally};
 
 /// No range, inside a line.
 pub(super) const NONE: u32 = u32::MAX;
@@ -47,7 +47,7 @@ pub(super) fn line(
     k: &LineConsts,
     sp: &mut Regs,
     md: &mut Regs,
-    c: &mut Counts,
+    c: &mut Tally,
 ) -> (usize, usize, bool) {
     let half2 = k.median.map_or(0, MedianWidth::half);
     // The points each window holds, in stream order: the median's, then speckle
@@ -142,12 +142,7 @@ pub(super) fn line(
 /// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
 /// [`SMALL`] passed, and whether no range of 0 can (in this line or, the rule being
 /// the scan's, any line of the scan).
-fn classify(
-    input: &[Reading],
-    out: &mut [Reading],
-    k: &LineConsts,
-    c: &mut Counts,
-) -> (bool, bool) {
+fn classify(input: &[Reading], out: &mut [Reading], k: &LineConsts, c: &mut Tally) -> (bool, bool) {
     let rule = &k.rule;
     let [wmin, wmax] = rule.window;
     // The distances from `low` up to (not including) `low + span` are ranges inside
