@@ -144,10 +144,7 @@ pub(super) fn line(
 #[inline(always)]
 fn median3_off(b: u32, c: u32, s: u32, exact: u32, diff: &mut u32) -> u32 {
     let x = if (b | c | s | exact) >= SMALL {
-        if b == NONE || c == NONE || s == NONE {
-            return c;
-        }
-        c.max(b.min(s)).min(b.max(s))
+        median3_exact(b, c, s)
     } else if c >= b {
         // `c - b` at least 0: `c` is at least `b` and above `s`.
         b.max(s)
@@ -157,6 +154,25 @@ fn median3_off(b: u32, c: u32, s: u32, exact: u32, diff: &mut u32) -> u32 {
     };
     *diff |= x ^ c;
     x
+}
+
+/// The median of 3 by the general rule (any ranges): `c` when one of the three is no
+/// range, else the median. Out of [`stages`]' loops (rare, and one copy for all).
+#[inline(never)]
+fn median3_exact(b: u32, c: u32, s: u32) -> u32 {
+    if b == NONE || c == NONE || s == NONE {
+        c
+    } else {
+        c.max(b.min(s)).min(b.max(s))
+    }
+}
+
+/// Speckle removal's rule (any ranges and threshold) for the centre `c` between `b` and
+/// `a`: its new distance and whether it was removed. Out of [`stages`]' loops (rare, and
+/// one copy for all).
+#[inline(never)]
+fn speckle_exact(c: u32, b: u32, a: u32, jump: u32) -> (u32, bool) {
+    speckle3_line(c, b, a, NONE, jump)
 }
 
 /// Counts one output without a range (at most the line's points: no wrap); returns the
@@ -203,7 +219,7 @@ fn stages<const SP: bool, const MD: bool>(
         if bs.abs_diff(cs) <= quick_jump {
             return cs;
         }
-        let (x, gone) = speckle3_line(cs, bs, a, NONE, jump);
+        let (x, gone) = speckle_exact(cs, bs, a, jump);
         // At most the line's points: no wrap.
         *removed = removed.wrapping_add(usize::from(gone));
         x
