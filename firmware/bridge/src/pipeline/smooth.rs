@@ -322,17 +322,17 @@ fn classify_loop<const THRESHOLD: bool>(
 ) {
     let mut low_intensity = 0usize;
     for (cell, r) in out.iter_mut().zip(input) {
-        let mut d = r.distance;
-        cell.aux = r.aux;
+        let (mut d, aux) = (r.distance, r.aux);
         if d.wrapping_sub(low) >= span {
             d = classify_rare(&k.rule, d, n, big);
         }
-        if THRESHOLD && d != NONE && r.aux < k.min_intensity {
+        if THRESHOLD && d != NONE && aux < k.min_intensity {
             // At most the line's points: no wrap.
             low_intensity = low_intensity.wrapping_add(1);
             d = NONE;
         }
-        cell.distance = d;
+        // Both words at once (adjacent in the cell).
+        (cell.distance, cell.aux) = (d, aux);
     }
     n[2] = n[2].wrapping_add(low_intensity);
 }
