@@ -543,16 +543,8 @@ impl Pipeline {
                 .run_line(part, NONE, intensity, step, cluster);
         }
         if decimate {
-            let out = buf.get_mut(..m).unwrap_or_default();
-            for r in out.iter_mut() {
-                r.distance = if r.distance == NONE {
-                    // At most `m`.
-                    invalid = invalid.wrapping_add(1);
-                    out_none
-                } else {
-                    r.distance.max(1)
-                };
-            }
+            // The output into the encoder's form (`line` leaves it to this).
+            invalid = smooth::finish(buf.get_mut(..m).unwrap_or_default(), out_none);
         }
         Some(self.commit(&t.counts(m, invalid, changed)))
     }

@@ -14,6 +14,7 @@
 
 use super::config::DecimationMode;
 use super::decimate::Decimator;
+use super::smooth::classify_rare;
 use super::{LineConsts, Tally, NONE};
 
 /// A group's running state, in the line loop's registers.
@@ -138,12 +139,13 @@ struct Classes {
     min_intensity: u32,
 }
 
-/// The points the classification took the range of, by reason.
+/// The points the classification took the range of, by reason (error codes, ranges
+/// outside the window, low intensities), and whether a range at or above 2^31 passed
+/// (unused here).
 #[derive(Default)]
 struct Rejected {
-    error_code: usize,
-    out_of_range: usize,
-    low_intensity: usize,
+    n: [usize; 3],
+    big: bool,
 }
 
 impl Classes {
@@ -153,30 +155,14 @@ impl Classes {
     fn of(&self, r: &scip::Reading, why: &mut Rejected) -> u32 {
         let mut d = r.distance;
         if d.wrapping_sub(self.low) >= self.span {
-            d = self.slow(d, why);
+            d = classify_rare(&self.rule, d, &mut why.n, &mut why.big);
         }
         if r.aux < self.min_intensity && d != NONE {
             // At most the line's points.
-            why.low_intensity = why.low_intensity.wrapping_add(1);
+            why.n[2] = why.n[2].wrapping_add(1);
             d = NONE;
         }
         d
-    }
-
-    /// [`Classes::of`] for a distance outside the one-test span.
-    #[cold]
-    #[inline(never)]
-    fn slow(&self, d: u32, why: &mut Rejected) -> u32 {
-        // Counts of at most the line's points: no wrap.
-        if d != NONE && self.rule.is_range(d) {
-            d
-        } else if d != NONE && self.rule.is_sensor_range(d) {
-            why.out_of_range = why.out_of_range.wrapping_add(1);
-            NONE
-        } else {
-            why.error_code = why.error_code.wrapping_add(1);
-            NONE
-        }
     }
 }
 
@@ -295,9 +281,7 @@ pub(super) fn classify_reduce(
         let step = line.step.wrapping_add(at.wrapping_mul(line.cluster));
         dec.first_step = u16::try_from(step).unwrap_or(u16::MAX);
     }
-    counts.error_code = why.error_code;
-    counts.out_of_range = why.out_of_range;
-    counts.low_intensity = why.low_intensity;
+    [counts.error_code, counts.out_of_range, counts.low_intensity] = why.n;
     // The slots written (at most `room`).
     (room.wrapping_sub(o.slots.len()), o.invalid)
 }

@@ -342,7 +342,12 @@ fn classify_loop<const THRESHOLD: bool>(
 /// [`SMALL`].
 #[cold]
 #[inline(never)]
-fn classify_rare(rule: &can_wire::RangeRule, d: u32, n: &mut [usize; 3], big: &mut bool) -> u32 {
+pub(super) fn classify_rare(
+    rule: &can_wire::RangeRule,
+    d: u32,
+    n: &mut [usize; 3],
+    big: &mut bool,
+) -> u32 {
     // Counts of at most the line's points: no wrap.
     if d == NONE || !rule.is_sensor_range(d) {
         n[0] = n[0].wrapping_add(1);
@@ -408,7 +413,7 @@ fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
 /// The output points into the encoder's form: no range as `out_none`, a range of 0 as
 /// 1. Returns the number without a range.
 #[inline(never)]
-fn finish(cells: &mut [Reading], out_none: u32) -> usize {
+pub(super) fn finish(cells: &mut [Reading], out_none: u32) -> usize {
     let mut invalid = 0usize;
     for cell in cells {
         let d = cell.distance;
