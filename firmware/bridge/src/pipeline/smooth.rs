@@ -464,6 +464,30 @@ mod tests {
     }
 
     #[test]
+    fn exact_rules_for_ranges_near_no_range() {
+        // Ranges at or above 2^31, where the quick tests do not hold. Speckle removal,
+        // threshold 20: a range 10 below NONE after a missing point, with a missing
+        // point after it, has no support (no range is not a neighbour).
+        let mut s = cells(&[u32::MAX - 10, NONE]);
+        let mut sp = Regs {
+            b1: NONE,
+            ..Regs::default()
+        };
+        let r = stages::<true, false>(&mut s, 20, true, &mut sp, &mut Regs::default(), NONE);
+        assert_eq!((r.0, r.3, s[0].distance), (1, 1, NONE));
+        // The median of 1, 2^32 - 6 and 2^31 + 1 (three ranges) is 2^31 + 1 (the
+        // differences wrap as 32-bit signed values: both negative).
+        let mut s = cells(&[u32::MAX - 5, (1 << 31) + 1]);
+        let mut md = Regs {
+            b1: 1,
+            ..Regs::default()
+        };
+        let r = stages::<false, true>(&mut s, 0, true, &mut Regs::default(), &mut md, NONE);
+        assert_eq!((r.0, s[0].distance), (1, (1 << 31) + 1));
+        assert_ne!(r.2, 0);
+    }
+
+    #[test]
     fn median3_and_speckle_by_hand() {
         // Both forms of each loop: the quick tests, and the exact rule alone.
         for exact in [false, true] {
