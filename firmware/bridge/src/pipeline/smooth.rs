@@ -375,8 +375,9 @@ fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
 }
 
 /// The median of 5 over `s`: every cell but the last two is a centre, `b` the
-/// distances before the first (nearest first; updated likewise). Returns as
-/// [`median3`].
+/// distances before the first (nearest first; updated likewise). No range is written
+/// as `out_none` ([`NONE`] to leave it). Returns the OR of every changed range with its
+/// new value (0: none changed) and the number of outputs without a range.
 #[inline(never)]
 fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
     let Some((mut cell, rest)) = s.split_first_mut() else {
