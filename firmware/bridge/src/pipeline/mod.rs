@@ -504,17 +504,19 @@ impl Pipeline {
         };
         let windows = line.jump.is_some() || line.median.is_some();
         if !windows {
-            // Classification and decimation (if any) in one pass (pipeline/reduce.rs).
-            let first =
-                last_step.saturating_sub(u32::try_from(last).unwrap_or(0).saturating_mul(cluster));
-            let (m, invalid) = reduce::classify_reduce(
-                &mut self.decimator,
-                input,
-                buf,
-                &line,
-                (first, cluster, intensity),
-                &mut t,
-            );
+            // The classification, then decimation (pipeline/reduce.rs) or the
+            // encoder's form.
+            let n = input.len();
+            let cells = buf.get_mut(..n).unwrap_or_default();
+            smooth::classify(input, cells, &line, &mut t);
+            let (m, invalid) = if line.decimate {
+                let back = u32::try_from(last).unwrap_or(0).saturating_mul(cluster);
+                let first = last_step.saturating_sub(back);
+                let at = (first, cluster, intensity);
+                reduce::reduce_line(&mut self.decimator, cells, at, out_none)
+            } else {
+                (n, smooth::finish(cells, out_none))
+            };
             return Some(self.commit(&t.counts(m, invalid, false)));
         }
         // The windows' state for the line: as the last line left it, or loaded.
@@ -538,13 +540,12 @@ impl Pipeline {
             // Step of the first point the decimator gets.
             let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
             let step = last_step.saturating_sub(back.saturating_mul(cluster));
-            m = self
-                .decimator
-                .run_line(part, NONE, intensity, step, cluster);
-        }
-        if decimate {
-            // The output into the encoder's form (`line` leaves it to this).
-            invalid = smooth::finish(buf.get_mut(..m).unwrap_or_default(), out_none);
+            (m, invalid) = reduce::reduce_line(
+                &mut self.decimator,
+                part,
+                (step, cluster, intensity),
+                out_none,
+            );
         }
         Some(self.commit(&t.counts(m, invalid, changed)))
     }
@@ -810,22 +811,6 @@ impl Tally {
             filtered,
         }
     }
-}
-
-/// The distances from `low` up to (not including) `low + span` are ranges inside the
-/// rule's window, found by one test (as the encoder's runs do); the others take the
-/// full one. The sensor's error codes at or above its minimum end the span (which never
-/// holds NONE, `u32::MAX`). Returns `(low, span)`.
-#[inline(always)]
-fn one_test_span(rule: &can_wire::RangeRule) -> (u32, u32) {
-    let [wmin, wmax] = rule.window;
-    let [a, b] = rule.except;
-    let first = a
-        .min(b)
-        .min(rule.band.unwrap_or(NONE))
-        .min(wmax.saturating_add(1));
-    let low = rule.min.max(wmin);
-    (low, first.saturating_sub(low))
 }
 
 /// The part of a run that [`Pipeline::pass_run`] leaves to publish directly.

@@ -282,7 +282,12 @@ fn stages<const SP: bool, const MD: bool>(
 /// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
 /// [`SMALL`] passed, and whether no range of 0 can (in this line or, the rule being
 /// the scan's, any line of the scan).
-fn classify(input: &[Reading], out: &mut [Reading], k: &LineConsts, c: &mut Tally) -> (bool, bool) {
+pub(super) fn classify(
+    input: &[Reading],
+    out: &mut [Reading],
+    k: &LineConsts,
+    c: &mut Tally,
+) -> (bool, bool) {
     let rule = &k.rule;
     let [wmin, wmax] = rule.window;
     // The distances from `low` up to (not including) `low + span` are ranges inside
