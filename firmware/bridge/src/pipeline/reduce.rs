@@ -61,12 +61,11 @@ fn wide_mean(sum: u64, n: u32) -> u32 {
 }
 
 impl Acc {
-    /// The group's output point: distance ([`NONE`] for no range) and intensity.
+    /// The group's output point in `Mean`: distance ([`NONE`] for no range) and
+    /// intensity.
     #[inline(always)]
-    fn output(&self, min: bool) -> (u32, u32) {
-        if min {
-            (self.best, self.best_aux)
-        } else if self.valid == 0 {
+    fn mean(&self) -> (u32, u32) {
+        if self.valid == 0 {
             (NONE, 0)
         } else {
             let aux = if self.auxes == 0 {
@@ -80,7 +79,7 @@ impl Acc {
 }
 
 impl Decimator {
-    /// The open group's state as [`classify_reduce`] keeps it.
+    /// The open group's state as [`reduce_line`] keeps it.
     fn load(&self) -> Acc {
         let (best, best_aux) = match self.best {
             Some((r, i)) => (r, i.unwrap_or(0)),
@@ -96,7 +95,7 @@ impl Decimator {
         }
     }
 
-    /// Keeps [`classify_reduce`]'s open group: `count` points (below the factor), the first
+    /// Keeps [`reduce_line`]'s open group: `count` points (below the factor), the first
     /// at `first_step`.
     fn store(&mut self, acc: &Acc, count: usize, first_step: u16, intensity: bool) {
         self.count = u16::try_from(count).unwrap_or(0);
@@ -172,11 +171,17 @@ fn reduce_loop<const MODE: u8>(
         // Below `k` before the add.
         *pos = pos.wrapping_add(1);
         if *pos >= k {
-            if MODE != FIRST {
-                let (d, aux) = acc.output(MODE == MIN);
+            // The next group: only the mode's own fields (the others stay as empty as
+            // they came: no other mode's loop runs on this decimator).
+            if MODE == MIN {
+                o.emit(cells, acc.best, acc.best_aux);
+                (acc.best, acc.best_aux) = (Acc::EMPTY.best, Acc::EMPTY.best_aux);
+            } else if MODE == MEAN {
+                let (d, aux) = acc.mean();
                 o.emit(cells, d, aux);
+                (acc.sum, acc.valid) = (Acc::EMPTY.sum, Acc::EMPTY.valid);
+                (acc.aux_sum, acc.auxes) = (Acc::EMPTY.aux_sum, Acc::EMPTY.auxes);
             }
-            *acc = Acc::EMPTY;
             *pos = 0;
         }
     }
