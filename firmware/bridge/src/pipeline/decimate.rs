@@ -103,43 +103,6 @@ impl Decimator {
         out
     }
 
-    /// [`Decimator::push`] for each point of `buf` in place (see
-    /// [`super::Pipeline::filter_line`]: a distance equal to `none` has no range, `aux`
-    /// is the intensity when `intensity`); the output points are written to the front
-    /// of `buf` and their number returned. `step` is the step of `buf`'s first point,
-    /// the next ones `cluster` apart.
-    pub fn run_line(
-        &mut self,
-        buf: &mut [scip::Reading],
-        none: u32,
-        intensity: bool,
-        step: u32,
-        cluster: u32,
-    ) -> usize {
-        let mut w = 0usize;
-        let step_of = |i: usize| {
-            let back = u32::try_from(i).unwrap_or(u32::MAX).saturating_mul(cluster);
-            u16::try_from(step.saturating_add(back)).unwrap_or(u16::MAX)
-        };
-        for i in 0..buf.len() {
-            let Some(r) = buf.get(i).copied() else { break };
-            let p = Point {
-                step: step_of(i),
-                range_mm: (r.distance != none).then_some(r.distance),
-                intensity: intensity.then_some(r.aux),
-            };
-            if let Some(d) = self.push(p) {
-                if let Some(slot) = buf.get_mut(w) {
-                    slot.distance = d.range_mm.unwrap_or(none);
-                    slot.aux = d.intensity.unwrap_or(0);
-                }
-                // At most `i + 1`.
-                w = w.wrapping_add(1);
-            }
-        }
-        w
-    }
-
     /// The end of the scan: the output point of a short last group, if one is open.
     pub fn flush(&mut self) -> Option<Point> {
         let out = if self.count > 0 { self.finish() } else { None };

@@ -489,7 +489,8 @@ impl Pipeline {
                 .saturating_mul(cluster),
         );
         let cfg = self.config;
-        let mut c = Counts::default();
+        // Four words (a `Counts::default()` here was a call to clear 25 bytes a line).
+        let mut t = Tally::default();
         let window = cfg
             .range_window
             .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
@@ -503,20 +504,20 @@ impl Pipeline {
         };
         let windows = line.jump.is_some() || line.median.is_some();
         if !windows {
-            // Classification and decimation (if any) in one pass (pipeline/reduce.rs).
-            let first =
-                last_step.saturating_sub(u32::try_from(last).unwrap_or(0).saturating_mul(cluster));
-            let (m, invalid) = reduce::classify_reduce(
-                &mut self.decimator,
-                input,
-                buf,
-                &line,
-                (first, cluster, intensity),
-                &mut c,
-            );
-            c.emitted = m;
-            c.invalid_out = invalid;
-            return Some(self.commit(&c));
+            // The classification, then decimation (pipeline/reduce.rs) or the
+            // encoder's form.
+            let n = input.len();
+            let cells = buf.get_mut(..n).unwrap_or_default();
+            smooth::classify(input, cells, &line, &mut t);
+            let (m, invalid) = if line.decimate {
+                let back = u32::try_from(last).unwrap_or(0).saturating_mul(cluster);
+                let first = last_step.saturating_sub(back);
+                let at = (first, cluster, intensity);
+                reduce::reduce_line(&mut self.decimator, cells, at, out_none)
+            } else {
+                (n, smooth::finish(cells, out_none))
+            };
+            return Some(self.commit(&t.counts(m, invalid, false)));
         }
         // The windows' state for the line: as the last line left it, or loaded.
         let h = &mut self.held;
@@ -526,9 +527,8 @@ impl Pipeline {
         }
         let (sp, md) = (&mut h.speckle, &mut h.median);
         // The output is converted after decimation, or in the loops.
-        let (w, mut invalid, changed) = smooth::line(input, buf, &line, sp, md, &mut c);
+        let (w, mut invalid, changed) = smooth::line(input, buf, &line, sp, md, &mut t);
         let decimate = line.decimate;
-        c.filtered = changed;
         // Points held back by the windows (steps count back from `last_step`).
         let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
         let lag = held(line.jump.is_some(), sp).saturating_add(held(line.median.is_some(), md));
@@ -540,25 +540,14 @@ impl Pipeline {
             // Step of the first point the decimator gets.
             let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
             let step = last_step.saturating_sub(back.saturating_mul(cluster));
-            m = self
-                .decimator
-                .run_line(part, NONE, intensity, step, cluster);
+            (m, invalid) = reduce::reduce_line(
+                &mut self.decimator,
+                part,
+                (step, cluster, intensity),
+                out_none,
+            );
         }
-        if decimate {
-            let out = buf.get_mut(..m).unwrap_or_default();
-            for r in out.iter_mut() {
-                r.distance = if r.distance == NONE {
-                    // At most `m`.
-                    invalid = invalid.wrapping_add(1);
-                    out_none
-                } else {
-                    r.distance.max(1)
-                };
-            }
-        }
-        c.emitted = m;
-        c.invalid_out = invalid;
-        Some(self.commit(&c))
+        Some(self.commit(&t.counts(m, invalid, changed)))
     }
 
     /// The slice of a run of `n` points from `first_step`, `cluster` steps apart, that
@@ -797,20 +786,31 @@ struct LineConsts {
     out_none: u32,
 }
 
-/// The distances from `low` up to (not including) `low + span` are ranges inside the
-/// rule's window, found by one test (as the encoder's runs do); the others take the
-/// full one. The sensor's error codes at or above its minimum end the span (which never
-/// holds NONE, `u32::MAX`). Returns `(low, span)`.
-#[inline(always)]
-fn one_test_span(rule: &can_wire::RangeRule) -> (u32, u32) {
-    let [wmin, wmax] = rule.window;
-    let [a, b] = rule.except;
-    let first = a
-        .min(b)
-        .min(rule.band.unwrap_or(NONE))
-        .min(wmax.saturating_add(1));
-    let low = rule.min.max(wmin);
-    (low, first.saturating_sub(low))
+/// What [`Pipeline::filter_line`]'s classification and speckle removal rejected in a
+/// line (each at most the line's points).
+#[derive(Default)]
+struct Tally {
+    error_code: usize,
+    out_of_range: usize,
+    low_intensity: usize,
+    speckle: usize,
+}
+
+impl Tally {
+    /// The line's [`Counts`]: these, `emitted` output points, `invalid_out` of them
+    /// without a range, `filtered` when the median changed a range.
+    #[inline(always)]
+    fn counts(&self, emitted: usize, invalid_out: usize, filtered: bool) -> Counts {
+        Counts {
+            error_code: self.error_code,
+            out_of_range: self.out_of_range,
+            low_intensity: self.low_intensity,
+            speckle: self.speckle,
+            emitted,
+            invalid_out,
+            filtered,
+        }
+    }
 }
 
 /// The part of a run that [`Pipeline::pass_run`] leaves to publish directly.

@@ -1,20 +1,17 @@
-//! Angular decimation of a line at a time: the block path of
-//! [`super::Pipeline::filter_line`] when decimation is the only stage after the
-//! classification (error codes, range window, intensity threshold).
+//! Angular decimation of a line at a time, for [`super::Pipeline::filter_line`]: the
+//! line's points, already classified (and filtered by speckle removal or a median when
+//! those are on), reduced group by group in place.
 //!
-//! [`classify_reduce`] classifies a line's readings and reduces them group by
-//! group in one pass, carrying the open group from line to line in the
-//! [`Decimator`]'s state, so that it gives exactly what [`Decimator::push`] gives
-//! point by point (the groups span lines; the end of the scan flushes the last one
-//! with [`Decimator::flush`]). The group's state is kept in locals for the line:
-//! `First` emits a group's first point, `Min` keeps a running minimum (the first of
-//! equals) and `Mean` a sum and a count with one division per group. With speckle
-//! removal or a median before it, decimation runs on their output with
-//! [`Decimator::run_line`].
+//! [`reduce_line`] carries the open group from line to line in the [`Decimator`]'s
+//! state, so that it gives exactly what [`Decimator::push`] gives point by point (the
+//! groups span lines; the end of the scan flushes the last one with
+//! [`Decimator::flush`]). The group's state is kept in locals for the line, with a loop
+//! per mode: `First` emits a group's first point, `Min` keeps a running minimum (the
+//! first of equals) and `Mean` a sum and a count with one division per group.
 
 use super::config::DecimationMode;
 use super::decimate::Decimator;
-use super::{Counts, LineConsts, NONE};
+use super::NONE;
 
 /// A group's running state, in the line loop's registers.
 #[derive(Clone, Copy)]
@@ -63,26 +60,12 @@ fn wide_mean(sum: u64, n: u32) -> u32 {
         .unwrap_or(NONE)
 }
 
-/// What [`classify_reduce`] needs to know of the line.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct LineArgs {
-    /// Whether the points carry intensities.
-    pub intensity: bool,
-    /// The step of the first point.
-    pub step: u32,
-    /// The steps between points.
-    pub cluster: u32,
-    /// The encoder's value for no range.
-    pub out_none: u32,
-}
-
 impl Acc {
-    /// The group's output point: distance ([`NONE`] for no range) and intensity.
+    /// The group's output point in `Mean`: distance ([`NONE`] for no range) and
+    /// intensity.
     #[inline(always)]
-    fn output(&self, min: bool) -> (u32, u32) {
-        if min {
-            (self.best, self.best_aux)
-        } else if self.valid == 0 {
+    fn mean(&self) -> (u32, u32) {
+        if self.valid == 0 {
             (NONE, 0)
         } else {
             let aux = if self.auxes == 0 {
@@ -96,7 +79,7 @@ impl Acc {
 }
 
 impl Decimator {
-    /// The open group's state as [`classify_reduce`] keeps it.
+    /// The open group's state as [`reduce_line`] keeps it.
     fn load(&self) -> Acc {
         let (best, best_aux) = match self.best {
             Some((r, i)) => (r, i.unwrap_or(0)),
@@ -112,7 +95,7 @@ impl Decimator {
         }
     }
 
-    /// Keeps [`classify_reduce`]'s open group: `count` points (below the factor), the first
+    /// Keeps [`reduce_line`]'s open group: `count` points (below the factor), the first
     /// at `first_step`.
     fn store(&mut self, acc: &Acc, count: usize, first_step: u16, intensity: bool) {
         self.count = u16::try_from(count).unwrap_or(0);
@@ -125,181 +108,128 @@ impl Decimator {
     }
 }
 
-/// The classification of a line's readings (error codes, range window, intensity
-/// threshold) as [`classify_reduce`] does it on the way into the groups.
-struct Classes {
-    /// The sensor's range test with the range window.
-    rule: can_wire::RangeRule,
-    /// The distances from `low` up to (not including) `low + span` are ranges inside
-    /// the window (one test); the others take the full one.
-    low: u32,
-    span: u32,
-    /// The intensity threshold (0: none, or no intensities).
-    min_intensity: u32,
-}
-
-/// The points the classification took the range of, by reason.
-#[derive(Default)]
-struct Rejected {
-    error_code: usize,
-    out_of_range: usize,
-    low_intensity: usize,
-}
-
-impl Classes {
-    /// The distance of `r` after the classification ([`NONE`] for no range); the
-    /// rejections are counted in `why` (rare: kept out of the loop's registers).
-    #[inline(always)]
-    fn of(&self, r: &scip::Reading, why: &mut Rejected) -> u32 {
-        let mut d = r.distance;
-        if d.wrapping_sub(self.low) >= self.span {
-            d = self.slow(d, why);
-        }
-        if r.aux < self.min_intensity && d != NONE {
-            // At most the line's points.
-            why.low_intensity = why.low_intensity.wrapping_add(1);
-            d = NONE;
-        }
-        d
-    }
-
-    /// [`Classes::of`] for a distance outside the one-test span.
-    #[cold]
-    #[inline(never)]
-    fn slow(&self, d: u32, why: &mut Rejected) -> u32 {
-        // Counts of at most the line's points: no wrap.
-        if d != NONE && self.rule.is_range(d) {
-            d
-        } else if d != NONE && self.rule.is_sensor_range(d) {
-            why.out_of_range = why.out_of_range.wrapping_add(1);
-            NONE
-        } else {
-            why.error_code = why.error_code.wrapping_add(1);
-            NONE
-        }
-    }
-}
-
-/// The output side of [`classify_reduce`]: the points written so far and how many of
-/// them have no range.
-struct Written<'a> {
-    /// The slots not written yet.
-    slots: core::slice::IterMut<'a, scip::Reading>,
+/// The output side of [`reduce_line`]: the points written so far (at the front of the
+/// line's cells, never past the point being read) and how many of them have no range.
+struct Written {
+    /// Points written.
+    at: usize,
     out_none: u32,
     invalid: usize,
 }
 
-impl Written<'_> {
-    /// One output point (the encoder's form).
+impl Written {
+    /// One output point (the encoder's form) into `cells`.
     #[inline(always)]
-    fn emit(&mut self, d: u32, aux: u32) {
+    fn emit(&mut self, cells: &mut [scip::Reading], d: u32, aux: u32) {
         let none = d == NONE;
-        if let Some(slot) = self.slots.next() {
+        if let Some(slot) = cells.get_mut(self.at) {
             slot.distance = if none { self.out_none } else { d.max(1) };
             slot.aux = aux;
         }
-        // At most the line's points.
+        // Each at most the line's points.
+        self.at = self.at.wrapping_add(1);
         self.invalid = self.invalid.wrapping_add(usize::from(none));
     }
 }
 
-/// The readings `input` classified by `classes` and decimated, continuing `dec`'s open
-/// group; the output points go to `out` from its front, in the encoder's form (as
-/// [`super::Pipeline::filter_line`] leaves them). Returns their number and how many have no range.
+/// The decimation modes of [`reduce_loop`].
+const FIRST: u8 = 0;
+const MIN: u8 = 1;
+const MEAN: u8 = 2;
+
+/// [`reduce_line`]'s loop for one mode: the group's state `acc` with `pos` of its points
+/// seen (below `k`), `aux_mask` `u32::MAX` when the points carry intensities.
+#[inline(always)]
+fn reduce_loop<const MODE: u8>(
+    cells: &mut [scip::Reading],
+    k: usize,
+    (acc, pos): (&mut Acc, &mut usize),
+    aux_mask: u32,
+    o: &mut Written,
+) {
+    for i in 0..cells.len() {
+        let Some(&r) = cells.get(i) else {
+            break;
+        };
+        let (d, aux) = (r.distance, r.aux);
+        if MODE == FIRST {
+            if *pos == 0 {
+                o.emit(cells, d, aux);
+            }
+        } else if MODE == MIN {
+            // NONE is above every range: an invalid point never wins.
+            if d < acc.best {
+                (acc.best, acc.best_aux) = (d, aux);
+            }
+        } else if d != NONE {
+            // Each count at most the scan's points: no wrap.
+            acc.sum = acc.sum.wrapping_add(u64::from(d));
+            acc.valid = acc.valid.wrapping_add(1);
+            acc.aux_sum = acc.aux_sum.wrapping_add(u64::from(aux & aux_mask));
+            acc.auxes = acc.auxes.wrapping_add(1 & aux_mask);
+        }
+        // Below `k` before the add.
+        *pos = pos.wrapping_add(1);
+        if *pos >= k {
+            // The next group: only the mode's own fields (the others stay as empty as
+            // they came: no other mode's loop runs on this decimator).
+            if MODE == MIN {
+                o.emit(cells, acc.best, acc.best_aux);
+                (acc.best, acc.best_aux) = (Acc::EMPTY.best, Acc::EMPTY.best_aux);
+            } else if MODE == MEAN {
+                let (d, aux) = acc.mean();
+                o.emit(cells, d, aux);
+                (acc.sum, acc.valid) = (Acc::EMPTY.sum, Acc::EMPTY.valid);
+                (acc.aux_sum, acc.auxes) = (Acc::EMPTY.aux_sum, Acc::EMPTY.auxes);
+            }
+            *pos = 0;
+        }
+    }
+}
+
+/// Decimation of a line's classified points `cells` (no range as [`NONE`]) in place,
+/// continuing `dec`'s open group: the output points go to the front of `cells` in the
+/// encoder's form (no range as `out_none`, a range of 0 as 1), exactly what
+/// [`Decimator::push`] gives point by point. `step` is the step of the first point,
+/// the next ones `cluster` apart, `intensity` whether they carry intensities. Returns
+/// the number of output points and how many of them have no range.
 #[inline(never)]
-pub(super) fn classify_reduce(
+pub(super) fn reduce_line(
     dec: &mut Decimator,
-    input: &[scip::Reading],
-    out: &mut [scip::Reading],
-    consts: &LineConsts,
+    cells: &mut [scip::Reading],
     (step, cluster, intensity): (u32, u32, bool),
-    counts: &mut Counts,
+    out_none: u32,
 ) -> (usize, usize) {
-    let rule = consts.rule;
-    let (low, span) = super::one_test_span(&rule);
-    let classes = Classes {
-        rule,
-        low,
-        span,
-        min_intensity: consts.min_intensity,
-    };
-    let line = LineArgs {
-        intensity,
-        step,
-        cluster,
-        out_none: consts.out_none,
-    };
-    let mut why = Rejected::default();
-    let why = &mut why;
-    let n = input.len();
-    // At most one output point per point: `out` (as long as `input`) never runs out.
-    let out = out.get_mut(..n).unwrap_or_default();
-    let room = out.len();
+    let n = cells.len();
+    let k = usize::from(dec.factor.max(1));
     let mut o = Written {
-        slots: out.iter_mut(),
-        out_none: line.out_none,
+        at: 0,
+        out_none,
         invalid: 0,
     };
-    let k = usize::from(dec.factor.max(1));
-    // Without decimation (a factor of 1) every point is the first of its group.
-    let mode = if k > 1 {
-        dec.mode
-    } else {
-        DecimationMode::First
-    };
-    let first = mode == DecimationMode::First;
-    let min = mode == DecimationMode::Min;
     // `u32::MAX` when the points carry intensities, 0 otherwise.
-    let aux_mask = if line.intensity { u32::MAX } else { 0 };
-    // One loop for every mode (code size): each point goes into both the running
-    // minimum and the sums; `First` emits a group's first point as it comes, the
-    // others a group's output point when it closes. Points of the open group already
-    // seen: `pos` (below `k`; each count below the line's points plus `k`: no wrap).
+    let aux_mask = if intensity { u32::MAX } else { 0 };
+    // One loop per mode, the group's bookkeeping the same.
     let mut acc = dec.load();
     let mut pos = usize::from(dec.count);
-    for r in input {
-        let d = classes.of(r, why);
-        if first && pos == 0 {
-            o.emit(d, r.aux);
-        }
-        // NONE is above every range: an invalid point never wins.
-        if d < acc.best {
-            acc.best = d;
-            acc.best_aux = r.aux;
-        }
-        let v = d != NONE;
-        let m = if v { u32::MAX } else { 0 };
-        acc.sum = acc.sum.wrapping_add(u64::from(d & m));
-        acc.aux_sum = acc.aux_sum.wrapping_add(u64::from(r.aux & m & aux_mask));
-        acc.valid = acc.valid.wrapping_add(u32::from(v));
-        acc.auxes = acc.auxes.wrapping_add(u32::from(v) & aux_mask);
-        pos = pos.wrapping_add(1);
-        if pos >= k {
-            if !first {
-                let (d, aux) = acc.output(min);
-                o.emit(d, aux);
-            }
-            acc = Acc::EMPTY;
-            pos = 0;
-        }
+    let state = (&mut acc, &mut pos);
+    match dec.mode {
+        DecimationMode::First => reduce_loop::<FIRST>(cells, k, state, aux_mask, &mut o),
+        DecimationMode::Min => reduce_loop::<MIN>(cells, k, state, aux_mask, &mut o),
+        DecimationMode::Mean => reduce_loop::<MEAN>(cells, k, state, aux_mask, &mut o),
     }
-    if first {
+    if dec.mode == DecimationMode::First {
         acc = Acc::EMPTY;
     }
-    dec.store(&acc, pos, dec.first_step, line.intensity);
+    dec.store(&acc, pos, dec.first_step, intensity);
     // The group open after the line: `pos` points, its first in this line when there
     // are at most the line's points in it (the run fits the scan's u16 steps).
-    dec.count = u16::try_from(pos).unwrap_or(0);
     if pos > 0 && pos <= n {
         let at = u32::try_from(n.wrapping_sub(pos)).unwrap_or(0);
-        let step = line.step.wrapping_add(at.wrapping_mul(line.cluster));
-        dec.first_step = u16::try_from(step).unwrap_or(u16::MAX);
+        let first = step.wrapping_add(at.wrapping_mul(cluster));
+        dec.first_step = u16::try_from(first).unwrap_or(u16::MAX);
     }
-    counts.error_code = why.error_code;
-    counts.out_of_range = why.out_of_range;
-    counts.low_intensity = why.low_intensity;
-    // The slots written (at most `room`).
-    (room.wrapping_sub(o.slots.len()), o.invalid)
+    (o.at, o.invalid)
 }
 
 #[cfg(test)]

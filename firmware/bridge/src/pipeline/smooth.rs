@@ -1,20 +1,21 @@
-//! Speckle removal and the median over a data line in place, a stage at a time.
+//! Speckle removal and the median over a data line in place.
 //!
 //! [`line`] is the window stages of [`super::Pipeline::filter_line`]: the line's readings
 //! are classified into cells (no range as [`NONE`]) behind the points the windows still
-//! hold from the line before (copied into headroom in front of the line, so that each
-//! stage sees one contiguous array), then each stage is one tight loop over the cells,
-//! writing each centre's result into its own cell. A loop carries only the ranges just
-//! before its centre (which it has overwritten) in registers; the look-ahead is read from
-//! the cells, which still hold the stage's input there. The loops are chosen per line,
-//! never per point: speckle removal (exact, or a shorter form when no range and no
-//! threshold comes near [`NONE`]), median of 3 (branch-free min/max), median of 5 (a
-//! selection network when the five are ranges, the general rule otherwise).
+//! hold from the line before (copied into headroom in front of the line, so that the
+//! stages see one contiguous array), then speckle removal and the median of 3 run in
+//! one loop over the cells ([`stages`]: the windows' distances in registers, each
+//! output written over the cell of its centre; speckle removal alone and the median
+//! alone are the same loop with the other stage compiled out). Each stage first tries a
+//! quick test: a centre within the threshold of the point before it stays, a centre
+//! between its neighbours is their median. The median of 5 runs a loop of its own
+//! (a selection network when all five are ranges, the general rule otherwise), after
+//! speckle removal's loop.
 
 use scip::Reading;
 
 use super::window::{median_line, speckle3_line, Regs};
-use super::{Counts, LineConsts, MedianWidth};
+use super::{LineConsts, MedianWidth, Tally};
 
 /// No range, inside a line.
 pub(super) const NONE: u32 = u32::MAX;
@@ -47,7 +48,7 @@ pub(super) fn line(
     k: &LineConsts,
     sp: &mut Regs,
     md: &mut Regs,
-    c: &mut Counts,
+    c: &mut Tally,
 ) -> (usize, usize, bool) {
     let half2 = k.median.map_or(0, MedianWidth::half);
     // The points each window holds, in stream order: the median's, then speckle
@@ -70,83 +71,222 @@ pub(super) fn line(
     }
     let (big, zero_free) = classify(input, all.get_mut(head..).unwrap_or_default(), k, c);
 
-    // Speckle removal over its held point and the line: its outputs stay in place.
-    // The last stage gives its outputs in the encoder's form when not decimating
-    // (`done`), counting those without a range (`invalid`).
-    let (mut invalid, mut done) = (0usize, false);
-    let mut o1 = m;
-    if let Some(jump) = k.jump {
-        let l1 = np1.wrapping_add(m);
-        let region = all.get_mut(np2..np2.wrapping_add(l1)).unwrap_or_default();
-        o1 = l1.saturating_sub(1);
-        if o1 > 0 {
-            let short = jump < SMALL && !big && small(sp.b1) && small(sp.p0.0);
-            let removed = if !short {
-                speckle_exact(region, &mut sp.b1, jump)
-            } else if half2 == 0 && !k.decimate && zero_free {
-                // The last stage: its outputs in the encoder's form.
-                let (removed, none) = speckle_short::<true>(region, &mut sp.b1, jump, k.out_none);
-                invalid = none;
-                done = true;
-                removed
-            } else {
-                speckle_short::<false>(region, &mut sp.b1, jump, NONE).0
-            };
+    // Without decimation after and with no range of 0 possible, the last stage gives
+    // its outputs in the encoder's form; otherwise no range stays NONE.
+    let last = !k.decimate && zero_free;
+    let none = if last { k.out_none } else { NONE };
+    // The loops' quick tests hold when every range is below SMALL (else every point
+    // takes the exact rule).
+    let small_held = |r: &Regs| small(r.b1) && small(r.p0.0);
+    let exact = big || !small_held(md) || k.jump.is_some_and(|j| j >= SMALL || !small_held(sp));
+    let jump = k.jump.unwrap_or(0);
+
+    // The common case, every stage in one loop (the median's point held from the line
+    // before, when both are on); otherwise a loop per stage.
+    let (out, mut invalid, diff);
+    if half2 < 2 && (k.jump.is_none() || np2 == half2) {
+        let removed;
+        (out, invalid, diff, removed) = match (k.jump.is_some(), half2 > 0) {
+            (true, true) => stages::<true, true>(all, jump, exact, sp, md, none),
+            (true, false) => stages::<true, false>(all, jump, exact, sp, md, none),
+            _ => stages::<false, true>(all, jump, exact, sp, md, none),
+        };
+        c.speckle = c.speckle.wrapping_add(removed);
+    } else {
+        // Speckle removal over its held point and the line: its outputs stay in place.
+        let mut o1 = m;
+        if k.jump.is_some() {
+            let region = all.get_mut(np2..).unwrap_or_default();
+            let removed;
+            (o1, _, _, removed) = stages::<true, false>(region, jump, exact, sp, md, NONE);
             c.speckle = c.speckle.wrapping_add(removed);
         }
-        sp.np = l1.min(1);
-        if let Some(cell) = region.get(o1) {
-            sp.p0 = (cell.distance, cell.aux);
-        }
-    }
-
-    // The median over its held points and the previous stage's outputs.
-    let mut out = o1;
-    let mut diff = 0u32;
-    if half2 > 0 {
+        // The median over its held points and the previous stage's outputs.
         let l2 = np2.wrapping_add(o1);
         let region = all.get_mut(..l2).unwrap_or_default();
-        out = l2.saturating_sub(half2);
-        if out > 0 {
-            let mut b = [md.b1, md.b2];
-            // Not the last stage: no range stays NONE (one loop per width either way).
-            let last = !k.decimate && zero_free;
-            let none = if last { k.out_none } else { NONE };
-            (diff, invalid) = if half2 == 1 {
-                median3(region, &mut b, none)
+        if half2 < 2 {
+            (out, invalid, diff, _) = stages::<false, true>(region, 0, exact, sp, md, none);
+        } else {
+            out = l2.saturating_sub(half2);
+            (diff, invalid) = if out > 0 {
+                let mut b = [md.b1, md.b2];
+                let r = median5(region, &mut b, none);
+                [md.b1, md.b2] = b;
+                r
             } else {
-                median5(region, &mut b, none)
+                (0, 0)
             };
-            done = last;
-            [md.b1, md.b2] = b;
-        }
-        md.np = l2.wrapping_sub(out);
-        if let Some(cell) = region.get(out) {
-            md.p0 = (cell.distance, cell.aux);
-        }
-        if let Some(cell) = region.get(out.wrapping_add(1)) {
-            md.p1 = (cell.distance, cell.aux);
+            md.np = l2.wrapping_sub(out);
+            if let Some(cell) = region.get(out) {
+                md.p0 = (cell.distance, cell.aux);
+            }
+            if let Some(cell) = region.get(out.wrapping_add(1)) {
+                md.p1 = (cell.distance, cell.aux);
+            }
         }
     }
-
     if k.decimate {
         // Counted after decimation.
         invalid = 0;
-    } else if !done {
+    } else if !last {
         invalid = finish(all.get_mut(..out).unwrap_or_default(), k.out_none);
     }
     (out, invalid, diff != 0)
+}
+
+/// The median of 3 of a centre `c` that [`stages`]' sign test did not find between
+/// its neighbours `b` and `s`: `c` when one of the three is no range (a missing centre
+/// stays missing, a missing neighbour leaves the centre), else the median. `exact`
+/// (`SMALL` when a range may be at or above it, else 0) takes the general rule; without
+/// it every range is below [`SMALL`] (no range the only value with the top bit set)
+/// and `c` not between its neighbours: the median is the neighbour nearest `c`. Sets
+/// `diff` when it changes the centre.
+#[inline(always)]
+fn median3_off(b: u32, c: u32, s: u32, exact: u32, diff: &mut u32) -> u32 {
+    let x = if (b | c | s | exact) >= SMALL {
+        median3_exact(b, c, s)
+    } else if c >= b {
+        // `c - b` at least 0: `c` is at least `b` and above `s`.
+        b.max(s)
+    } else {
+        // Below `b`, at most `s`.
+        b.min(s)
+    };
+    *diff |= x ^ c;
+    x
+}
+
+/// The median of 3 by the general rule (any ranges): `c` when one of the three is no
+/// range, else the median. Out of [`stages`]' loops (rare, and one copy for all).
+#[inline(never)]
+fn median3_exact(b: u32, c: u32, s: u32) -> u32 {
+    if b == NONE || c == NONE || s == NONE {
+        c
+    } else {
+        c.max(b.min(s)).min(b.max(s))
+    }
+}
+
+/// Speckle removal's rule (any ranges and threshold) for the centre `c` between `b` and
+/// `a`: its new distance and whether it was removed. Out of [`stages`]' loops (rare, and
+/// one copy for all).
+#[inline(never)]
+fn speckle_exact(c: u32, b: u32, a: u32, jump: u32) -> (u32, bool) {
+    speckle3_line(c, b, a, NONE, jump)
+}
+
+/// Counts one output without a range (at most the line's points: no wrap); returns the
+/// encoder's value for it.
+#[cold]
+#[inline(never)]
+fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
+    *invalid = invalid.wrapping_add(1);
+    out_none
+}
+
+/// Speckle removal (`SP`, threshold `jump`) then the median of 3 (`MD`) in one loop
+/// over `d`, in place: the held points and the classified line in stream order (the
+/// median's held point first when both are on: the caller has checked that it holds
+/// one). The windows' state is carried in registers from `sp` and `md` and stored
+/// back after; the outputs go to the front of `d`, no range as `none`. Returns the
+/// number of outputs, how many of them have no range, the OR of every range the median
+/// changed with its new value, and the number of ranges speckle removal took.
+///
+/// Each stage first tries a quick test that holds when every range is below [`SMALL`]
+/// (else the caller sets `exact` and every point takes the exact rule). Speckle
+/// removal: a centre within `jump` of the point before it stays. The median: a centre
+/// between its neighbours is the median, found by one sign test, (c - b) and (s - c)
+/// of the same sign in 32-bit two's complement (exact for ranges below 2^31; with a
+/// neighbour or the centre missing the test can only pass when the answer is the
+/// centre too).
+#[inline(never)]
+fn stages<const SP: bool, const MD: bool>(
+    d: &mut [Reading],
+    jump: u32,
+    exact: bool,
+    sp: &mut Regs,
+    md: &mut Regs,
+    none: u32,
+) -> (usize, usize, u32, usize) {
+    let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
+    let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
+    let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
+    // The quick tests made to fail when `exact`.
+    let quick_jump = if exact { 0 } else { jump };
+    let exact = if exact { SMALL } else { 0 };
+    // Speckle removal's output for the centre `cs` (`bs` before it, `a` after).
+    let speckle = |bs: u32, cs: u32, a: u32, removed: &mut usize| {
+        if bs.abs_diff(cs) <= quick_jump {
+            return cs;
+        }
+        let (x, gone) = speckle_exact(cs, bs, a, jump);
+        // At most the line's points: no wrap.
+        *removed = removed.wrapping_add(usize::from(gone));
+        x
+    };
+    let n = d.len();
+    // Each stage's centre (as input) and the input before it. Speckle removal's first
+    // centre is the point after the median's held one; the median's, its held point
+    // or else the first point.
+    let (mut bs, mut cs) = (sp.b1, dist(d, usize::from(MD && SP)));
+    let (mut bm, mut cm) = (md.b1, dist(d, 0));
+    // Outputs lag the look-ahead by one point per stage.
+    let lag = usize::from(SP).wrapping_add(usize::from(MD));
+    for j in lag..n {
+        let Some(a) = d.get(j).map(|r| r.distance) else {
+            break;
+        };
+        let s = if SP {
+            let s = speckle(bs, cs, a, &mut removed);
+            (bs, cs) = (cs, a);
+            s
+        } else {
+            a
+        };
+        let x = if MD {
+            let c = cm;
+            let between = ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | exact) < SMALL;
+            let x = if between {
+                c
+            } else {
+                median3_off(bm, c, s, exact, &mut diff)
+            };
+            (bm, cm) = (c, s);
+            x
+        } else {
+            s
+        };
+        if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
+            o.distance = if x == NONE {
+                no_range(&mut invalid, none)
+            } else {
+                x
+            };
+        }
+    }
+    let out = n.saturating_sub(lag);
+    if SP {
+        sp.np = n.min(1);
+        sp.b1 = bs;
+        sp.p0 = (cs, aux(d, n.wrapping_sub(1)));
+    }
+    if MD && n > 0 {
+        md.np = 1;
+        md.b1 = bm;
+        md.p0 = (cm, aux(d, out));
+    }
+    (out, invalid, diff, removed)
 }
 
 /// Error codes, the range window and the intensity threshold: `input` into `out` (as
 /// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
 /// [`SMALL`] passed, and whether no range of 0 can (in this line or, the rule being
 /// the scan's, any line of the scan).
-fn classify(
+pub(super) fn classify(
     input: &[Reading],
     out: &mut [Reading],
     k: &LineConsts,
-    c: &mut Counts,
+    c: &mut Tally,
 ) -> (bool, bool) {
     let rule = &k.rule;
     let [wmin, wmax] = rule.window;
@@ -187,17 +327,17 @@ fn classify_loop<const THRESHOLD: bool>(
 ) {
     let mut low_intensity = 0usize;
     for (cell, r) in out.iter_mut().zip(input) {
-        let mut d = r.distance;
-        cell.aux = r.aux;
+        let (mut d, aux) = (r.distance, r.aux);
         if d.wrapping_sub(low) >= span {
             d = classify_rare(&k.rule, d, n, big);
         }
-        if THRESHOLD && d != NONE && r.aux < k.min_intensity {
+        if THRESHOLD && d != NONE && aux < k.min_intensity {
             // At most the line's points: no wrap.
             low_intensity = low_intensity.wrapping_add(1);
             d = NONE;
         }
-        cell.distance = d;
+        // Both words at once (adjacent in the cell).
+        (cell.distance, cell.aux) = (d, aux);
     }
     n[2] = n[2].wrapping_add(low_intensity);
 }
@@ -207,7 +347,12 @@ fn classify_loop<const THRESHOLD: bool>(
 /// [`SMALL`].
 #[cold]
 #[inline(never)]
-fn classify_rare(rule: &can_wire::RangeRule, d: u32, n: &mut [usize; 3], big: &mut bool) -> u32 {
+pub(super) fn classify_rare(
+    rule: &can_wire::RangeRule,
+    d: u32,
+    n: &mut [usize; 3],
+    big: &mut bool,
+) -> u32 {
     // Counts of at most the line's points: no wrap.
     if d == NONE || !rule.is_sensor_range(d) {
         n[0] = n[0].wrapping_add(1);
@@ -221,45 +366,10 @@ fn classify_rare(rule: &can_wire::RangeRule, d: u32, n: &mut [usize; 3], big: &m
     }
 }
 
-/// Speckle removal over `s`: each cell but the last is a centre (the last is its
-/// look-ahead), `b1` the distance before the first (updated to the one before the
-/// last). For a threshold and ranges below [`SMALL`] (a missing neighbour is then never
-/// within the threshold, and a missing centre stays missing either way). Returns the
-/// number of ranges removed and, when `LAST` (the outputs then in the encoder's form,
-/// see [`out`]), the number of outputs without a range.
-#[inline(never)]
-fn speckle_short<const LAST: bool>(
-    s: &mut [Reading],
-    b1: &mut u32,
-    jump: u32,
-    out_none: u32,
-) -> (usize, usize) {
-    let Some((mut cell, rest)) = s.split_first_mut() else {
-        return (0, 0);
-    };
-    let (mut b, mut c) = (*b1, cell.distance);
-    let (mut removed, mut invalid) = (0usize, 0usize);
-    for next in rest {
-        let a = next.distance;
-        let keep = b.abs_diff(c) <= jump || a.abs_diff(c) <= jump;
-        let x = if keep { c } else { NONE };
-        // At most the line's points: no wrap.
-        removed = removed.wrapping_add(usize::from(x != c));
-        cell.distance = out::<LAST>(x, out_none, &mut invalid);
-        (b, c, cell) = (c, a, next);
-    }
-    *b1 = b;
-    (removed, invalid)
-}
-
-/// A stage's output `x`: as it is, or when `LAST` in the encoder's form (no range as
-/// `out_none`, counted in `invalid`; only for lines without a range of 0, which the
-/// encoder's form gives as 1).
+/// A median's output `x` with no range as `out_none` ([`NONE`] to leave it), counted in
+/// `invalid`.
 #[inline(always)]
-fn out<const LAST: bool>(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
-    if !LAST {
-        return x;
-    }
+fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
     // At most the line's points: no wrap.
     *invalid = invalid.wrapping_add(usize::from(x == NONE));
     if x == NONE {
@@ -269,58 +379,10 @@ fn out<const LAST: bool>(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
     }
 }
 
-/// [`speckle_short`] for any threshold and range.
-#[inline(never)]
-fn speckle_exact(s: &mut [Reading], b1: &mut u32, jump: u32) -> usize {
-    let Some((mut cell, rest)) = s.split_first_mut() else {
-        return 0;
-    };
-    let (mut b, mut c) = (*b1, cell.distance);
-    let mut removed = 0usize;
-    for next in rest {
-        let a = next.distance;
-        let (out, gone) = speckle3_line(c, b, a, NONE, jump);
-        removed = removed.wrapping_add(usize::from(gone));
-        cell.distance = out;
-        (b, c, cell) = (c, a, next);
-    }
-    *b1 = b;
-    removed
-}
-
-/// The median of 3 over `s` (as [`speckle_short`]: every cell but the last is a centre,
-/// `b[0]` the distance before the first, updated likewise). No range is written as
-/// `out_none` ([`NONE`] to leave it). Returns the OR of every changed range with its
-/// new value (0: none changed) and the number of outputs without a range.
-#[inline(never)]
-fn median3(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
-    let Some((mut cell, rest)) = s.split_first_mut() else {
-        return (0, 0);
-    };
-    // Each distance also with no range as 0: a window with a neighbour missing then
-    // clamps its centre into [0, NONE], which leaves it (the centre is one of the
-    // middle pair); with both, into the neighbours' span, which is the median.
-    let zero = |d: u32| if d == NONE { 0 } else { d };
-    let (mut x1, mut c) = (b[0], cell.distance);
-    let (mut z1, mut zc) = (zero(x1), zero(c));
-    let (mut diff, mut invalid) = (0u32, 0usize);
-    for next in rest {
-        let a = next.distance;
-        let za = zero(a);
-        let m = c.max(z1.min(za)).min(x1.max(a));
-        // A missing centre stays missing.
-        let x = if c == NONE { NONE } else { m };
-        diff |= x ^ c;
-        cell.distance = out::<true>(x, out_none, &mut invalid);
-        (x1, z1, c, zc, cell) = (c, zc, a, za, next);
-    }
-    b[0] = x1;
-    (diff, invalid)
-}
-
 /// The median of 5 over `s`: every cell but the last two is a centre, `b` the
-/// distances before the first (nearest first; updated likewise). Returns as
-/// [`median3`].
+/// distances before the first (nearest first; updated likewise). No range is written
+/// as `out_none` ([`NONE`] to leave it). Returns the OR of every changed range with its
+/// new value (0: none changed) and the number of outputs without a range.
 #[inline(never)]
 fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
     let Some((mut cell, rest)) = s.split_first_mut() else {
@@ -346,7 +408,7 @@ fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
             median_line(c, [x2, x1, a1, a2], NONE)
         };
         diff |= x ^ c;
-        cell.distance = out::<true>(x, out_none, &mut invalid);
+        cell.distance = out(x, out_none, &mut invalid);
         (x2, x1, c, a1) = (x1, c, a1, a2);
         (cell, cell1) = (cell1, next);
     }
@@ -357,7 +419,7 @@ fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
 /// The output points into the encoder's form: no range as `out_none`, a range of 0 as
 /// 1. Returns the number without a range.
 #[inline(never)]
-fn finish(cells: &mut [Reading], out_none: u32) -> usize {
+pub(super) fn finish(cells: &mut [Reading], out_none: u32) -> usize {
     let mut invalid = 0usize;
     for cell in cells {
         let d = cell.distance;
@@ -408,31 +470,66 @@ mod tests {
     }
 
     #[test]
+    fn exact_rules_for_ranges_near_no_range() {
+        // Ranges at or above 2^31, where the quick tests do not hold. Speckle removal,
+        // threshold 20: a range 10 below NONE after a missing point, with a missing
+        // point after it, has no support (no range is not a neighbour).
+        let mut s = cells(&[u32::MAX - 10, NONE]);
+        let mut sp = Regs {
+            b1: NONE,
+            ..Regs::default()
+        };
+        let r = stages::<true, false>(&mut s, 20, true, &mut sp, &mut Regs::default(), NONE);
+        assert_eq!((r.0, r.3, s[0].distance), (1, 1, NONE));
+        // The median of 1, 2^32 - 6 and 2^31 + 1 (three ranges) is 2^31 + 1 (the
+        // differences wrap as 32-bit signed values: both negative).
+        let mut s = cells(&[u32::MAX - 5, (1 << 31) + 1]);
+        let mut md = Regs {
+            b1: 1,
+            ..Regs::default()
+        };
+        let r = stages::<false, true>(&mut s, 0, true, &mut Regs::default(), &mut md, NONE);
+        assert_eq!((r.0, s[0].distance), (1, (1 << 31) + 1));
+        assert_ne!(r.2, 0);
+    }
+
+    #[test]
     fn median3_and_speckle_by_hand() {
-        // 1000 9999 1002 1004 (none) 1010: the spike goes (to 1002, the median of
-        // 1000 9999 1002), 1002 becomes 1004 (of 9999 1002 1004), a centre beside a
-        // missing neighbour stays.
-        let mut s = cells(&[9999, 1002, 1004, NONE, 1010]);
-        let mut b = [1000, 0];
-        let (diff, _) = median3(&mut s, &mut b, NONE);
-        assert_eq!(dist(&s), [1002, 1004, 1004, NONE, 1010]);
-        assert_ne!(diff, 0);
-        assert_eq!(b[0], NONE);
-        // The last stage: no range as the encoder's value, counted.
-        let mut s = cells(&[9999, NONE, 1004, 1003]);
-        let mut b = [1000, 0];
-        assert_eq!(median3(&mut s, &mut b, 7).1, 1);
-        assert_eq!(dist(&s), [9999, 7, 1004, 1003]);
-        // Threshold 5: 1000 (supported by 1004) stays, 2000 and 3000 go, a missing
-        // centre is not counted.
-        let short =
-            |s: &mut [Reading], b1: &mut u32, jump| speckle_short::<false>(s, b1, jump, NONE).0;
-        for f in [short, speckle_exact] {
+        // Both forms of each loop: the quick tests, and the exact rule alone.
+        for exact in [false, true] {
+            // 1000 9999 1002 1004 (none) 1010: the spike goes (to 1002, the median of
+            // 1000 9999 1002), 1002 becomes 1004 (of 9999 1002 1004), a centre beside
+            // a missing neighbour stays.
+            let median3 = |s: &mut [Reading], b1: u32, none| {
+                let mut md = Regs {
+                    b1,
+                    ..Regs::default()
+                };
+                let (out, invalid, diff, _) =
+                    stages::<false, true>(s, 0, exact, &mut Regs::default(), &mut md, none);
+                (out, invalid, diff, md.b1)
+            };
+            let mut s = cells(&[9999, 1002, 1004, NONE, 1010]);
+            let (out, _, diff, b1) = median3(&mut s, 1000, NONE);
+            assert_eq!(dist(&s), [1002, 1004, 1004, NONE, 1010]);
+            assert_ne!(diff, 0);
+            assert_eq!((out, b1), (4, NONE));
+            // The last stage: no range as the encoder's value, counted.
+            let mut s = cells(&[9999, NONE, 1004, 1003]);
+            assert_eq!(median3(&mut s, 1000, 7).1, 1);
+            assert_eq!(dist(&s), [9999, 7, 1004, 1003]);
+            // Threshold 5: 1000 (supported by 1004) stays, 2000 and 3000 go, a missing
+            // centre is not counted.
             let mut s = cells(&[1000, 2000, NONE, 3000, 3010]);
-            let mut b1 = 1004;
-            assert_eq!(f(&mut s, &mut b1, 5), 2);
+            let mut sp = Regs {
+                b1: 1004,
+                ..Regs::default()
+            };
+            let (out, _, _, removed) =
+                stages::<true, false>(&mut s, 5, exact, &mut sp, &mut Regs::default(), NONE);
+            assert_eq!((out, removed), (4, 2));
             assert_eq!(dist(&s), [1000, NONE, NONE, NONE, 3010]);
-            assert_eq!(b1, 3000);
+            assert_eq!((sp.b1, sp.p0.0, sp.np), (3000, 3010, 1));
         }
     }
 }
