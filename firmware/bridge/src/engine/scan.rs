@@ -10,6 +10,11 @@ use crate::link::LinkKind;
 use crate::pipeline::{DecimationMode, Point, ScanInfo, ScanStart};
 
 impl<const Q: usize> Core<Q> {
+    /// A scan's timestamp line: the scan begins (or is skipped, dropped or lost). Never
+    /// inlined, like [`Core::finish_scan`] and [`Core::abort_scan`]: once a scan, and
+    /// inlined into the loop over a UART chunk they made it keep more state across
+    /// each chunk.
+    #[inline(never)]
     pub(super) fn begin_scan(&mut self, s: ScanRequest, raw_timestamp: u32, now: u64) {
         self.stats.scans_in = self.stats.scans_in.wrapping_add(1);
         self.phase = Phase::Ignored;
@@ -204,6 +209,7 @@ impl<const Q: usize> Core<Q> {
         i16::try_from(rel).unwrap_or(i16::MIN)
     }
 
+    #[inline(never)]
     pub(super) fn finish_scan(&mut self) {
         let (pipeline, _, mut out) = self.split();
         let _ = pipeline.end_scan(true, &mut |p: Point| out.emit(p));
@@ -264,6 +270,7 @@ impl<const Q: usize> Core<Q> {
     }
 
     /// Ends the scan in progress, if any, with an abort frame.
+    #[inline(never)]
     pub(super) fn abort_scan(&mut self, reason: AbortReason) {
         if matches!(self.phase, Phase::Active(_)) {
             self.pipeline_discard();
