@@ -97,12 +97,7 @@ impl<const Q: usize> Core<Q> {
             self.pipeline.count_direct(invalid, rejected);
             return;
         }
-        let lossless = self.encoder.lossless_progress().is_some();
         let (taken, mut invalid, mut rejected) = self.split().2.encode_run(readings, rule);
-        if lossless && run.window != [0, u32::MAX] {
-            // The lossless coding does not count the window's rejections.
-            rejected = count_no_range(&rule, readings.get(..taken).unwrap_or_default()).1;
-        }
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = readings.get(taken..).unwrap_or(&[]);

@@ -21,24 +21,25 @@ pub(super) struct Lossless {
 }
 
 /// The lossless distance code of raw distance `d` as `rule` classifies it, ranges in
-/// units of `2^e` mm: the full test, for the distances outside the span a run codes
-/// without one (error codes, the band, too long ones).
+/// units of `2^e` mm, and whether it is a range the rule's window rejects: the full
+/// test, for the distances outside the span a run codes without one (error codes, the
+/// band, too long ones, those outside the window).
 #[cold]
 #[inline(never)]
-fn lossless_code(rule: &RangeRule, d: u32, e: u32) -> u32 {
+fn lossless_code(rule: &RangeRule, d: u32, e: u32) -> (u32, bool) {
     let e = e & 0xF;
     if rule.rejects(d) {
         // A range the window takes away has no sensor value.
-        return code::INVALID;
+        return (code::INVALID, true);
     }
     if !rule.is_range(d) {
-        return code::error_code(d);
+        return (code::error_code(d), false);
     }
     let q = d.saturating_add((1u32 << e) >> 1) >> e;
     if q <= MAX_RANGE_UNITS {
-        q.wrapping_add(code::RANGE_BASE) // q <= MAX_RANGE_UNITS: no wrap
+        (q.wrapping_add(code::RANGE_BASE), false) // q <= MAX_RANGE_UNITS: no wrap
     } else {
-        code::OUT_OF_RANGE
+        (code::OUT_OF_RANGE, false)
     }
 }
 
@@ -87,13 +88,19 @@ impl ScanEncoder {
             .min(too_long)
             .min(hi.saturating_add(1))
             .saturating_sub(low);
+        // The window's rejections are counted off the common path, where the full test
+        // finds them (the stream codes exactly the points it takes).
+        let rejected = core::cell::Cell::new(0u32);
         let code = |p: &T| {
             let (d, i) = point(p);
             let dc = if d.wrapping_sub(low) < span {
                 // d < too_long: d + bias stays below 2^32 and the code below MAX_VALUE.
                 d.wrapping_add(bias) >> e
             } else {
-                lossless_code(&rule, d, e)
+                let (dc, out) = lossless_code(&rule, d, e);
+                // At most the run's points.
+                rejected.set(rejected.get().wrapping_add(u32::from(out)));
+                dc
             };
             (dc, ((u32::from(i) >> ishift) & imask) as u16)
         };
@@ -110,7 +117,7 @@ impl ScanEncoder {
             invalid: invalid as u32,
             frames: out.frames,
             stop,
-            rejected: 0,
+            rejected: rejected.get(),
         })
     }
 

@@ -200,8 +200,8 @@ pub enum RunStop {
 /// place) and not in the band of three values from `band` (the Ethernet models'
 /// 65533..=65535). The others are [`Distance::Invalid`] (in the lossless coding, sensor
 /// error codes by their value: see [`crate::lossless::code::error_code`]). A range
-/// outside `window` (a filter's range window) is no range either; the fixed-width
-/// encodings count those apart ([`Run::rejected`]).
+/// outside `window` (a filter's range window) is no range either; a run counts those
+/// apart ([`Run::rejected`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RangeRule {
@@ -266,8 +266,7 @@ pub struct Run {
     pub points: u32,
     /// Points taken that were no range.
     pub invalid: u32,
-    /// Points among the `invalid` ones that were ranges outside the rule's window
-    /// (fixed-width encodings; 0 in the lossless coding).
+    /// Points among the `invalid` ones that were ranges outside the rule's window.
     pub rejected: u32,
     /// Data frames written into the sink.
     pub frames: u32,
