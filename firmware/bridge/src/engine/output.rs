@@ -101,7 +101,9 @@ impl<const Q: usize> Output<'_, Q> {
 
     /// Points the pipeline emitted, into the encoder in one run (what [`Output::emit`]
     /// does for each of them); returns how many it took, how many of those were no
-    /// range and how many of those were ranges outside the rule's window.
+    /// range and how many of those were ranges outside the rule's window. Inlined: its
+    /// parts are the engine's fields, borrowed apart, not a struct built for a call.
+    #[inline(always)]
     pub(super) fn encode_run(
         &mut self,
         points: &[scip::Reading],
