@@ -19,7 +19,7 @@ impl<const Q: usize> Core<Q> {
         let start = u32::from(s.start);
         let has_aux = line.data.aux_width() > 0;
         let width = line.data.distance_width();
-        let step = |index: u16| {
+        let step = move |index: u16| {
             // u16 + u16 × u8: below 2^25, no overflow.
             let step = start.wrapping_add(u32::from(index).wrapping_mul(cluster));
             u16::try_from(step).unwrap_or(u16::MAX)
@@ -33,12 +33,6 @@ impl<const Q: usize> Core<Q> {
             except: [test.exception(), u32::MAX],
             band: test.band(),
             window: [0, u32::MAX],
-        };
-        let raw = |r: &scip::Reading| RawPoint {
-            step: step(r.index),
-            distance: r.distance,
-            intensity: has_aux.then_some(r.aux),
-            valid: test.is_range(r.distance),
         };
         if let Some(first) = first.filter(|_| !s.multi_echo) {
             if let Some(run) = self.pipeline.pass_run(first, line.readings.len(), has_aux) {
@@ -77,6 +71,12 @@ impl<const Q: usize> Core<Q> {
                 return;
             }
         }
+        let raw = move |r: &scip::Reading| RawPoint {
+            step: step(r.index),
+            distance: r.distance,
+            intensity: has_aux.then_some(r.aux),
+            valid: test.is_range(r.distance),
+        };
         let points = line.readings.iter().filter(|r| r.echo == 0).map(raw);
         let (pipeline, _, mut out) = self.split();
         pipeline.push_iter(points, &mut |p: Point| out.emit(p));

@@ -426,7 +426,9 @@ impl Pipeline {
             scan.emitted = scan.emitted.saturating_add(m);
         }
         add(&mut self.stats.points_in, n);
-        add(&mut self.stats.points_outside_roi, n.wrapping_sub(m));
+        if m != n {
+            add(&mut self.stats.points_outside_roi, n.wrapping_sub(m));
+        }
         add(&mut self.stats.points_out, m);
         Some(DirectRun { lo, hi, window })
     }
@@ -437,9 +439,12 @@ impl Pipeline {
     pub fn count_direct(&mut self, invalid: usize, rejected: usize) {
         let st = &mut self.stats;
         add(&mut st.invalid_error_code, invalid.saturating_sub(rejected));
-        add(&mut st.invalid_out_of_range, rejected);
         add(&mut st.points_out_invalid, invalid);
-        self.filtered |= rejected > 0;
+        if rejected > 0 {
+            // Only with a range window.
+            add(&mut st.invalid_out_of_range, rejected);
+            self.filtered = true;
+        }
     }
 
     /// The block path for every stage but the direct one: `n` consecutive points from

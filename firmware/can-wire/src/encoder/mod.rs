@@ -403,10 +403,11 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        if matches!(self.open, Open::Lossless(_)) {
-            return self.run_lossless(points, rule, &point, sink);
-        }
-        let s = self.open.fixed().ok_or(Error::NoScan)?;
+        let s = match &self.open {
+            Open::Fixed(s) => s,
+            Open::Lossless(_) => return self.run_lossless_apart(points, rule, &point, sink),
+            Open::None => return Err(Error::NoScan),
+        };
         let classic = !self.format.is_fd();
         let (db, ib) = (s.distance_bits, s.intensity_bits);
         // D16 without intensity on classic CAN gets a loop compiled for its width (not
@@ -426,6 +427,24 @@ impl ScanEncoder {
                 self.run_fixed::<true, 0, 0, _, _, _>(db, ib, points, rule, &point, sink)
             }
         }
+    }
+
+    /// [`ScanEncoder::run_lossless`], never inlined into [`ScanEncoder::push_run`]: the
+    /// lossless run's state would make every run's entry save and set up more (a
+    /// fixed-width run's entry is then a few tests and a jump).
+    #[inline(never)]
+    fn run_lossless_apart<T, F, S>(
+        &mut self,
+        points: &[T],
+        rule: RangeRule,
+        point: &F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        self.run_lossless(points, rule, point, sink)
     }
 
     /// End the scan: returns the last data frame if points are still buffered (only when
