@@ -180,8 +180,12 @@ fn data_slot<const Q: usize>(queue: &mut FrameQueue<Q>) -> Option<&mut Frame> {
     }
 }
 
-pub(super) fn push<const Q: usize>(queue: &mut FrameQueue<Q>, f: Frame, stats: &mut BridgeStats) {
-    if queue.push_back(f).is_ok() {
+/// A scan's header, trailer or abort frame at the back of the queue, if there is room,
+/// counted. Copied once, from where the encoder left it into its slot (a frame is 76
+/// bytes: moved by value, it was copied twice more).
+pub(super) fn push<const Q: usize>(queue: &mut FrameQueue<Q>, f: &Frame, stats: &mut BridgeStats) {
+    if let Some(slot) = queue.push_back_slot() {
+        slot.clone_from(f);
         stats.frames = stats.frames.wrapping_add(1);
     }
 }

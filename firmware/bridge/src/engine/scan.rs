@@ -112,7 +112,8 @@ impl<const Q: usize> Core<Q> {
             // Between scans: cannot fail for a validated format.
             let _ = self.encoder.set_format(format);
         }
-        match self.encoder.begin(&header) {
+        // Matched in place: the frames are copied once, into their queue slots.
+        match &self.encoder.begin(&header) {
             Ok(frames) => {
                 for f in frames {
                     push(&mut self.queue, f, &mut self.stats);
@@ -224,7 +225,7 @@ impl<const Q: usize> Core<Q> {
             filtered: self.filtered || self.pipeline.filtered(),
         };
         self.settle_lossless();
-        match self.encoder.finish(flags) {
+        match &self.encoder.finish(flags) {
             Ok(frames) => {
                 for f in frames {
                     push(&mut self.queue, f, &mut self.stats);
@@ -281,7 +282,7 @@ impl<const Q: usize> Core<Q> {
 
     pub(super) fn abort_scan_now(&mut self, reason: AbortReason) {
         if let Ok(f) = self.encoder.abort(reason, 0) {
-            push(&mut self.queue, f, &mut self.stats);
+            push(&mut self.queue, &f, &mut self.stats);
             self.stats.scans_aborted = self.stats.scans_aborted.wrapping_add(1);
         }
         self.phase = Phase::None;
