@@ -34,6 +34,12 @@ impl<const Q: usize> Core<Q> {
             band: test.band(),
             window: [0, u32::MAX],
         };
+        let raw = move |r: &scip::Reading| RawPoint {
+            step: step(r.index),
+            distance: r.distance,
+            intensity: has_aux.then_some(r.aux),
+            valid: test.is_range(r.distance),
+        };
         if let Some(first) = first.filter(|_| !s.multi_echo) {
             if let Some(run) = self.pipeline.pass_run(first, line.readings.len(), has_aux) {
                 let readings = line.readings.get(run.lo..run.hi).unwrap_or_default();
@@ -71,12 +77,6 @@ impl<const Q: usize> Core<Q> {
                 return;
             }
         }
-        let raw = move |r: &scip::Reading| RawPoint {
-            step: step(r.index),
-            distance: r.distance,
-            intensity: has_aux.then_some(r.aux),
-            valid: test.is_range(r.distance),
-        };
         let points = line.readings.iter().filter(|r| r.echo == 0).map(raw);
         let (pipeline, _, mut out) = self.split();
         pipeline.push_iter(points, &mut |p: Point| out.emit(p));
