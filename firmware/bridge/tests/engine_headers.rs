@@ -277,3 +277,51 @@ fn the_filtered_flag_says_a_filter_changed_or_invalidated_points() {
         );
     }
 }
+
+#[test]
+fn a_range_windows_rejections_count_alike_in_every_encoding() {
+    // Window 500..=2000 mm; DMIN 20 (no PP: the decoder's default). 3000 and 100 are
+    // ranges the window takes away, 0 and 5 error codes, 1000 and 2000 kept. Counted
+    // by hand: 2 out of range, 2 error codes, 4 invalid points out of 6.
+    let values: Vec<_> = [1000, 3000, 0, 100, 5, 2000]
+        .iter()
+        .map(|&d| (d, None))
+        .collect();
+    let pipeline = PipelineConfig {
+        range_window: Some(RangeWindow {
+            min_mm: 500,
+            max_mm: 2000,
+        }),
+        ..PipelineConfig::default()
+    };
+    for distance in [DistanceEncoding::D16, DistanceEncoding::Lossless] {
+        let encoding = Encoding {
+            distance,
+            intensity: IntensityEncoding::None,
+            unit_exp: 0,
+        };
+        let mut b = bridge(BridgeConfig {
+            pipeline,
+            encoding,
+            ..config()
+        });
+        b.on_uart(&scan_frame(0, 1, &values), 0);
+        let st = *b.pipeline().stats();
+        assert_eq!(
+            (
+                st.invalid_out_of_range,
+                st.invalid_error_code,
+                st.points_out_invalid,
+                st.points_out
+            ),
+            (2, 2, 4, 6),
+            "{distance:?}"
+        );
+        let d = decoded(&mut b);
+        assert_eq!(
+            (d[0].points_valid, d[0].filtered),
+            (2, true),
+            "{distance:?}"
+        );
+    }
+}

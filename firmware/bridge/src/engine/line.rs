@@ -4,7 +4,7 @@
 use scip::{DataLine, ScanRequest};
 
 use super::Core;
-use crate::pipeline::{DirectRun, Point, RawPoint};
+use crate::pipeline::{Point, RawPoint};
 
 impl<const Q: usize> Core<Q> {
     /// One data line of the scan being published. With every pipeline stage off, the
@@ -19,7 +19,7 @@ impl<const Q: usize> Core<Q> {
         let start = u32::from(s.start);
         let has_aux = line.data.aux_width() > 0;
         let width = line.data.distance_width();
-        let step = |index: u16| {
+        let step = move |index: u16| {
             // u16 + u16 × u8: below 2^25, no overflow.
             let step = start.wrapping_add(u32::from(index).wrapping_mul(cluster));
             u16::try_from(step).unwrap_or(u16::MAX)
@@ -27,7 +27,14 @@ impl<const Q: usize> Core<Q> {
         // Without multi-echo every reading is a first echo, the next step of the scan.
         let first = line.readings.first().map(|r| step(r.index));
         let test = line.limits.range_test(width);
-        let raw = |r: &scip::Reading| RawPoint {
+        // The sensor's rule for its ranges: the same for each of the line's paths.
+        let sensor = can_wire::RangeRule {
+            min: test.min(),
+            except: [test.exception(), u32::MAX],
+            band: test.band(),
+            window: [0, u32::MAX],
+        };
+        let raw = move |r: &scip::Reading| RawPoint {
             step: step(r.index),
             distance: r.distance,
             intensity: has_aux.then_some(r.aux),
@@ -35,7 +42,12 @@ impl<const Q: usize> Core<Q> {
         };
         if let Some(first) = first.filter(|_| !s.multi_echo) {
             if let Some(run) = self.pipeline.pass_run(first, line.readings.len(), has_aux) {
-                self.publish_run(line, width, run);
+                let readings = line.readings.get(run.lo..run.hi).unwrap_or_default();
+                let rule = can_wire::RangeRule {
+                    window: run.window,
+                    ..sensor
+                };
+                self.publish_run(readings, rule);
                 return;
             }
             // Any other stages: the line's readings, a range or none each, through the
@@ -55,12 +67,6 @@ impl<const Q: usize> Core<Q> {
             } else {
                 (0, can_wire::RangeRule::at_least(1))
             };
-            let sensor = can_wire::RangeRule {
-                min: test.min(),
-                except: [test.exception(), u32::MAX],
-                band: test.band(),
-                window: [0, u32::MAX],
-            };
             let (pipeline, cells, mut out) = self.split();
             let k = pipeline.filter_line(first, line.readings, cells, sensor, has_aux, none);
             if let Some(k) = k {
@@ -76,33 +82,20 @@ impl<const Q: usize> Core<Q> {
         pipeline.push_iter(points, &mut |p: Point| out.emit(p));
     }
 
-    /// A line's readings, accepted by [`Pipeline::pass_run`], straight into the encoder:
-    /// what [`Output::emit`] does for each of the run's points, in one loop; the
-    /// region of interest is a slice, the range window part of the encoder's range
-    /// rule (no work per point).
+    /// The `readings` of a line that [`Pipeline::pass_run`] accepted (the region of
+    /// interest's slice) straight into the encoder: what [`Output::emit`] does for each
+    /// of them, in one loop; the range window is part of the encoder's range `rule` (no
+    /// work per point).
     ///
     /// [`Pipeline::pass_run`]: crate::pipeline::Pipeline::pass_run
     /// [`Output::emit`]: super::output::Output::emit
-    pub(super) fn publish_run(&mut self, line: &DataLine<'_>, width: u8, run: DirectRun) {
-        let test = line.limits.range_test(width);
-        let rule = can_wire::RangeRule {
-            min: test.min(),
-            except: [test.exception(), u32::MAX],
-            band: test.band(),
-            window: run.window,
-        };
-        let readings = line.readings.get(run.lo..run.hi).unwrap_or_default();
+    pub(super) fn publish_run(&mut self, readings: &[scip::Reading], rule: can_wire::RangeRule) {
         if self.overflow {
             let (invalid, rejected) = count_no_range(&rule, readings);
             self.pipeline.count_direct(invalid, rejected);
             return;
         }
-        let lossless = self.encoder.lossless_progress().is_some();
         let (taken, mut invalid, mut rejected) = self.split().2.encode_run(readings, rule);
-        if lossless && run.window != [0, u32::MAX] {
-            // The lossless coding does not count the window's rejections.
-            rejected = count_no_range(&rule, readings.get(..taken).unwrap_or_default()).1;
-        }
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = readings.get(taken..).unwrap_or(&[]);

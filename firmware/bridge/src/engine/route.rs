@@ -9,6 +9,14 @@ use super::{Core, Phase};
 
 impl<const Q: usize> Core<Q> {
     pub(super) fn event(&mut self, event: &Event<'_>, now: u64) {
+        if let Event::Data(line) = event {
+            // Most events: a data line. The session only notes its time.
+            self.session.on_data(now);
+            if let Phase::Active(s) = self.phase {
+                self.data_line(line, &s);
+            }
+            return;
+        }
         if let Some(n) = self.session.on_event(event, now) {
             self.notice(n);
         }
@@ -44,7 +52,6 @@ impl<const Q: usize> Core<Q> {
                 self.in_stream = s.mode == ScanMode::Continuous;
                 self.begin_scan(s, *t, now);
             }
-            (Event::Data(line), Phase::Active(s)) => self.data_line(line, &s),
             (Event::End(_), Phase::Active(_)) => {
                 self.finish_scan();
                 if self.estimating() && self.scan_clock.wants_tm() {

@@ -10,6 +10,11 @@ use crate::link::LinkKind;
 use crate::pipeline::{DecimationMode, Point, ScanInfo, ScanStart};
 
 impl<const Q: usize> Core<Q> {
+    /// A scan's timestamp line: the scan begins (or is skipped, dropped or lost). Never
+    /// inlined, like [`Core::finish_scan`] and [`Core::abort_scan`]: once a scan, and
+    /// inlined into the loop over a UART chunk they made it keep more state across
+    /// each chunk.
+    #[inline(never)]
     pub(super) fn begin_scan(&mut self, s: ScanRequest, raw_timestamp: u32, now: u64) {
         self.stats.scans_in = self.stats.scans_in.wrapping_add(1);
         self.phase = Phase::Ignored;
@@ -107,7 +112,8 @@ impl<const Q: usize> Core<Q> {
             // Between scans: cannot fail for a validated format.
             let _ = self.encoder.set_format(format);
         }
-        match self.encoder.begin(&header) {
+        // Matched in place: the frames are copied once, into their queue slots.
+        match &self.encoder.begin(&header) {
             Ok(frames) => {
                 for f in frames {
                     push(&mut self.queue, f, &mut self.stats);
@@ -204,6 +210,7 @@ impl<const Q: usize> Core<Q> {
         i16::try_from(rel).unwrap_or(i16::MIN)
     }
 
+    #[inline(never)]
     pub(super) fn finish_scan(&mut self) {
         let (pipeline, _, mut out) = self.split();
         let _ = pipeline.end_scan(true, &mut |p: Point| out.emit(p));
@@ -218,7 +225,7 @@ impl<const Q: usize> Core<Q> {
             filtered: self.filtered || self.pipeline.filtered(),
         };
         self.settle_lossless();
-        match self.encoder.finish(flags) {
+        match &self.encoder.finish(flags) {
             Ok(frames) => {
                 for f in frames {
                     push(&mut self.queue, f, &mut self.stats);
@@ -264,6 +271,7 @@ impl<const Q: usize> Core<Q> {
     }
 
     /// Ends the scan in progress, if any, with an abort frame.
+    #[inline(never)]
     pub(super) fn abort_scan(&mut self, reason: AbortReason) {
         if matches!(self.phase, Phase::Active(_)) {
             self.pipeline_discard();
@@ -274,7 +282,7 @@ impl<const Q: usize> Core<Q> {
 
     pub(super) fn abort_scan_now(&mut self, reason: AbortReason) {
         if let Ok(f) = self.encoder.abort(reason, 0) {
-            push(&mut self.queue, f, &mut self.stats);
+            push(&mut self.queue, &f, &mut self.stats);
             self.stats.scans_aborted = self.stats.scans_aborted.wrapping_add(1);
         }
         self.phase = Phase::None;

@@ -162,6 +162,38 @@ pub struct Pipeline {
     /// The windows' state after the last [`Pipeline::filter_line`], in its loops' form,
     /// while no other path has needed it (then it is moved into `speckle` and `median`).
     held: Held,
+    /// The runs [`Pipeline::pass_run`] takes with `config`, worked out when it is set.
+    direct: DirectRuns,
+}
+
+/// The runs [`Pipeline::pass_run`] takes with a configuration.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum DirectRuns {
+    /// None: a filter or decimation works on every point.
+    Never,
+    /// Runs without intensities: an intensity threshold is the only other stage on.
+    WithoutIntensity,
+    /// Every run (at most a region of interest and a range window are on).
+    Always,
+}
+
+impl DirectRuns {
+    /// The runs `config` lets [`Pipeline::pass_run`] take.
+    fn of(config: &PipelineConfig) -> DirectRuns {
+        if config.is_passthrough() {
+            return DirectRuns::Always;
+        }
+        if config.speckle.is_some()
+            || config.median.is_some()
+            || config.decimation.is_some_and(|d| d.factor > 1)
+        {
+            DirectRuns::Never
+        } else if config.min_intensity.is_some() {
+            DirectRuns::WithoutIntensity
+        } else {
+            DirectRuns::Always
+        }
+    }
 }
 
 /// The windows' state between data lines (see [`Pipeline::filter_line`]).
@@ -192,6 +224,7 @@ impl Pipeline {
             decimator: Decimator::new(config.decimation),
             stats: Stats::default(),
             filtered: false,
+            direct: DirectRuns::of(&config),
             held: Held {
                 live: false,
                 speckle: window::Regs::default(),
@@ -246,6 +279,7 @@ impl Pipeline {
         self.filtered = false;
         if let Some(config) = self.next_config.take() {
             self.config = config;
+            self.direct = DirectRuns::of(&config);
             self.median = CentredWindow::new(window::median_half(config.median));
             self.decimator = Decimator::new(config.decimation);
             self.gate.reset();
@@ -372,16 +406,16 @@ impl Pipeline {
     /// use [`Pipeline::filter_line`] or push the points instead.
     #[inline]
     pub fn pass_run(&mut self, first_step: u16, n: usize, intensity: bool) -> Option<DirectRun> {
-        let cfg = &self.config;
-        let direct = cfg.is_passthrough()
-            || (cfg.speckle.is_none()
-                && cfg.median.is_none()
-                && cfg.decimation.is_none_or(|d| d.factor <= 1)
-                && (cfg.min_intensity.is_none() || !intensity));
+        let direct = match self.direct {
+            DirectRuns::Always => true,
+            DirectRuns::WithoutIntensity => !intensity,
+            DirectRuns::Never => false,
+        };
         if !direct {
             return None;
         }
-        let window = cfg
+        let window = self
+            .config
             .range_window
             .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
         let cluster = self.take_run(first_step, n)?.cluster;
@@ -392,7 +426,9 @@ impl Pipeline {
             scan.emitted = scan.emitted.saturating_add(m);
         }
         add(&mut self.stats.points_in, n);
-        add(&mut self.stats.points_outside_roi, n.wrapping_sub(m));
+        if m != n {
+            add(&mut self.stats.points_outside_roi, n.wrapping_sub(m));
+        }
         add(&mut self.stats.points_out, m);
         Some(DirectRun { lo, hi, window })
     }
@@ -403,9 +439,12 @@ impl Pipeline {
     pub fn count_direct(&mut self, invalid: usize, rejected: usize) {
         let st = &mut self.stats;
         add(&mut st.invalid_error_code, invalid.saturating_sub(rejected));
-        add(&mut st.invalid_out_of_range, rejected);
         add(&mut st.points_out_invalid, invalid);
-        self.filtered |= rejected > 0;
+        if rejected > 0 {
+            // Only with a range window.
+            add(&mut st.invalid_out_of_range, rejected);
+            self.filtered = true;
+        }
     }
 
     /// The block path for every stage but the direct one: `n` consecutive points from

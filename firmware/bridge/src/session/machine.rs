@@ -402,6 +402,13 @@ impl Session {
         self.take_action()
     }
 
+    /// Takes a data line's event (what [`Session::on_event`] does with it, for a caller
+    /// that has told the data lines apart).
+    #[inline]
+    pub(crate) fn on_data(&mut self, now: u64) {
+        self.last_rx = now;
+    }
+
     /// Takes one decoder event; returns what the rest of the bridge should know.
     pub fn on_event(&mut self, event: &Event<'_>, now: u64) -> Option<Notice> {
         match event {
@@ -451,7 +458,11 @@ impl Session {
                 }
                 None
             }
-            Event::Data(_) | Event::Payload(_) => {
+            Event::Data(_) => {
+                self.on_data(now);
+                None
+            }
+            Event::Payload(_) => {
                 self.last_rx = now;
                 None
             }

@@ -75,24 +75,25 @@ impl Lossless {
 }
 
 /// The lossless distance code of raw distance `d` as `rule` classifies it, ranges in
-/// units of `2^e` mm: the full test, for the distances outside the span a run codes
-/// without one (error codes, the band, too long ones).
+/// units of `2^e` mm, and whether it is a range the rule's window rejects: the full
+/// test, for the distances outside the span a run codes without one (error codes, the
+/// band, too long ones, those outside the window).
 #[cold]
 #[inline(never)]
-fn lossless_code(rule: &RangeRule, d: u32, e: u32) -> u32 {
+fn lossless_code(rule: &RangeRule, d: u32, e: u32) -> (u32, bool) {
     let e = e & 0xF;
     if rule.rejects(d) {
         // A range the window takes away has no sensor value.
-        return code::INVALID;
+        return (code::INVALID, true);
     }
     if !rule.is_range(d) {
-        return code::error_code(d);
+        return (code::error_code(d), false);
     }
     let q = d.saturating_add((1u32 << e) >> 1) >> e;
     if q <= MAX_RANGE_UNITS {
-        q.wrapping_add(code::RANGE_BASE) // q <= MAX_RANGE_UNITS: no wrap
+        (q.wrapping_add(code::RANGE_BASE), false) // q <= MAX_RANGE_UNITS: no wrap
     } else {
-        code::OUT_OF_RANGE
+        (code::OUT_OF_RANGE, false)
     }
 }
 
@@ -134,17 +135,20 @@ impl ScanEncoder {
             .min(too_long)
             .min(hi.saturating_add(1))
             .saturating_sub(low);
-        // Points that are no range: only the full test makes any.
+        // Points that are no range, and the window's rejections among them: only the
+        // full test makes any (the stream codes exactly the points it takes).
         let misses = Cell::new(0u32);
+        let rejected = Cell::new(0u32);
         let code = |p: &T| {
             let (d, i) = point(p);
             let dc = if d.wrapping_sub(low) < span {
                 // d < too_long: d + bias stays below 2^32 and the code below MAX_VALUE.
                 d.wrapping_add(bias) >> e
             } else {
-                let c = lossless_code(&rule, d, e);
-                // At most one per point of the run: no wrap.
+                let (c, out) = lossless_code(&rule, d, e);
+                // At most one each per point of the run: no wrap.
                 misses.set(misses.get().wrapping_add(u32::from(!code::is_range(c))));
+                rejected.set(rejected.get().wrapping_add(u32::from(out)));
                 c
             };
             (dc, ((u32::from(i) >> ishift) & imask) as u16)
@@ -162,7 +166,7 @@ impl ScanEncoder {
             invalid: invalid as u32,
             frames: out.frames,
             stop,
-            rejected: 0,
+            rejected: rejected.get(),
         })
     }
 

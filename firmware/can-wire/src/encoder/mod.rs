@@ -200,8 +200,8 @@ pub enum RunStop {
 /// place) and not in the band of three values from `band` (the Ethernet models'
 /// 65533..=65535). The others are [`Distance::Invalid`] (in the lossless coding, sensor
 /// error codes by their value: see [`crate::lossless::code::error_code`]). A range
-/// outside `window` (a filter's range window) is no range either; the fixed-width
-/// encodings count those apart ([`Run::rejected`]).
+/// outside `window` (a filter's range window) is no range either; a run counts those
+/// apart ([`Run::rejected`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RangeRule {
@@ -266,8 +266,7 @@ pub struct Run {
     pub points: u32,
     /// Points taken that were no range.
     pub invalid: u32,
-    /// Points among the `invalid` ones that were ranges outside the rule's window
-    /// (fixed-width encodings; 0 in the lossless coding).
+    /// Points among the `invalid` ones that were ranges outside the rule's window.
     pub rejected: u32,
     /// Data frames written into the sink.
     pub frames: u32,
@@ -404,10 +403,11 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        if matches!(self.open, Open::Lossless(_)) {
-            return self.run_lossless(points, rule, &point, sink);
-        }
-        let s = self.open.fixed().ok_or(Error::NoScan)?;
+        let s = match &self.open {
+            Open::Fixed(s) => s,
+            Open::Lossless(_) => return self.run_lossless_apart(points, rule, &point, sink),
+            Open::None => return Err(Error::NoScan),
+        };
         let classic = !self.format.is_fd();
         let (db, ib) = (s.distance_bits, s.intensity_bits);
         // D16 without intensity on classic CAN gets a loop compiled for its width (not
@@ -427,6 +427,24 @@ impl ScanEncoder {
                 self.run_fixed::<true, 0, 0, _, _, _>(db, ib, points, rule, &point, sink)
             }
         }
+    }
+
+    /// [`ScanEncoder::run_lossless`], never inlined into [`ScanEncoder::push_run`]: the
+    /// lossless run's state would make every run's entry save and set up more (a
+    /// fixed-width run's entry is then a few tests and a jump).
+    #[inline(never)]
+    fn run_lossless_apart<T, F, S>(
+        &mut self,
+        points: &[T],
+        rule: RangeRule,
+        point: &F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        self.run_lossless(points, rule, point, sink)
     }
 
     /// End the scan: returns the last data frame if points are still buffered (only when

@@ -326,3 +326,42 @@ fn misuse() {
     assert_eq!(e.begin(&bad), Err(Error::OutOfRange { offset: 3 }));
     assert!(!e.in_progress());
 }
+
+/// A lossless run counts the ranges its rule's window takes away (as the fixed-width
+/// runs do), among the points it took only.
+#[test]
+fn lossless_run_counts_the_window_rejections_it_took() {
+    let enc = Encoding {
+        distance: DistanceEncoding::Lossless,
+        intensity: IntensityEncoding::None,
+        unit_exp: 0,
+    };
+    let ids = IdWindow::DEFAULT.node(2).unwrap();
+    let rule = RangeRule {
+        window: [1000, 5000],
+        ..RangeRule::at_least(20)
+    };
+    // 500 and 6000: ranges outside the window; 10: an error code (below `min`);
+    // 1500 and 3000 kept; 7000 outside too, but the scan of 5 points does not take it.
+    let points = [
+        (500, 0),
+        (1500, 0),
+        (6000, 0),
+        (10, 0),
+        (3000, 0),
+        (7000, 0),
+    ];
+    let mut e = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+    e.begin(&header(5, enc)).unwrap();
+    let mut sink = VecSink {
+        frames: Vec::new(),
+        room: 100,
+    };
+    let run = e
+        .push_run(&points, rule, |p: &(u32, u16)| *p, &mut sink)
+        .unwrap();
+    assert_eq!(run.points, 5);
+    assert_eq!(run.stop, Some(RunStop::TooManyPoints));
+    assert_eq!(run.invalid, 3);
+    assert_eq!(run.rejected, 2);
+}
