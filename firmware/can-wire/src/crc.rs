@@ -6,15 +6,22 @@
 //! (its bytes in the order the CRC takes them, low first) indexes one table with each
 //! byte. That is half the table steps of the bytewise update for 1 KiB of tables; the
 //! `crc` crate offers 1 and 16 tables (the latter 8 KiB), so the 2-table form is here.
-//! The tests check both forms against the `crc` crate.
+//!
+//! The register is kept with its two bytes swapped, and so are the tables' entries: a
+//! code (little endian, low byte first) then meets the register as it is, with no byte
+//! swap per step, and its higher bits (a packed point's intensity) need no mask, since
+//! only the low two bytes index the tables. A 16-bit step is then an XOR, two byte
+//! extractions, two loads and an XOR. The tests check both forms against the `crc`
+//! crate.
 
 /// CRC-16/IBM-3740: polynomial 0x1021, not reflected, initial value 0xFFFF, no final XOR.
 const POLY: u16 = 0x1021;
 const INIT: u16 = 0xFFFF;
 
 /// `T[0][b]`: the register after shifting byte `b` through it from zero. `T[1][b]`: the
-/// same followed by a zero byte (for the first byte of a 16-bit step).
-static TABLES: [[u16; 256]; 2] = tables();
+/// same followed by a zero byte (for the first byte of a 16-bit step). Both with their
+/// bytes swapped, as the register is kept.
+static TABLES: [[u16; 256]; 2] = swapped(tables());
 
 // Evaluated at compile time (for a `static`): an index out of range would fail the
 // build, never a run.
@@ -45,15 +52,32 @@ const fn tables() -> [[u16; 256]; 2] {
     t
 }
 
+/// `tables` with every entry's two bytes swapped.
+// Evaluated at compile time, like `tables`.
+#[allow(clippy::indexing_slicing)]
+const fn swapped(mut t: [[u16; 256]; 2]) -> [[u16; 256]; 2] {
+    let mut k = 0;
+    while k < 2 {
+        let mut b = 0;
+        while b < 256 {
+            t[k][b] = t[k][b].swap_bytes();
+            b = b.wrapping_add(1); // at most 256
+        }
+        k = k.wrapping_add(1); // at most 2
+    }
+    t
+}
+
 /// The table entry for byte `i` (the index is a byte, so always in the table).
 #[inline(always)]
-fn entry(table: &[u16; 256], i: u16) -> u16 {
-    table.get(usize::from(i & 0xFF)).copied().unwrap_or(0)
+fn entry(table: &[u16; 256], i: u32) -> u16 {
+    table.get((i & 0xFF) as usize).copied().unwrap_or(0)
 }
 
 /// An incremental scan CRC.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ScanCrc {
+    /// The CRC register with its two bytes swapped.
     reg: u16,
 }
 
@@ -61,24 +85,28 @@ impl ScanCrc {
     /// A CRC over nothing yet (the initial register), for a CRC over other bytes than a
     /// scan's (the lossless coding's segment check).
     pub const fn start() -> ScanCrc {
-        ScanCrc { reg: INIT }
+        ScanCrc {
+            reg: INIT.swap_bytes(),
+        }
     }
 
     /// Add one byte.
     #[inline(always)]
     pub fn byte(&mut self, b: u8) {
         let [t0, _] = &TABLES;
-        self.reg = (self.reg << 8) ^ entry(t0, (self.reg >> 8) ^ u16::from(b));
+        // The register's high byte is the swapped one's low byte.
+        let r = u32::from(self.reg);
+        self.reg = (self.reg >> 8) ^ entry(t0, r ^ u32::from(b));
     }
 
     /// The CRC of the bytes added so far.
     pub const fn value(&self) -> u16 {
-        self.reg
+        self.reg.swap_bytes()
     }
 
     /// Start a scan's CRC with its two header frames.
     pub fn new(header_a: &[u8], header_b: &[u8]) -> ScanCrc {
-        let mut c = ScanCrc { reg: INIT };
+        let mut c = ScanCrc::start();
         c.bytes(header_a);
         c.bytes(header_b);
         c
@@ -87,28 +115,35 @@ impl ScanCrc {
     /// Add bytes, one table step each.
     #[inline]
     pub fn bytes(&mut self, bytes: &[u8]) {
-        let [t0, _] = &TABLES;
         for &b in bytes {
-            self.reg = (self.reg << 8) ^ entry(t0, (self.reg >> 8) ^ u16::from(b));
+            self.byte(b);
         }
     }
 
     /// Add one code as the CRC takes it (u16, little endian): one 2-table step.
     #[inline(always)]
     pub fn code(&mut self, code: u16) {
+        self.step(u32::from(code));
+    }
+
+    /// One 2-table step over the low 16 bits of `code` (little endian); the bits above
+    /// are not looked at.
+    #[inline(always)]
+    fn step(&mut self, code: u32) {
         let [t0, t1] = &TABLES;
-        // The low byte goes first: it meets the register's high byte.
-        let x = self.reg ^ code.swap_bytes();
-        self.reg = entry(t1, x >> 8) ^ entry(t0, x);
+        // The low byte goes first: it meets the register's high byte, the swapped
+        // register's low byte.
+        let x = u32::from(self.reg) ^ code;
+        self.reg = entry(t1, x) ^ entry(t0, x >> 8);
     }
 
     /// Add one point's codes packed in a word: the distance code in the low 16 bits,
     /// then the intensity code above if the channel is present (`intensity`).
     #[inline(always)]
     pub fn point_code(&mut self, code: u32, intensity: bool) {
-        self.code(code as u16);
+        self.step(code);
         if intensity {
-            self.code((code >> 16) as u16);
+            self.step(code >> 16);
         }
     }
 
@@ -138,7 +173,7 @@ impl ScanCrc {
     pub fn finish(self, trailer_head: &[u8]) -> u16 {
         let mut c = self;
         c.bytes(trailer_head);
-        c.reg
+        c.value()
     }
 }
 

@@ -118,9 +118,7 @@ impl Frame {
     pub fn set_classic(&mut self, id: Id, data: [u8; CLASSIC_LEN], len: usize) {
         let len = len.min(CLASSIC_LEN);
         if usize::from(self.len) > CLASSIC_LEN {
-            if let Some(stale) = self.data.get_mut(CLASSIC_LEN..usize::from(self.len)) {
-                stale.fill(0);
-            }
+            self.clear_past_classic();
         }
         if let Some(head) = self.data.first_chunk_mut::<CLASSIC_LEN>() {
             *head = data;
@@ -128,6 +126,16 @@ impl Frame {
         self.id = id;
         self.len = len as u8;
         self.fd = false;
+    }
+
+    /// Zeroes the payload bytes past a classic frame's 8 that an older, longer frame
+    /// left ([`Frame::set_classic`] over an FD frame's slot: rare, out of line).
+    #[cold]
+    #[inline(never)]
+    fn clear_past_classic(&mut self) {
+        if let Some(stale) = self.data.get_mut(CLASSIC_LEN..usize::from(self.len)) {
+            stale.fill(0);
+        }
     }
 
     /// The identifier.

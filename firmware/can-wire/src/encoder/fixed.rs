@@ -31,7 +31,7 @@ impl ScanEncoder {
     {
         let (db, ib) = if DB == 0 { (db, ib) } else { (DB, IB) };
         if CLASSIC {
-            self.run_classic_with(db, ib, points, rule, point, sink)
+            self.run_classic_with(DB != 0, db, ib, points, rule, point, sink)
         } else {
             self.run_with(db, ib, points, rule, point, sink)
         }
