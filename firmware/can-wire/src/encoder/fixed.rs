@@ -204,9 +204,11 @@ pub(super) fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
 /// The loop of [`code_block`] for the usual cases: the unit is 1 mm and `rule.min` is
 /// not 0 and below the out-of-range code. The distances from DMIN (and the window's
 /// start) below the rule's first error code, band, the window's end and the
-/// out-of-range code are ranges coded as they are, found by one test; the others take
-/// the full one ([`slow_code`], out of line: one copy for every loop). An empty span
-/// sends every distance that way.
+/// out-of-range code are ranges coded as they are, found by one test; those below
+/// DMIN (the sensor's error codes for no echo: several per cent of a real scan's
+/// points) are no range, found by a second; the others take the full test
+/// ([`slow_code`], out of line: one copy for every loop). An empty span sends every
+/// distance from DMIN on that way.
 #[inline(always)]
 fn code_mm<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     points: &[T],
@@ -230,6 +232,11 @@ fn code_mm<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
         let (d, intensity) = point(p);
         let dc = if d.wrapping_sub(low) < plain {
             d
+        } else if d < rule.min {
+            // A sensor's error code (no echo, too near ...): no range, found without
+            // the full test. Counts of at most a block's points: no wrap.
+            flags[0] = flags[0].wrapping_add(1);
+            0
         } else {
             let (dc, k) = slow_code(&rule, d, max);
             // Counts of at most a block's points: no wrap.

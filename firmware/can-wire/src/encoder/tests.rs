@@ -153,7 +153,8 @@ proptest::proptest! {
             band: band.then_some(65533),
             window: window.map_or([0, u32::MAX], |(lo, hi)| [lo, hi]),
         };
-        // Raw distances: some below the minimum, some exactly an exception.
+        // Raw distances: some below the minimum (error codes), some exactly an
+        // exception.
         let points: Vec<(u32, u16)> = seed
             .iter()
             .take(usize::from(count) + extra)
@@ -162,6 +163,7 @@ proptest::proptest! {
                 1 => (65533, int),
                 2 => (65534, int),
                 3 => (65535, int),
+                4..=9 => (mm % 48, int),
                 _ => (mm, int),
             })
             .collect();
@@ -193,6 +195,8 @@ proptest::proptest! {
         let (mut run_stop, mut run_lost, mut frames) = (None, 0, 0);
         // The window's rejections among the points the runs took, as the rule says.
         let (mut rejected, mut expected_rejected) = (0, 0);
+        // The same for the points that were no range.
+        let (mut invalid, mut expected_invalid) = (0, 0);
         for (n, &cut) in cuts.iter().cycle().enumerate() {
             if rest.is_empty() || run_stop.is_some() {
                 break;
@@ -223,6 +227,8 @@ proptest::proptest! {
                 rejected += run.rejected;
                 let taken = &now[..run.points as usize];
                 expected_rejected += taken.iter().filter(|p| rule.rejects(p.0)).count();
+                invalid += run.invalid;
+                expected_invalid += taken.iter().filter(|p| !rule.is_range(p.0)).count();
                 match run.stop {
                     Some(RunStop::NoSlot) => {
                         run_lost += 1;
@@ -238,6 +244,7 @@ proptest::proptest! {
         proptest::prop_assert_eq!(run_stop, stop);
         proptest::prop_assert_eq!(run_lost, lost);
         proptest::prop_assert_eq!(rejected as usize, expected_rejected);
+        proptest::prop_assert_eq!(invalid as usize, expected_invalid);
         proptest::prop_assert_eq!(frames as usize, sink.frames.len());
         proptest::prop_assert_eq!(&sink.frames, &expected);
         let t1 = one.finish(TrailerFlags::default()).unwrap();
