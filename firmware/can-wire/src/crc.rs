@@ -10,24 +10,25 @@
 //! The register is kept with its two bytes swapped, and so are the tables' entries: a
 //! code (little endian, low byte first) then meets the register as it is, with no byte
 //! swap per step, and its higher bits (a packed point's intensity) need no mask, since
-//! only the low two bytes index the tables. A 16-bit step is then an XOR, two byte
-//! extractions, two loads and an XOR. The tests check both forms against the `crc`
-//! crate.
+//! only the low two bytes index the tables. The two tables are one of 32-bit entries
+//! (the second table's entry in the low half, the first's in the high half), so a
+//! step needs one table address: an XOR, two byte extractions, two loads and an XOR
+//! with a shift. The tests check both forms against the `crc` crate.
 
 /// CRC-16/IBM-3740: polynomial 0x1021, not reflected, initial value 0xFFFF, no final XOR.
 const POLY: u16 = 0x1021;
 const INIT: u16 = 0xFFFF;
 
-/// `T[0][b]`: the register after shifting byte `b` through it from zero. `T[1][b]`: the
-/// same followed by a zero byte (for the first byte of a 16-bit step). Both with their
-/// bytes swapped, as the register is kept.
-static TABLES: [[u16; 256]; 2] = swapped(tables());
+/// For byte `b`, with both halves' bytes swapped as the register is kept: in the high
+/// half the register after shifting `b` through it from zero (the bytewise table); in
+/// the low half the same followed by a zero byte (for the first byte of a 16-bit step).
+static TABLE: [u32; 256] = table();
 
 // Evaluated at compile time (for a `static`): an index out of range would fail the
 // build, never a run.
 #[allow(clippy::indexing_slicing)]
-const fn tables() -> [[u16; 256]; 2] {
-    let mut t = [[0u16; 256]; 2];
+const fn table() -> [u32; 256] {
+    let mut t0 = [0u16; 256];
     let mut b = 0;
     while b < 256 {
         let mut r = (b as u16) << 8;
@@ -40,38 +41,24 @@ const fn tables() -> [[u16; 256]; 2] {
             };
             k = k.wrapping_add(1); // at most 8
         }
-        t[0][b] = r;
+        t0[b] = r;
         b = b.wrapping_add(1); // at most 256
     }
+    let mut t = [0u32; 256];
     let mut b = 0;
     while b < 256 {
-        let r = t[0][b];
-        t[1][b] = (r << 8) ^ t[0][(r >> 8) as usize];
+        let r = t0[b];
+        let r2 = (r << 8) ^ t0[(r >> 8) as usize];
+        t[b] = (r2.swap_bytes() as u32) | (r.swap_bytes() as u32) << 16;
         b = b.wrapping_add(1); // at most 256
-    }
-    t
-}
-
-/// `tables` with every entry's two bytes swapped.
-// Evaluated at compile time, like `tables`.
-#[allow(clippy::indexing_slicing)]
-const fn swapped(mut t: [[u16; 256]; 2]) -> [[u16; 256]; 2] {
-    let mut k = 0;
-    while k < 2 {
-        let mut b = 0;
-        while b < 256 {
-            t[k][b] = t[k][b].swap_bytes();
-            b = b.wrapping_add(1); // at most 256
-        }
-        k = k.wrapping_add(1); // at most 2
     }
     t
 }
 
 /// The table entry for byte `i` (the index is a byte, so always in the table).
 #[inline(always)]
-fn entry(table: &[u16; 256], i: u32) -> u16 {
-    table.get((i & 0xFF) as usize).copied().unwrap_or(0)
+fn entry(i: u32) -> u32 {
+    TABLE.get((i & 0xFF) as usize).copied().unwrap_or(0)
 }
 
 /// An incremental scan CRC.
@@ -93,10 +80,9 @@ impl ScanCrc {
     /// Add one byte.
     #[inline(always)]
     pub fn byte(&mut self, b: u8) {
-        let [t0, _] = &TABLES;
         // The register's high byte is the swapped one's low byte.
         let r = u32::from(self.reg);
-        self.reg = (self.reg >> 8) ^ entry(t0, r ^ u32::from(b));
+        self.reg = ((r >> 8) ^ (entry(r ^ u32::from(b)) >> 16)) as u16;
     }
 
     /// The CRC of the bytes added so far.
@@ -130,11 +116,10 @@ impl ScanCrc {
     /// are not looked at.
     #[inline(always)]
     fn step(&mut self, code: u32) {
-        let [t0, t1] = &TABLES;
         // The low byte goes first: it meets the register's high byte, the swapped
         // register's low byte.
         let x = u32::from(self.reg) ^ code;
-        self.reg = entry(t1, x) ^ entry(t0, x >> 8);
+        self.reg = (entry(x) ^ (entry(x >> 8) >> 16)) as u16;
     }
 
     /// Add one point's codes packed in a word: the distance code in the low 16 bits,

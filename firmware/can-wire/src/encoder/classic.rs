@@ -6,6 +6,7 @@ use super::fixed::{code_block_any, count_rejected, untake};
 use super::{FrameSink, RangeRule, Run, RunStop, ScanEncoder, BLOCK};
 use crate::crc::ScanCrc;
 use crate::data::{data_frame_len, DATA_HEADER_LEN};
+use crate::frame::Frame;
 use crate::id::Kind;
 use crate::Error;
 
@@ -119,19 +120,21 @@ impl ScanEncoder {
             // Whole frames, into slots the sink hands out a batch at a time.
             if !lost {
                 let whole = codes.get(j..).unwrap_or(&[]);
-                let mut sent = s.sent;
-                let len = s.full_len;
-                // Each frame's first index: one more frame's points a frame.
-                let step = cap as u16;
+                let shape = Frame::classic_shape(s.full_len);
+                // The data header of the next frame: its first index (below the scan's
+                // point count, at most 4095: 12 bits) and the sequence number above;
+                // each frame's is the one before plus a frame's points.
+                let seq = u32::from(s.header.seq & 0xF) << 12;
+                let mut header = u32::from(s.sent & 0x0FFF) | seq;
+                let step = cap as u32;
                 let mut left = whole;
                 while left.len() >= cap {
                     let slots = sink.data_slots(left.len().checked_div(cap).unwrap_or(0));
                     if slots.is_empty() {
                         // No room: the frame is built (its points in the CRC) and lost,
                         // and the scan goes on as if it had been sent.
-                        let header = u64::from(sent & 0x0FFF) | seq_bits;
-                        whole_frame(db, ib, left, cap, header, &mut crc);
-                        sent = sent.wrapping_add(step);
+                        whole_frame(db, ib, left, cap, u64::from(header), &mut crc);
+                        header = header.wrapping_add(step);
                         lost = true;
                         break;
                     }
@@ -141,22 +144,22 @@ impl ScanEncoder {
                     let (these, later) = left.split_at(given.wrapping_mul(cap).min(left.len()));
                     left = later;
                     for (frame, chunk) in slots.iter_mut().zip(these.chunks_exact(cap)) {
-                        let header = u64::from(sent & 0x0FFF) | seq_bits;
+                        let h = u64::from(header);
                         let word = if known {
-                            whole_frame(db, ib, chunk, cap, header, &mut crc)
+                            whole_frame(db, ib, chunk, cap, h, &mut crc)
                         } else {
-                            place_points(db, ib, chunk, header, 16, &mut crc).0
+                            place_points(db, ib, chunk, h, 16, &mut crc).0
                         };
-                        sent = sent.wrapping_add(step);
-                        frame.set_classic(id, word.to_le_bytes(), len);
+                        header = header.wrapping_add(step);
+                        frame.set_classic_as(id, word.to_le_bytes(), shape);
                     }
                     run.frames = run.frames.wrapping_add(given as u32);
                 }
-                // Frames sent (or lost) count the points of the block: no wrap.
-                let framed = sent.wrapping_sub(s.sent);
+                // Frames sent (or lost) count points of the block: no wrap.
+                let framed = (header.wrapping_sub(seq) as u16).wrapping_sub(s.sent & 0x0FFF);
                 j = j.wrapping_add(usize::from(framed));
                 s.buffered = s.buffered.wrapping_sub(framed);
-                s.sent = sent;
+                s.sent = s.sent.wrapping_add(framed);
             }
             // The rest: the scan's last frame, or codes pending for the next run.
             let r = end.wrapping_sub(j);
