@@ -89,21 +89,34 @@ impl ScanEncoder {
                     .min(count.saturating_sub(s.pushed));
                 let k = usize::from(room).min(block.wrapping_sub(j));
                 let codes = codes_buf.get(j..j.wrapping_add(k)).unwrap_or(&[]);
-                let mut crc = s.crc;
-                for &code in codes {
-                    crc.point_code(code, ib > 0);
-                }
-                s.crc = crc;
+                s.crc.point_codes(codes, ib > 0);
                 let whole = (bits / 8) as usize;
                 if bits % 8 == 0 {
                     // Whole bytes per point: straight into their place, no bit position.
                     let Some(bytes) = s.packer.take_bytes(k.saturating_mul(whole)) else {
                         return Err(Error::FrameTooLong);
                     };
-                    for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(whole)) {
-                        let word = (code & 0xFFFF) | (code >> 16) << db;
-                        if let Some(field) = word.to_le_bytes().get(..whole) {
-                            out.copy_from_slice(field);
+                    // A field's length known at compile time: a store or two per
+                    // point, not a `memcpy` call of a length known at run time.
+                    match whole {
+                        // 16-bit distances alone (a 16-bit field has no other).
+                        2 if db == 16 => {
+                            for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(2)) {
+                                if let Some(out) = out.first_chunk_mut::<2>() {
+                                    *out = (code as u16).to_le_bytes();
+                                }
+                            }
+                        }
+                        2 => put_fields::<2>(codes, bytes, db),
+                        3 => put_fields::<3>(codes, bytes, db),
+                        4 => put_fields::<4>(codes, bytes, db),
+                        _ => {
+                            for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(whole)) {
+                                let word = (code & 0xFFFF) | (code >> 16) << db;
+                                if let Some(field) = word.to_le_bytes().get(..whole) {
+                                    out.copy_from_slice(field);
+                                }
+                            }
                         }
                     }
                 } else {
@@ -148,6 +161,22 @@ impl ScanEncoder {
             run.rejected = run.rejected.wrapping_add(rejected);
         }
         Ok(run)
+    }
+}
+
+/// `codes` (distance code in the low 16 bits, intensity above) as `N`-byte fields into
+/// `bytes`, little endian: the distance code, then the intensity code from bit `db`.
+#[inline(always)]
+fn put_fields<const N: usize>(codes: &[u32], bytes: &mut [u8], db: u32) {
+    for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(N)) {
+        // A field has at most 32 bits (`db` plus the intensity's width).
+        let word = (code & 0xFFFF) | (code >> 16) << db;
+        if let (Some(out), Some(field)) = (
+            out.first_chunk_mut::<N>(),
+            word.to_le_bytes().first_chunk::<N>(),
+        ) {
+            *out = *field;
+        }
     }
 }
 
