@@ -121,15 +121,20 @@ impl Frame {
         }
         // Word by word: `copy_from_slice` of a run-time length is a `memcpy` call that
         // copies short payloads byte by byte (every FD length is whole words).
-        // A classic data frame (the most frequent) as two words; others with a memcpy.
-        match (
-            self.data.first_chunk_mut::<CLASSIC_LEN>(),
-            <&[u8; CLASSIC_LEN]>::try_from(data),
-        ) {
-            (Some(head), Ok(eight)) => *head = *eight,
-            _ => {
-                if let Some(head) = self.data.get_mut(..len) {
-                    head.copy_from_slice(data);
+        // A classic data frame (the most frequent) as two words, a full 64-byte FD frame
+        // as a copy of a length known at compile time; others with a memcpy.
+        if let Ok(all) = <&[u8; MAX_LEN]>::try_from(data) {
+            self.data = *all;
+        } else {
+            match (
+                self.data.first_chunk_mut::<CLASSIC_LEN>(),
+                <&[u8; CLASSIC_LEN]>::try_from(data),
+            ) {
+                (Some(head), Ok(eight)) => *head = *eight,
+                _ => {
+                    if let Some(head) = self.data.get_mut(..len) {
+                        head.copy_from_slice(data);
+                    }
                 }
             }
         }
