@@ -71,7 +71,8 @@ impl Shape {
     /// Whether the frame is a CAN FD frame.
     #[inline(always)]
     const fn fd(self) -> bool {
-        self.0 >> 8 != 0
+        // Bit 8 alone (`new` sets no other above the length): one bit-field extract.
+        self.0 & 0x100 != 0
     }
 }
 
@@ -123,18 +124,16 @@ impl Frame {
         // copies short payloads byte by byte (every FD length is whole words).
         // A classic data frame (the most frequent) as two words, a full 64-byte FD frame
         // as a copy of a length known at compile time; others with a memcpy.
-        if let Ok(all) = <&[u8; MAX_LEN]>::try_from(data) {
-            self.data = *all;
-        } else {
-            match (
-                self.data.first_chunk_mut::<CLASSIC_LEN>(),
-                <&[u8; CLASSIC_LEN]>::try_from(data),
-            ) {
-                (Some(head), Ok(eight)) => *head = *eight,
-                _ => {
-                    if let Some(head) = self.data.get_mut(..len) {
-                        head.copy_from_slice(data);
-                    }
+        match (
+            self.data.first_chunk_mut::<CLASSIC_LEN>(),
+            <&[u8; CLASSIC_LEN]>::try_from(data),
+        ) {
+            (Some(head), Ok(eight)) => *head = *eight,
+            _ => {
+                if let Ok(all) = <&[u8; MAX_LEN]>::try_from(data) {
+                    self.data = *all;
+                } else if let Some(head) = self.data.get_mut(..len) {
+                    head.copy_from_slice(data);
                 }
             }
         }
