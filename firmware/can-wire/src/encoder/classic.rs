@@ -261,7 +261,14 @@ fn whole_points(db: u32, ib: u32, codes: &[u32], n: usize, crc: &mut ScanCrc) ->
     let place = |code: u32, i: u32| {
         // At most 4 points of at most 32 bits: no wrap.
         let at = i.wrapping_mul(db.wrapping_add(ib)).wrapping_add(16);
-        (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << at
+        // Without the channel a point is its distance code alone (a loop compiled for
+        // the widths then puts it with one shift, not a second for the intensity).
+        let field = if ib == 0 {
+            u64::from(code & 0xFFFF)
+        } else {
+            u64::from(code & 0xFFFF) | u64::from(code >> 16) << db
+        };
+        field << at
     };
     let word = match n {
         1 => {
