@@ -75,6 +75,24 @@ impl<const Q: usize> FrameQueue<Q> {
         self.slots.get_mut(k)
     }
 
+    /// Up to `n` new back slots, counted as queued, in order, each holding whatever frame
+    /// it last held (the caller overwrites every one): as many as are free up to the
+    /// end of the ring, so fewer than `n` when the free slots wrap (ask again for the
+    /// rest), none when the queue is full.
+    #[inline]
+    pub fn push_back_slots(&mut self, n: usize) -> &mut [Frame] {
+        let k = self.slot(self.len);
+        // `len <= Q` and `k < Q` (or `k == 0` when `Q == 0`): no wrap.
+        let n = n.min(Q.wrapping_sub(self.len)).min(Q.wrapping_sub(k));
+        match self.slots.get_mut(k..k.wrapping_add(n)) {
+            Some(slots) => {
+                self.len = self.len.wrapping_add(n);
+                slots
+            }
+            None => &mut [],
+        }
+    }
+
     /// Queues a frame at the back; gives it back when the queue is full.
     pub fn push_back(&mut self, frame: Frame) -> Result<(), Frame> {
         match self.push_back_slot() {
@@ -187,10 +205,34 @@ mod tests {
         assert_eq!(q.free(), 1);
     }
 
+    #[test]
+    fn slots_in_batches_stop_at_the_ring_end() {
+        let mut q = FrameQueue::<3>::new();
+        q.push_back(frame(1, 8)).unwrap();
+        q.push_back(frame(2, 8)).unwrap();
+        assert_eq!(q.pop_front(), Some(frame(1, 8)));
+        assert_eq!(q.pop_front(), Some(frame(2, 8)));
+        // The next back slot is the ring's last: one slot, then the two at its start.
+        let first = q.push_back_slots(3);
+        assert_eq!(first.len(), 1);
+        first[0].set(frame(3, 1).id(), &[3], false).unwrap();
+        let rest = q.push_back_slots(3);
+        assert_eq!(rest.len(), 2);
+        for (slot, n) in rest.iter_mut().zip([4u16, 5]) {
+            slot.set(frame(n, 2).id(), &[n as u8; 2], false).unwrap();
+        }
+        assert!(q.push_back_slots(1).is_empty());
+        assert!(q.push_back_slots(0).is_empty());
+        assert_eq!(
+            q.iter().copied().collect::<Vec<_>>(),
+            [frame(3, 1), frame(4, 2), frame(5, 2)]
+        );
+    }
+
     proptest! {
         /// Any sequence of operations does what a `VecDeque` of capacity `Q` does.
         #[test]
-        fn behaves_like_a_bounded_vecdeque(ops in proptest::collection::vec((0u8..5, 0u16..0x7FF, 0usize..9), 0..200)) {
+        fn behaves_like_a_bounded_vecdeque(ops in proptest::collection::vec((0u8..6, 0u16..0x7FF, 0usize..9), 0..200)) {
             let mut q = FrameQueue::<5>::new();
             let mut model: VecDeque<Frame> = VecDeque::new();
             for (op, n, len) in ops {
@@ -214,6 +256,19 @@ mod tests {
                                 model.push_back(f);
                             }
                             None => prop_assert_eq!(model.len(), 5),
+                        }
+                    }
+                    4 => {
+                        // `len` slots wanted, each written with its own frame.
+                        let slots = q.push_back_slots(len);
+                        let k = slots.len();
+                        let room = len.min(5 - model.len());
+                        // Up to the ring's end, at least one when any is free.
+                        prop_assert!(k <= room && (k > 0 || room == 0));
+                        for (m, slot) in slots.iter_mut().enumerate() {
+                            let g = frame(n.wrapping_add(m as u16), len.min(8));
+                            slot.set(g.id(), g.data(), false).unwrap();
+                            model.push_back(g);
                         }
                     }
                     _ => {

@@ -42,8 +42,38 @@ pub const fn is_valid_len(len: usize) -> bool {
 pub struct Frame {
     data: [u8; MAX_LEN],
     id: Id,
-    len: u8,
-    fd: bool,
+    shape: Shape,
+}
+
+/// The length and format of a classic frame ([`Frame::classic_shape`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ClassicShape(Shape);
+
+/// A frame's length (low byte) and format (bit 8: CAN FD) in one 16-bit value, so that
+/// a run of classic data frames writes both with one store of a value made once
+/// ([`Frame::set_classic_as`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Shape(u16);
+
+impl Shape {
+    /// `len` bytes (at most 64), CAN FD or not.
+    #[inline(always)]
+    const fn new(len: u8, fd: bool) -> Shape {
+        Shape(len as u16 | (fd as u16) << 8)
+    }
+
+    /// The length, bytes.
+    #[inline(always)]
+    const fn len(self) -> u8 {
+        self.0 as u8
+    }
+
+    /// Whether the frame is a CAN FD frame.
+    #[inline(always)]
+    const fn fd(self) -> bool {
+        // Bit 8 alone (`new` sets no other above the length): one bit-field extract.
+        self.0 & 0x100 != 0
+    }
 }
 
 impl Frame {
@@ -66,8 +96,7 @@ impl Frame {
         Ok(Frame {
             id,
             data: buf,
-            len: len as u8,
-            fd,
+            shape: Shape::new(len as u8, fd),
         })
     }
 
@@ -86,28 +115,30 @@ impl Frame {
         }
         // The bytes past `len` are zero in every frame: only the old payload's bytes
         // past the new one are cleared (none when the slot is fresh).
-        if usize::from(self.len) > len {
-            if let Some(stale) = self.data.get_mut(len..usize::from(self.len)) {
+        if usize::from(self.shape.len()) > len {
+            if let Some(stale) = self.data.get_mut(len..usize::from(self.shape.len())) {
                 stale.fill(0);
             }
         }
         // Word by word: `copy_from_slice` of a run-time length is a `memcpy` call that
         // copies short payloads byte by byte (every FD length is whole words).
-        // A classic data frame (the most frequent) as two words; others with a memcpy.
+        // A classic data frame (the most frequent) as two words, a full 64-byte FD frame
+        // as a copy of a length known at compile time; others with a memcpy.
         match (
             self.data.first_chunk_mut::<CLASSIC_LEN>(),
             <&[u8; CLASSIC_LEN]>::try_from(data),
         ) {
             (Some(head), Ok(eight)) => *head = *eight,
             _ => {
-                if let Some(head) = self.data.get_mut(..len) {
+                if let Ok(all) = <&[u8; MAX_LEN]>::try_from(data) {
+                    self.data = *all;
+                } else if let Some(head) = self.data.get_mut(..len) {
                     head.copy_from_slice(data);
                 }
             }
         }
         self.id = id;
-        self.len = len as u8;
-        self.fd = fd;
+        self.shape = Shape::new(len as u8, fd);
         Ok(())
     }
 
@@ -116,45 +147,74 @@ impl Frame {
     /// longer `len` is cut to 8.
     #[inline]
     pub fn set_classic(&mut self, id: Id, data: [u8; CLASSIC_LEN], len: usize) {
-        let len = len.min(CLASSIC_LEN);
-        if usize::from(self.len) > CLASSIC_LEN {
-            if let Some(stale) = self.data.get_mut(CLASSIC_LEN..usize::from(self.len)) {
-                stale.fill(0);
-            }
+        self.set_classic_as(id, data, Frame::classic_shape(len));
+    }
+
+    /// The length and format of a classic frame of `len` bytes (at most 8; a longer
+    /// `len` is cut to 8), made once for [`Frame::set_classic_as`].
+    #[inline]
+    pub fn classic_shape(len: usize) -> ClassicShape {
+        ClassicShape(Shape::new(len.min(CLASSIC_LEN) as u8, false))
+    }
+
+    /// [`Frame::set_classic`] with the length and format made beforehand
+    /// ([`Frame::classic_shape`]): a run of frames of one length writes each frame's
+    /// payload word, identifier and shape, and nothing else.
+    #[inline(always)]
+    pub fn set_classic_as(&mut self, id: Id, data: [u8; CLASSIC_LEN], shape: ClassicShape) {
+        if usize::from(self.shape.len()) > CLASSIC_LEN {
+            self.clear_past_classic();
         }
         if let Some(head) = self.data.first_chunk_mut::<CLASSIC_LEN>() {
             *head = data;
         }
         self.id = id;
-        self.len = len as u8;
-        self.fd = false;
+        self.shape = shape.0;
+    }
+
+    /// Zeroes the payload bytes past a classic frame's 8 that an older, longer frame
+    /// left ([`Frame::set_classic`] over an FD frame's slot: rare, out of line).
+    #[cold]
+    #[inline(never)]
+    fn clear_past_classic(&mut self) {
+        if let Some(stale) = self
+            .data
+            .get_mut(CLASSIC_LEN..usize::from(self.shape.len()))
+        {
+            stale.fill(0);
+        }
     }
 
     /// The identifier.
+    #[inline]
     pub fn id(&self) -> Id {
         self.id
     }
 
     /// The payload.
+    #[inline(always)]
     pub fn data(&self) -> &[u8] {
-        self.data.get(..usize::from(self.len)).unwrap_or(&[])
+        self.data
+            .get(..usize::from(self.shape.len()))
+            .unwrap_or(&[])
     }
 
     /// The data length, bytes.
     #[inline]
     pub fn len(&self) -> usize {
-        usize::from(self.len)
+        usize::from(self.shape.len())
     }
 
     /// Whether the frame carries no data.
     #[inline]
     pub fn is_empty(&self) -> bool {
-        self.len == 0
+        self.shape.len() == 0
     }
 
     /// Whether this is a CAN FD frame.
+    #[inline]
     pub fn is_fd(&self) -> bool {
-        self.fd
+        self.shape.fd()
     }
 }
 
@@ -164,8 +224,7 @@ impl Default for Frame {
         Frame {
             data: [0; MAX_LEN],
             id: Id::Standard(embedded_can::StandardId::ZERO),
-            len: 0,
-            fd: false,
+            shape: Shape::new(0, false),
         }
     }
 }
@@ -175,7 +234,7 @@ impl core::fmt::Debug for Frame {
         f.debug_struct("Frame")
             .field("id", &self.id)
             .field("data", &self.data())
-            .field("fd", &self.fd)
+            .field("fd", &self.shape.fd())
             .finish()
     }
 }
@@ -202,7 +261,7 @@ impl embedded_can::Frame for Frame {
     }
 
     fn dlc(&self) -> usize {
-        usize::from(self.len)
+        usize::from(self.shape.len())
     }
 
     fn data(&self) -> &[u8] {

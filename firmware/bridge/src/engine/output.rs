@@ -168,6 +168,14 @@ impl<const Q: usize> FrameSink for DataSlots<'_, Q> {
     fn data_slot(&mut self) -> Option<&mut Frame> {
         data_slot(self.0)
     }
+
+    /// Up to `n` back slots, all but one of those free (the one stays for the scan's
+    /// trailer or abort), as many as lie before the ring's end.
+    #[inline]
+    fn data_slots(&mut self, n: usize) -> &mut [Frame] {
+        let room = self.0.free().saturating_sub(1);
+        self.0.push_back_slots(n.min(room))
+    }
 }
 
 /// A back slot for a data frame, if two are free.

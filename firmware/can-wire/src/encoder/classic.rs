@@ -6,6 +6,7 @@ use super::fixed::{code_block_any, count_rejected, untake};
 use super::{FrameSink, RangeRule, Run, RunStop, ScanEncoder, BLOCK};
 use crate::crc::ScanCrc;
 use crate::data::{data_frame_len, DATA_HEADER_LEN};
+use crate::frame::Frame;
 use crate::id::Kind;
 use crate::Error;
 
@@ -17,9 +18,16 @@ impl ScanEncoder {
     /// for the next run (`pending`), so frames that straddle data lines are built whole
     /// too. Only a frame begun by [`ScanEncoder::push_point`] (its points already in the
     /// packer) or the scan's short last frame take their points one by one.
+    ///
+    /// `known` tells that `db` and `ib` are constants (a loop compiled for them): whole
+    /// frames are then written out per point count; otherwise each goes through the
+    /// out-of-line [`place_points`], so the general loop is not compiled once per point
+    /// count (flash).
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn run_classic_with<T, F, S>(
         &mut self,
+        known: bool,
         db: u32,
         ib: u32,
         points: &[T],
@@ -109,29 +117,49 @@ impl ScanEncoder {
                     s.packer.set_word64(word, at);
                 }
             }
-            // Whole frames.
+            // Whole frames, into slots the sink hands out a batch at a time.
             if !lost {
                 let whole = codes.get(j..).unwrap_or(&[]);
-                let mut sent = s.sent;
-                for chunk in whole.chunks_exact(cap) {
-                    let header = u64::from(sent & 0x0FFF) | seq_bits;
-                    let word = whole_frame(db, ib, chunk, cap, header, &mut crc)
-                        .ok_or(Error::FrameTooLong)?;
-                    sent = sent.wrapping_add(cap as u16);
-                    j = j.wrapping_add(cap);
-                    match sink.data_slot() {
-                        Some(frame) => {
-                            frame.set_classic(id, word.to_le_bytes(), s.full_len);
-                            run.frames = run.frames.wrapping_add(1);
-                        }
-                        None => {
-                            lost = true;
-                            break;
-                        }
+                let shape = Frame::classic_shape(s.full_len);
+                // The data header of the next frame: its first index (below the scan's
+                // point count, at most 4095: 12 bits) and the sequence number above;
+                // each frame's is the one before plus a frame's points.
+                let seq = u32::from(s.header.seq & 0xF) << 12;
+                let mut header = u32::from(s.sent & 0x0FFF) | seq;
+                let step = cap as u32;
+                let mut left = whole;
+                while left.len() >= cap {
+                    let slots = sink.data_slots(left.len().checked_div(cap).unwrap_or(0));
+                    if slots.is_empty() {
+                        // No room: the frame is built (its points in the CRC) and lost,
+                        // and the scan goes on as if it had been sent.
+                        whole_frame(db, ib, left, cap, u64::from(header), &mut crc);
+                        header = header.wrapping_add(step);
+                        lost = true;
+                        break;
                     }
+                    // The sink gave at most as many slots as frames are left: each is
+                    // written (one loop counter: the zip of two slices).
+                    let given = slots.len();
+                    let (these, later) = left.split_at(given.wrapping_mul(cap).min(left.len()));
+                    left = later;
+                    for (frame, chunk) in slots.iter_mut().zip(these.chunks_exact(cap)) {
+                        let h = u64::from(header);
+                        let word = if known {
+                            whole_frame(db, ib, chunk, cap, h, &mut crc)
+                        } else {
+                            place_points(db, ib, chunk, h, 16, &mut crc).0
+                        };
+                        header = header.wrapping_add(step);
+                        frame.set_classic_as(id, word.to_le_bytes(), shape);
+                    }
+                    run.frames = run.frames.wrapping_add(given as u32);
                 }
-                s.buffered = s.buffered.wrapping_sub(sent.wrapping_sub(s.sent));
-                s.sent = sent;
+                // Frames sent (or lost) count points of the block: no wrap.
+                let framed = (header.wrapping_sub(seq) as u16).wrapping_sub(s.sent & 0x0FFF);
+                j = j.wrapping_add(usize::from(framed));
+                s.buffered = s.buffered.wrapping_sub(framed);
+                s.sent = s.sent.wrapping_add(framed);
             }
             // The rest: the scan's last frame, or codes pending for the next run.
             let r = end.wrapping_sub(j);
@@ -216,23 +244,31 @@ fn place_points(
 
 /// The payload word of a whole classic frame of `n` points (1 to 4; `header` in its
 /// low 16 bits) from the first `n` of `codes` (distance code in the low 16 bits,
-/// intensity above), their codes into `crc`; `None` when fewer than `n` codes are there.
-/// Written out per `n`, so every point goes in at a shift known at compile time.
+/// intensity above), their codes into `crc`; the header alone when fewer than `n` codes
+/// are there or `n` is out of range (the callers give `n` codes, `n` the capacity of
+/// 1 to 4). Written out per `n`, so every point goes in at a shift known at compile
+/// time.
 #[inline(always)]
-fn whole_frame(
-    db: u32,
-    ib: u32,
-    codes: &[u32],
-    n: usize,
-    header: u64,
-    crc: &mut ScanCrc,
-) -> Option<u64> {
+fn whole_frame(db: u32, ib: u32, codes: &[u32], n: usize, header: u64, crc: &mut ScanCrc) -> u64 {
+    whole_points(db, ib, codes, n, crc).map_or(header, |word| header | word)
+}
+
+/// The points of [`whole_frame`], `None` for what it takes as the header alone.
+#[inline(always)]
+fn whole_points(db: u32, ib: u32, codes: &[u32], n: usize, crc: &mut ScanCrc) -> Option<u64> {
     let mut add = |code: u32| crc.point_code(code, ib > 0);
     // Point `i` of the frame, in place.
     let place = |code: u32, i: u32| {
         // At most 4 points of at most 32 bits: no wrap.
         let at = i.wrapping_mul(db.wrapping_add(ib)).wrapping_add(16);
-        (u64::from(code & 0xFFFF) | u64::from(code >> 16) << db) << at
+        // Without the channel a point is its distance code alone (a loop compiled for
+        // the widths then puts it with one shift, not a second for the intensity).
+        let field = if ib == 0 {
+            u64::from(code & 0xFFFF)
+        } else {
+            u64::from(code & 0xFFFF) | u64::from(code >> 16) << db
+        };
+        field << at
     };
     let word = match n {
         1 => {
@@ -263,5 +299,5 @@ fn whole_frame(
         }
         _ => return None,
     };
-    Some(header | word)
+    Some(word)
 }

@@ -31,7 +31,7 @@ impl ScanEncoder {
     {
         let (db, ib) = if DB == 0 { (db, ib) } else { (DB, IB) };
         if CLASSIC {
-            self.run_classic_with(db, ib, points, rule, point, sink)
+            self.run_classic_with(DB != 0, db, ib, points, rule, point, sink)
         } else {
             self.run_with(db, ib, points, rule, point, sink)
         }
@@ -89,21 +89,34 @@ impl ScanEncoder {
                     .min(count.saturating_sub(s.pushed));
                 let k = usize::from(room).min(block.wrapping_sub(j));
                 let codes = codes_buf.get(j..j.wrapping_add(k)).unwrap_or(&[]);
-                let mut crc = s.crc;
-                for &code in codes {
-                    crc.point_code(code, ib > 0);
-                }
-                s.crc = crc;
+                s.crc.point_codes(codes, ib > 0);
                 let whole = (bits / 8) as usize;
                 if bits % 8 == 0 {
                     // Whole bytes per point: straight into their place, no bit position.
                     let Some(bytes) = s.packer.take_bytes(k.saturating_mul(whole)) else {
                         return Err(Error::FrameTooLong);
                     };
-                    for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(whole)) {
-                        let word = (code & 0xFFFF) | (code >> 16) << db;
-                        if let Some(field) = word.to_le_bytes().get(..whole) {
-                            out.copy_from_slice(field);
+                    // A field's length known at compile time: a store or two per
+                    // point, not a `memcpy` call of a length known at run time.
+                    match whole {
+                        // 16-bit distances alone (a 16-bit field has no other).
+                        2 if db == 16 => {
+                            for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(2)) {
+                                if let Some(out) = out.first_chunk_mut::<2>() {
+                                    *out = (code as u16).to_le_bytes();
+                                }
+                            }
+                        }
+                        2 => put_fields::<2>(codes, bytes, db),
+                        3 => put_fields::<3>(codes, bytes, db),
+                        4 => put_fields::<4>(codes, bytes, db),
+                        _ => {
+                            for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(whole)) {
+                                let word = (code & 0xFFFF) | (code >> 16) << db;
+                                if let Some(field) = word.to_le_bytes().get(..whole) {
+                                    out.copy_from_slice(field);
+                                }
+                            }
                         }
                     }
                 } else {
@@ -148,6 +161,22 @@ impl ScanEncoder {
             run.rejected = run.rejected.wrapping_add(rejected);
         }
         Ok(run)
+    }
+}
+
+/// `codes` (distance code in the low 16 bits, intensity above) as `N`-byte fields into
+/// `bytes`, little endian: the distance code, then the intensity code from bit `db`.
+#[inline(always)]
+fn put_fields<const N: usize>(codes: &[u32], bytes: &mut [u8], db: u32) {
+    for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(N)) {
+        // A field has at most 32 bits (`db` plus the intensity's width).
+        let word = (code & 0xFFFF) | (code >> 16) << db;
+        if let (Some(out), Some(field)) = (
+            out.first_chunk_mut::<N>(),
+            word.to_le_bytes().first_chunk::<N>(),
+        ) {
+            *out = *field;
+        }
     }
 }
 
@@ -204,9 +233,11 @@ pub(super) fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
 /// The loop of [`code_block`] for the usual cases: the unit is 1 mm and `rule.min` is
 /// not 0 and below the out-of-range code. The distances from DMIN (and the window's
 /// start) below the rule's first error code, band, the window's end and the
-/// out-of-range code are ranges coded as they are, found by one test; the others take
-/// the full one ([`slow_code`], out of line: one copy for every loop). An empty span
-/// sends every distance that way.
+/// out-of-range code are ranges coded as they are, found by one test; those below
+/// DMIN (the sensor's error codes for no echo: several per cent of a real scan's
+/// points) are no range, found by a second; the others take the full test
+/// ([`slow_code`], out of line: one copy for every loop). An empty span sends every
+/// distance from DMIN on that way.
 #[inline(always)]
 fn code_mm<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     points: &[T],
@@ -230,6 +261,11 @@ fn code_mm<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
         let (d, intensity) = point(p);
         let dc = if d.wrapping_sub(low) < plain {
             d
+        } else if d < rule.min {
+            // A sensor's error code (no echo, too near ...): no range, found without
+            // the full test. Counts of at most a block's points: no wrap.
+            flags[0] = flags[0].wrapping_add(1);
+            0
         } else {
             let (dc, k) = slow_code(&rule, d, max);
             // Counts of at most a block's points: no wrap.

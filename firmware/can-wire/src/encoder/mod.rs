@@ -173,6 +173,21 @@ impl Open {
 pub trait FrameSink {
     /// A slot for the next data frame, or `None` when there is no room for it.
     fn data_slot(&mut self) -> Option<&mut Frame>;
+
+    /// Slots for the next data frames, in order: at most `n`, at least one when the
+    /// sink has room (none when it has not), each taken like [`FrameSink::data_slot`]'s,
+    /// so the caller writes a data frame into every one it is given. A run that has
+    /// several frames due asks once, not once per frame. The default hands out
+    /// [`FrameSink::data_slot`]'s one.
+    fn data_slots(&mut self, n: usize) -> &mut [Frame] {
+        if n == 0 {
+            return &mut [];
+        }
+        match self.data_slot() {
+            Some(frame) => core::slice::from_mut(frame),
+            None => &mut [],
+        }
+    }
 }
 
 /// A growing list of frames is a sink with room for every frame (host side).
@@ -181,6 +196,12 @@ impl FrameSink for std::vec::Vec<Frame> {
     fn data_slot(&mut self) -> Option<&mut Frame> {
         self.push(Frame::default());
         self.last_mut()
+    }
+
+    fn data_slots(&mut self, n: usize) -> &mut [Frame] {
+        let from = self.len();
+        self.resize(from.saturating_add(n), Frame::default());
+        self.get_mut(from..).unwrap_or_default()
     }
 }
 

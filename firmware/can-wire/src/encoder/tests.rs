@@ -72,10 +72,17 @@ fn in_place_frames_equal_returned_frames_and_a_dropped_one_still_counts() {
     );
 }
 
-/// A sink over a vector that has room for `room` frames.
+/// A sink over a vector that has room for `room` frames, handing out at most `batch` of
+/// them at a time to [`FrameSink::data_slots`] (0: the trait's default, one at a time).
 struct VecSink {
     frames: Vec<Frame>,
     room: usize,
+    batch: usize,
+}
+
+/// A stale slot, as a queue's reused one: nothing of it may remain.
+fn stale() -> Frame {
+    Frame::new(sid(0x7FF), &[0xEE; 64], true).unwrap()
 }
 
 impl FrameSink for VecSink {
@@ -83,10 +90,22 @@ impl FrameSink for VecSink {
         if self.frames.len() >= self.room {
             return None;
         }
-        // A stale slot, as a queue's reused one: nothing of it may remain.
-        self.frames
-            .push(Frame::new(sid(0x7FF), &[0xEE; 64], true).unwrap());
+        self.frames.push(stale());
         self.frames.last_mut()
+    }
+
+    fn data_slots(&mut self, n: usize) -> &mut [Frame] {
+        if self.batch == 0 {
+            return match self.data_slot() {
+                Some(frame) if n > 0 => core::slice::from_mut(frame),
+                Some(_) => panic!("a slot was taken for no frame"),
+                None => &mut [],
+            };
+        }
+        let from = self.frames.len();
+        let k = n.min(self.batch).min(self.room.saturating_sub(from));
+        self.frames.resize(from + k, stale());
+        &mut self.frames[from..]
     }
 }
 
@@ -110,6 +129,7 @@ proptest::proptest! {
         seed in proptest::collection::vec((0u32..70_000, proptest::prelude::any::<u16>()), 130),
         cuts in proptest::collection::vec(1usize..40, 1..8),
         room in 0usize..60,
+        batch in 0usize..5,
         mix in proptest::prelude::any::<bool>(),
         rule_min in 0u32..40,
         rule_except in 0usize..4,
@@ -133,7 +153,8 @@ proptest::proptest! {
             band: band.then_some(65533),
             window: window.map_or([0, u32::MAX], |(lo, hi)| [lo, hi]),
         };
-        // Raw distances: some below the minimum, some exactly an exception.
+        // Raw distances: some below the minimum (error codes), some exactly an
+        // exception.
         let points: Vec<(u32, u16)> = seed
             .iter()
             .take(usize::from(count) + extra)
@@ -142,6 +163,7 @@ proptest::proptest! {
                 1 => (65533, int),
                 2 => (65534, int),
                 3 => (65535, int),
+                4..=9 => (mm % 48, int),
                 _ => (mm, int),
             })
             .collect();
@@ -168,11 +190,13 @@ proptest::proptest! {
         // taken), and with `mix` point by point now and then.
         let mut two = ScanEncoder::new(ids, format).unwrap();
         two.begin(&header(count, enc)).unwrap();
-        let mut sink = VecSink { frames: Vec::new(), room };
+        let mut sink = VecSink { frames: Vec::new(), room, batch };
         let mut rest = &points[..];
         let (mut run_stop, mut run_lost, mut frames) = (None, 0, 0);
         // The window's rejections among the points the runs took, as the rule says.
         let (mut rejected, mut expected_rejected) = (0, 0);
+        // The same for the points that were no range.
+        let (mut invalid, mut expected_invalid) = (0, 0);
         for (n, &cut) in cuts.iter().cycle().enumerate() {
             if rest.is_empty() || run_stop.is_some() {
                 break;
@@ -203,6 +227,8 @@ proptest::proptest! {
                 rejected += run.rejected;
                 let taken = &now[..run.points as usize];
                 expected_rejected += taken.iter().filter(|p| rule.rejects(p.0)).count();
+                invalid += run.invalid;
+                expected_invalid += taken.iter().filter(|p| !rule.is_range(p.0)).count();
                 match run.stop {
                     Some(RunStop::NoSlot) => {
                         run_lost += 1;
@@ -218,6 +244,7 @@ proptest::proptest! {
         proptest::prop_assert_eq!(run_stop, stop);
         proptest::prop_assert_eq!(run_lost, lost);
         proptest::prop_assert_eq!(rejected as usize, expected_rejected);
+        proptest::prop_assert_eq!(invalid as usize, expected_invalid);
         proptest::prop_assert_eq!(frames as usize, sink.frames.len());
         proptest::prop_assert_eq!(&sink.frames, &expected);
         let t1 = one.finish(TrailerFlags::default()).unwrap();
