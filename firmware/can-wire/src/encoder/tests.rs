@@ -383,6 +383,7 @@ fn lossless_run_counts_the_window_rejections_it_took() {
     let mut sink = VecSink {
         frames: Vec::new(),
         room: 100,
+        batch: 1,
     };
     let run = e
         .push_run(&points, rule, |p: &(u32, u16)| *p, &mut sink)
