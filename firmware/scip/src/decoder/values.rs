@@ -36,16 +36,17 @@ impl Decoder {
         Some(self.data_event())
     }
 
-    /// True where the decoder takes the paths of 32-bit targets (the line copy that
-    /// checks and sums): there, and in tests and fuzzing for a decoder made by
-    /// [`Decoder::m4_paths`].
+    /// True where a 64-bit host takes the paths of 32-bit targets (the line copy that
+    /// checks and sums): in tests and fuzzing, for a decoder made by
+    /// [`Decoder::m4_paths`]. (32-bit targets take those paths without asking.)
+    #[cfg(not(target_pointer_width = "32"))]
     #[inline(always)]
     pub(super) fn on_m4_paths(&self) -> bool {
         #[cfg(any(test, fuzzing))]
         if self.m4 {
             return true;
         }
-        cfg!(target_pointer_width = "32")
+        false
     }
 
     /// The readings of the data line just decoded, as an event.
