@@ -169,6 +169,8 @@ pub struct Pipeline {
 /// The runs [`Pipeline::pass_run`] takes with a configuration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum DirectRuns {
+    /// Every run, and no stage is on ([`PipelineConfig::is_passthrough`]).
+    Passthrough,
     /// None: a filter or decimation works on every point.
     Never,
     /// Runs without intensities: an intensity threshold is the only other stage on.
@@ -181,7 +183,7 @@ impl DirectRuns {
     /// The runs `config` lets [`Pipeline::pass_run`] take.
     fn of(config: &PipelineConfig) -> DirectRuns {
         if config.is_passthrough() {
-            return DirectRuns::Always;
+            return DirectRuns::Passthrough;
         }
         if config.speckle.is_some()
             || config.median.is_some()
@@ -407,7 +409,7 @@ impl Pipeline {
     #[inline]
     pub fn pass_run(&mut self, first_step: u16, n: usize, intensity: bool) -> Option<DirectRun> {
         let direct = match self.direct {
-            DirectRuns::Always => true,
+            DirectRuns::Always | DirectRuns::Passthrough => true,
             DirectRuns::WithoutIntensity => !intensity,
             DirectRuns::Never => false,
         };
@@ -505,19 +507,25 @@ impl Pipeline {
         out_none: u32,
     ) -> Option<usize> {
         let n = input.len();
-        if self.config.is_passthrough() || cells.len() < n.saturating_add(LINE_HEADROOM) {
+        // (The settings' direct runs say whether every stage is off: one test.)
+        if self.direct == DirectRuns::Passthrough || cells.len() < n.saturating_add(LINE_HEADROOM) {
             return None;
         }
         let cluster = self.take_run(first_step, n)?.cluster;
-        let (lo, hi) = self.roi_slice(first_step, n, cluster);
-        let input = input.get(lo..hi).unwrap_or_default();
+        let (lo, input) = if self.config.roi.is_some() {
+            let (lo, hi) = self.roi_slice(first_step, n, cluster);
+            let input = input.get(lo..hi).unwrap_or_default();
+            // The slice is at most the run.
+            add(
+                &mut self.stats.points_outside_roi,
+                n.wrapping_sub(input.len()),
+            );
+            (lo, input)
+        } else {
+            (0, input)
+        };
         let buf = cells;
-        // The slice is at most the run.
         add(&mut self.stats.points_in, n);
-        add(
-            &mut self.stats.points_outside_roi,
-            n.wrapping_sub(input.len()),
-        );
         let Some(last) = input.len().checked_sub(1) else {
             return Some(0);
         };
@@ -663,13 +671,17 @@ impl Pipeline {
     /// Adds a loop's counts to the counters; returns its number of output points.
     fn commit(&mut self, c: &Counts) -> usize {
         let st = &mut self.stats;
-        add(&mut st.invalid_error_code, c.error_code);
-        add(&mut st.invalid_out_of_range, c.out_of_range);
-        add(&mut st.invalid_low_intensity, c.low_intensity);
-        add(&mut st.invalid_speckle, c.speckle);
+        // The four rejection counts are 0 on most lines: one test for them.
+        if (c.error_code | c.out_of_range | c.low_intensity | c.speckle) != 0 {
+            add(&mut st.invalid_error_code, c.error_code);
+            add(&mut st.invalid_out_of_range, c.out_of_range);
+            add(&mut st.invalid_low_intensity, c.low_intensity);
+            add(&mut st.invalid_speckle, c.speckle);
+            self.filtered |= c.out_of_range > 0 || c.low_intensity > 0 || c.speckle > 0;
+        }
         add(&mut st.points_out, c.emitted);
         add(&mut st.points_out_invalid, c.invalid_out);
-        self.filtered |= c.filtered || c.out_of_range > 0 || c.low_intensity > 0 || c.speckle > 0;
+        self.filtered |= c.filtered;
         if let Open::Active(scan) = &mut self.open {
             scan.emitted = scan.emitted.saturating_add(c.emitted);
         }
