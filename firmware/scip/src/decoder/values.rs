@@ -290,14 +290,14 @@ impl Decoder {
         // column) is decoded a whole step at a time. Anything else goes char by char.
         #[cfg(any(test, fuzzing))]
         let all_valid = all_valid && !self.char_by_char;
-        if !self.shape.multi_echo && all_valid {
-            match (self.shape.dist_width, self.shape.aux_width) {
-                (3, 0) => return self.decode_steps::<3, 0>(input, n),
-                (2, 0) => return self.decode_steps::<2, 0>(input, n),
-                (3, 3) => return self.decode_steps::<3, 3>(input, n),
-                (3, 2) => return self.decode_steps::<3, 2>(input, n),
-                (3, 4) => return self.decode_steps::<3, 4>(input, n),
-                _ => {}
+        if all_valid {
+            match self.shape.steps {
+                Steps::D3 => return self.decode_steps::<3, 0>(input, n),
+                Steps::D2 => return self.decode_steps::<2, 0>(input, n),
+                Steps::D3A3 => return self.decode_steps::<3, 3>(input, n),
+                Steps::D3A2 => return self.decode_steps::<3, 2>(input, n),
+                Steps::D3A4 => return self.decode_steps::<3, 4>(input, n),
+                Steps::Chars => {}
             }
         }
         self.decode_chars_from(input, n)
