@@ -106,7 +106,9 @@ impl Decoder {
             match lf {
                 Some(usize::MAX) => break None,
                 Some(i) => break Some(i),
-                None => at = at.wrapping_add(next.len().min(4)),
+                // The input's last bytes (a chunk's end): done, without another round.
+                None if next.len() <= 4 => break None,
+                None => at = at.wrapping_add(4),
             }
         };
         (self.len, self.sum, self.bad) = (len, sum, bad);
