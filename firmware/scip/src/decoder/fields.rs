@@ -71,14 +71,12 @@ impl Decoder {
         if scan.mode == ScanMode::Continuous && status == Status::OK {
             return Payload::None;
         }
-        let (dist_width, aux_width) = (scan.data.distance_width(), scan.data.aux_width());
         self.shape = Shape {
             data: scan.data,
-            dist_width,
-            aux_width,
+            dist_width: scan.data.distance_width(),
+            aux_width: scan.data.aux_width(),
             multi_echo: scan.multi_echo,
             expected: scan.value_count(),
-            steps: Steps::of(dist_width, aux_width, scan.multi_echo),
         };
         self.want = self.shape.dist_width;
         Payload::ScanTimestamp

@@ -196,35 +196,6 @@ struct Shape {
     aux_width: u8,
     multi_echo: bool,
     expected: u16,
-    /// The whole-step decoder of a line of valid value chars, chosen once per scan.
-    steps: Steps,
-}
-
-/// Which whole-step decoder (`decode_steps::<D, A>`) a data line of valid value chars
-/// takes: `D`-char distances and `A`-char second values. `Chars`: none (multi-echo data,
-/// or widths without one), char by char.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Steps {
-    Chars,
-    D3,
-    D2,
-    D3A3,
-    D3A2,
-    D3A4,
-}
-
-impl Steps {
-    /// The decoder for these widths.
-    const fn of(dist_width: u8, aux_width: u8, multi_echo: bool) -> Self {
-        match (multi_echo, dist_width, aux_width) {
-            (false, 3, 0) => Steps::D3,
-            (false, 2, 0) => Steps::D2,
-            (false, 3, 3) => Steps::D3A3,
-            (false, 3, 2) => Steps::D3A2,
-            (false, 3, 4) => Steps::D3A4,
-            _ => Steps::Chars,
-        }
-    }
 }
 
 /// The streaming SCIP 2.x response decoder. About 560 bytes of RAM; no allocation.
@@ -319,7 +290,6 @@ impl Decoder {
                 aux_width: 0,
                 multi_echo: false,
                 expected: 0,
-                steps: Steps::D3,
             },
             timestamp: None,
             carry: 0,

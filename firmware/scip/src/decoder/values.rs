@@ -290,15 +290,15 @@ impl Decoder {
         // column) is decoded a whole step at a time. Anything else goes char by char.
         #[cfg(any(test, fuzzing))]
         let all_valid = all_valid && !self.char_by_char;
-        if all_valid {
-            match self.shape.steps {
-                Steps::D3 => return self.decode_steps::<3, 0>(input, n),
-                Steps::D2 => return self.decode_steps::<2, 0>(input, n),
-                Steps::D3A3 => return self.decode_steps::<3, 3>(input, n),
-                Steps::D3A2 => return self.decode_steps::<3, 2>(input, n),
-                Steps::D3A4 => return self.decode_steps::<3, 4>(input, n),
-                Steps::Chars => {}
-            }
+        if !self.shape.multi_echo && all_valid {
+            // The data set fixes the widths (see `begin_scan`): one dispatch on it.
+            return match self.shape.data {
+                DataSet::Distance => self.decode_steps::<3, 0>(input, n),
+                DataSet::ShortDistance => self.decode_steps::<2, 0>(input, n),
+                DataSet::DistanceIntensity => self.decode_steps::<3, 3>(input, n),
+                DataSet::DistanceReflectance => self.decode_steps::<3, 2>(input, n),
+                DataSet::DistanceAux => self.decode_steps::<3, 4>(input, n),
+            };
         }
         self.decode_chars_from(input, n)
     }
