@@ -66,23 +66,25 @@ impl Decoder {
             (self.sum, self.bad) = (0, 0);
         }
         let (mut len, mut sum, mut bad) = (self.len, self.sum, self.bad);
-        let mut at = 0;
+        // What is left of `bytes`: a tail of it, so `bytes.len() - rest.len()` is
+        // where it starts (no wrap).
+        let mut rest = bytes;
         let found = loop {
             // Whole words of value chars, as many as the input and the buffer have.
-            let input = bytes.get(at..).unwrap_or(&[]);
             let room = self.buf.get_mut(len..).unwrap_or(&mut []);
-            let (taken, add) = copy_value_words(input, room);
+            let (taken, add) = copy_value_words(rest, room);
             sum = sum.wrapping_add(add);
-            // `len` stays within the line buffer and `at` within `bytes` (`taken` fits
-            // both), so neither index wraps; nor does any `at + i` below.
+            // `len` stays within the line buffer (`taken` fits it): no wrap.
             len = len.wrapping_add(taken);
-            at = at.wrapping_add(taken);
             // Then up to four bytes one at a time.
-            let Some(next) = bytes.get(at..).filter(|r| !r.is_empty()) else {
+            let next = rest.get(taken..).unwrap_or(&[]);
+            if next.is_empty() {
                 break None;
-            };
+            }
+            let at = bytes.len().wrapping_sub(next.len());
             let mut lf = None;
             for (i, &b) in next.iter().take(4).enumerate() {
+                // Indices within `bytes`: no wrap.
                 if b == b'\n' {
                     lf = Some(at.wrapping_add(i));
                     break;
@@ -106,7 +108,11 @@ impl Decoder {
             match lf {
                 Some(usize::MAX) => break None,
                 Some(i) => break Some(i),
-                None => at = at.wrapping_add(next.len().min(4)),
+                // The input's last bytes (a chunk's end): done, without another round.
+                None => match next.get(4..) {
+                    Some(more) if !more.is_empty() => rest = more,
+                    _ => break None,
+                },
             }
         };
         (self.len, self.sum, self.bad) = (len, sum, bad);

@@ -291,14 +291,14 @@ impl Decoder {
         #[cfg(any(test, fuzzing))]
         let all_valid = all_valid && !self.char_by_char;
         if !self.shape.multi_echo && all_valid {
-            match (self.shape.dist_width, self.shape.aux_width) {
-                (3, 0) => return self.decode_steps::<3, 0>(input, n),
-                (2, 0) => return self.decode_steps::<2, 0>(input, n),
-                (3, 3) => return self.decode_steps::<3, 3>(input, n),
-                (3, 2) => return self.decode_steps::<3, 2>(input, n),
-                (3, 4) => return self.decode_steps::<3, 4>(input, n),
-                _ => {}
-            }
+            // The data set fixes the widths (see `begin_scan`): one dispatch on it.
+            return match self.shape.data {
+                DataSet::Distance => self.decode_steps::<3, 0>(input, n),
+                DataSet::ShortDistance => self.decode_steps::<2, 0>(input, n),
+                DataSet::DistanceIntensity => self.decode_steps::<3, 3>(input, n),
+                DataSet::DistanceReflectance => self.decode_steps::<3, 2>(input, n),
+                DataSet::DistanceAux => self.decode_steps::<3, 4>(input, n),
+            };
         }
         self.decode_chars_from(input, n)
     }
