@@ -174,7 +174,7 @@ impl Writer {
     /// Sends the full frames gathered, if any: on classic CAN they wait for this (or
     /// for the segment's end, or for [`CLASSIC_BATCH_LEN`] bytes), so that they go
     /// into slots taken a batch at a time. Call it where a frame the sink had no slot
-    /// for should be known ([`Out::lost`]): the stream calls it after each block.
+    /// for should be known ([`Out::lost`]): the stream calls it at the end of each run.
     #[inline(always)]
     pub fn flush<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
         if self.len >= self.full {
@@ -408,8 +408,8 @@ impl Writer {
     }
 
     /// The first `n` bytes (at most 4) of `word`, little endian, into the frame; the
-    /// frames they fill are cut (the bytes past `n` are zeros of the buffer's room, as
-    /// are a frame's bytes past its length). Once or twice per segment: not inlined.
+    /// frames they fill are cut (the word's bytes past `n` land past the frame's length,
+    /// where no frame takes them). Twice per segment: not inlined.
     #[inline(never)]
     fn tail<S: FrameSink + ?Sized>(&mut self, word: u32, n: usize, out: &mut Out<'_, S>) {
         // `len < limit <= MAX_LEN` here: the word fits in the buffer's room.
