@@ -13,7 +13,12 @@ pub const SEGMENT_START: u8 = 0x80;
 pub const COUNTER_MASK: u8 = 0x7F;
 
 /// Stream bytes of a full classic data frame (its framing byte not counted).
-const CLASSIC_STREAM_BYTES: u32 = CLASSIC_LEN as u32 - 1;
+const CLASSIC_STREAM_BYTES: usize = CLASSIC_LEN - 1;
+
+/// On classic CAN the writer gathers up to this many bytes (the first frame's framing
+/// byte and eight frames' stream bytes) before it must cut frames: whole frames are cut
+/// a batch at a time, into slots the sink hands out a batch at a time.
+const CLASSIC_BATCH_LEN: usize = 1 + 8 * CLASSIC_STREAM_BYTES;
 
 /// Where the frames of a scan go, and what happened to them.
 pub struct Out<'a, S: ?Sized> {
@@ -58,10 +63,13 @@ pub struct Writer {
     /// for a word past the longest frame).
     buf: [u8; MAX_LEN + 4],
     len: usize,
-    /// Bytes of `buf` from `crc_from` on are not in the segment's CRC yet.
-    crc_from: usize,
     /// Length of a full frame.
     full: usize,
+    /// The length at which a word cuts the full frames gathered: a full frame's on CAN
+    /// FD, [`CLASSIC_BATCH_LEN`] on classic CAN (whose whole frames wait for
+    /// [`Writer::flush`], the segment's end or this length; set at the segment's start,
+    /// where the writer learns the frame format).
+    limit: usize,
     /// Counter of the next data frame of the scan.
     counter: u8,
     /// The open segment's CRC.
@@ -74,13 +82,14 @@ impl Writer {
     /// A writer for a scan whose full data frames are `full` bytes long (8 on classic
     /// CAN; 9..=64 would be accepted, the CAN FD lengths are the sensible ones).
     pub fn new(full: usize) -> Writer {
+        let full = full.clamp(2, MAX_LEN);
         Writer {
             acc: 0,
             nbits: 0,
             buf: [0; MAX_LEN + 4],
             len: 1,
-            crc_from: 1,
-            full: full.clamp(2, MAX_LEN),
+            full,
+            limit: full,
             counter: 0,
             crc: ScanCrc::start(),
             bytes: 0,
@@ -107,6 +116,12 @@ impl Writer {
         if let Some(b) = self.buf.first_mut() {
             *b = SEGMENT_START | (self.counter & COUNTER_MASK);
         }
+        // Classic frames wait to be cut a batch at a time (the frame is empty here).
+        self.limit = if self.full == CLASSIC_LEN && !out.fd {
+            CLASSIC_BATCH_LEN
+        } else {
+            self.full
+        };
         self.crc = ScanCrc::start();
         let fields = u32::from(seq_low & 0xF) | u32::from(segment & 0x1F) << 4;
         self.put(fields, SEGMENT_HEADER_BITS, out);
@@ -138,8 +153,8 @@ impl Writer {
     /// [`Writer::word`], inlined where its call would cost most: the Rice code loop.
     #[inline(always)]
     fn word_inline<S: FrameSink + ?Sized>(&mut self, word: u32, out: &mut Out<'_, S>) {
-        // `len < full <= MAX_LEN` between calls, and the buffer has 4 bytes of room
-        // past `MAX_LEN`: the word always fits (bytes past `full` go to the next frame).
+        // `len < limit <= MAX_LEN` between calls, and the buffer has 4 bytes of room
+        // past `MAX_LEN`: the word always fits (bytes past `limit` are cut with it).
         let at = self.len;
         let end = at.wrapping_add(4);
         if let Some(dst) = self.buf.get_mut(at..end) {
@@ -151,36 +166,97 @@ impl Writer {
         self.crc.code(word as u16);
         self.crc.code((word >> 16) as u16);
         self.len = end;
-        self.crc_from = end;
-        if end >= self.full {
+        if end >= self.limit {
             self.cut(out);
         }
     }
 
-    /// Sends full frames while the buffer holds at least one (the bytes past a full
-    /// frame, at most 3, begin the next one).
+    /// Sends the full frames gathered, if any: on classic CAN they wait for this (or
+    /// for the segment's end, or for [`CLASSIC_BATCH_LEN`] bytes), so that they go
+    /// into slots taken a batch at a time. Call it where a frame the sink had no slot
+    /// for should be known ([`Out::lost`]): the stream calls it at the end of each run.
+    #[inline(always)]
+    pub fn flush<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+        if self.len >= self.full {
+            self.cut(out);
+        }
+    }
+
+    /// Sends the full frames gathered (the bytes past the last, fewer than a frame's
+    /// stream bytes, begin the next one). Every byte up to `len` is in the segment's
+    /// CRC already (`word`, `end_segment`).
     #[inline(never)]
     fn cut<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
-        while self.len >= self.full {
-            let full = self.full;
-            // At most 3 bytes past `full`, all within the buffer's room.
-            let rest = self.len.wrapping_sub(full);
-            let mut next = [0u8; 4];
-            if let Some(src) = self.buf.get(full..full.wrapping_add(4)) {
-                next.copy_from_slice(src);
+        if self.limit != self.full {
+            self.cut_classic(out);
+            return;
+        }
+        // Longer frames are cut as they fill (`limit == full`): one frame, and at most
+        // 3 bytes past it, which begin the next one.
+        let full = self.full;
+        let rest = self.len.wrapping_sub(full);
+        let mut next = [0u8; 4];
+        if let Some(src) = self.buf.get(full..full.wrapping_add(4)) {
+            next.copy_from_slice(src);
+        }
+        self.len = full;
+        self.emit(out);
+        if let Some(dst) = self.buf.get_mut(1..5) {
+            dst.copy_from_slice(&next);
+        }
+        self.len = rest.wrapping_add(1);
+    }
+
+    /// [`Writer::cut`] on classic CAN: each full frame written into its slot as two
+    /// words (none of `emit`'s length cases), into slots the sink hands out a batch at
+    /// a time. Frame `j`'s stream bytes are `buf[1 + 7j..8 + 7j]`, its framing byte
+    /// `buf[0]` for the first (a segment's start, perhaps), the counter for the others.
+    fn cut_classic<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
+        // `len <= CLASSIC_BATCH_LEN + 3`: at most 8 frames, no wrap anywhere below.
+        let whole = self.len.wrapping_sub(1) / CLASSIC_STREAM_BYTES;
+        let shape = Frame::classic_shape(CLASSIC_LEN);
+        let mut framing = self.buf.first().copied().unwrap_or(0);
+        let mut at = 0usize; // the frame's first byte: its framing byte's place
+        let mut left = whole;
+        while left > 0 {
+            let slots = out.sink.data_slots(left);
+            if slots.is_empty() {
+                // No room: the frames are lost, and the scan goes on as if they had
+                // been sent.
+                out.lost = out.lost.wrapping_add(left as u32);
+                self.counter = self.counter.wrapping_add(left as u8);
+                break;
             }
-            // Every byte up to `len` is in the segment's CRC already (`word`).
-            self.len = full;
-            if full == CLASSIC_LEN && !out.fd {
-                self.emit_classic(out);
-            } else {
-                self.emit(out);
+            let given = slots.len().min(left);
+            for frame in slots.iter_mut().take(given) {
+                let end = at.wrapping_add(CLASSIC_LEN);
+                if let Some(head) = self.buf.get(at..end).and_then(|b| b.first_chunk()) {
+                    let mut head: [u8; CLASSIC_LEN] = *head;
+                    head[0] = framing;
+                    frame.set_classic_as(out.id, head, shape);
+                }
+                self.counter = self.counter.wrapping_add(1);
+                framing = self.counter & COUNTER_MASK;
+                at = at.wrapping_add(CLASSIC_STREAM_BYTES);
             }
-            if let Some(dst) = self.buf.get_mut(1..5) {
-                dst.copy_from_slice(&next);
-            }
-            self.len = rest.wrapping_add(1);
-            self.crc_from = self.len;
+            out.frames = out.frames.wrapping_add(given as u32);
+            left = left.wrapping_sub(given);
+        }
+        let cut = whole.wrapping_mul(CLASSIC_STREAM_BYTES);
+        self.bytes = self.bytes.wrapping_add(cut as u32);
+        // The bytes past the frames (fewer than a frame's) after the framing byte, moved
+        // as two words: `cut + 9 <= 65`, within the buffer.
+        let next = self
+            .buf
+            .get(cut.wrapping_add(1)..)
+            .and_then(|b| b.first_chunk::<8>())
+            .copied();
+        if let (Some(next), Some(dst)) = (next, self.buf.get_mut(1..9)) {
+            dst.copy_from_slice(&next);
+        }
+        self.len = self.len.wrapping_sub(cut);
+        if let Some(b) = self.buf.first_mut() {
+            *b = self.counter & COUNTER_MASK;
         }
     }
 
@@ -312,64 +388,38 @@ impl Writer {
     /// endian), and its last frame sent at the shortest length that holds it. Returns
     /// the segment's CRC.
     pub fn end_segment<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) -> u16 {
-        let whole = self.nbits.div_ceil(8);
-        let word = self.acc.to_le_bytes();
-        for &b in word.iter().take(whole as usize) {
-            self.byte(b, out);
-        }
+        // The last bits with zeros to whole bytes (at most 4), then the CRC (2 bytes):
+        // each as a word into the frame, which has room for one past `limit`.
+        let whole = self.nbits.div_ceil(8) as usize;
+        let last = self.acc;
         self.acc = 0;
         self.nbits = 0;
-        self.crc_pending();
-        let crc = self.crc.value().to_le_bytes();
-        for b in crc {
-            self.byte(b, out);
-        }
-        // The CRC bytes are not part of what it covers.
-        self.crc_from = self.len;
+        // The segment's CRC covers the last bytes, not its own.
+        let bytes = last.to_le_bytes();
+        self.crc.bytes(bytes.get(..whole).unwrap_or(&bytes));
+        self.tail(last, whole, out);
+        let crc = self.crc.value();
+        self.tail(u32::from(crc), 2, out);
+        self.flush(out);
         if self.len > 1 {
             self.emit(out);
         }
-        u16::from_le_bytes(crc)
+        crc
     }
 
-    /// The frame's bytes not yet in the segment's CRC, into it.
-    #[inline(always)]
-    fn crc_pending(&mut self) {
-        if let Some(bytes) = self.buf.get(self.crc_from..self.len) {
-            self.crc.bytes(bytes);
-        }
-        self.crc_from = self.len;
-    }
-
+    /// The first `n` bytes (at most 4) of `word`, little endian, into the frame; the
+    /// frames they fill are cut (the word's bytes past `n` land past the frame's length,
+    /// where no frame takes them). Twice per segment: not inlined.
     #[inline(never)]
-    fn byte<S: FrameSink + ?Sized>(&mut self, b: u8, out: &mut Out<'_, S>) {
-        if let Some(slot) = self.buf.get_mut(self.len) {
-            *slot = b;
+    fn tail<S: FrameSink + ?Sized>(&mut self, word: u32, n: usize, out: &mut Out<'_, S>) {
+        // `len < limit <= MAX_LEN` here: the word fits in the buffer's room.
+        let at = self.len;
+        if let Some(dst) = self.buf.get_mut(at..at.wrapping_add(4)) {
+            dst.copy_from_slice(&word.to_le_bytes());
         }
-        self.len = self.len.wrapping_add(1);
-        if self.len >= self.full {
-            self.crc_pending();
-            self.emit(out);
-        }
-    }
-
-    /// [`Writer::emit`] of a full classic frame (8 bytes, the most frequent): the frame
-    /// written into its slot as two words, none of `emit`'s length cases.
-    #[inline(always)]
-    fn emit_classic<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
-        match out.sink.data_slot() {
-            Some(frame) => {
-                if let Some(head) = self.buf.first_chunk::<CLASSIC_LEN>() {
-                    frame.set_classic(out.id, *head, CLASSIC_LEN);
-                }
-                out.frames = out.frames.wrapping_add(1);
-            }
-            None => out.lost = out.lost.wrapping_add(1),
-        }
-        self.bytes = self.bytes.wrapping_add(CLASSIC_STREAM_BYTES);
-        self.counter = self.counter.wrapping_add(1);
-        if let Some(b) = self.buf.first_mut() {
-            *b = self.counter & COUNTER_MASK;
+        self.len = at.wrapping_add(n.min(4));
+        if self.len >= self.limit {
+            self.cut(out);
         }
     }
 
@@ -400,7 +450,6 @@ impl Writer {
         self.bytes = self.bytes.wrapping_add(self.len.saturating_sub(1) as u32);
         self.counter = self.counter.wrapping_add(1);
         self.len = 1;
-        self.crc_from = 1;
         if let Some(b) = self.buf.first_mut() {
             *b = self.counter & COUNTER_MASK;
         }

@@ -185,6 +185,132 @@ mod tests {
         round_trip(&d[..129], None, 12);
     }
 
+    /// A sink with room for `room` frames that hands out at most `batch` slots per
+    /// request, each holding a stale
+    /// CAN FD frame (as a queue's reused slot), and records the requests.
+    struct Batches {
+        frames: Frames,
+        room: usize,
+        batch: usize,
+        single: usize,
+        asked: std::vec::Vec<usize>,
+    }
+
+    impl crate::encoder::FrameSink for Batches {
+        fn data_slot(&mut self) -> Option<&mut Frame> {
+            self.single += 1;
+            if self.frames.len() >= self.room {
+                return None;
+            }
+            self.frames
+                .push(Frame::new(Frame::default().id(), &[0xEE; 64], true).unwrap());
+            self.frames.last_mut()
+        }
+
+        fn data_slots(&mut self, n: usize) -> &mut [Frame] {
+            self.asked.push(n);
+            let from = self.frames.len();
+            let stale = Frame::new(Frame::default().id(), &[0xEE; 64], true).unwrap();
+            let k = n.min(self.batch).min(self.room.saturating_sub(from));
+            self.frames.resize(from + k, stale);
+            &mut self.frames[from..]
+        }
+    }
+
+    /// On classic CAN a scan's full data frames go into slots asked for a batch at a
+    /// time (only a segment's last, shorter frame takes a slot of its own), in runs of
+    /// a data line's points, and they are the frames SPEC 4.2 describes: counted in
+    /// order, 8 bytes but a segment's last, no stale byte, every point decoded back.
+    #[test]
+    fn classic_frames_take_their_slots_in_batches() {
+        let d: std::vec::Vec<u32> = (0..682).map(|k| 128 + 1000 + (k * 37 % 301)).collect();
+        let mut sink = Batches {
+            frames: Frames::new(),
+            room: usize::MAX,
+            batch: 3,
+            single: 0,
+            asked: vec![],
+        };
+        let id = IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data);
+        let mut out = Out::new(&mut sink, id, false);
+        let mut s = ScanStream::new(0x1234, d.len() as u16, false, 8, &[0; 8], &[0; 8]);
+        let misses = core::cell::Cell::new(0);
+        for line in d.chunks(21) {
+            let (taken, _) = s.push_run(line, |&v: &u32| (v, 0), &misses, &mut out);
+            assert_eq!(taken, line.len());
+        }
+        assert_eq!((out.lost, s.sent() as usize), (0, d.len()));
+        let frames = out.frames as usize;
+        let segments = super::super::segments(d.len());
+        assert_eq!(sink.frames.len(), frames);
+        assert!(sink.single <= segments, "{} single slots", sink.single);
+        assert!(sink.asked.iter().any(|&n| n >= 2), "asked {:?}", sink.asked);
+        let mut segs: std::vec::Vec<std::vec::Vec<u8>> = vec![];
+        for (n, f) in sink.frames.iter().enumerate() {
+            let b = f.data();
+            assert!(!f.is_fd());
+            assert_eq!(b[0] & 0x7F, (n % 128) as u8, "frame counter");
+            if b[0] & 0x80 != 0 {
+                segs.push(vec![]);
+            }
+            let last = sink
+                .frames
+                .get(n + 1)
+                .is_none_or(|g| g.data()[0] & 0x80 != 0);
+            assert!(last || f.len() == 8, "only a segment's last frame is short");
+            segs.last_mut().unwrap().extend_from_slice(&b[1..]);
+        }
+        assert_eq!(segs.len(), segments);
+        for (k, seg) in segs.iter().enumerate() {
+            let (mut dd, mut ii) = ([0; SEGMENT_POINTS], [0; SEGMENT_POINTS]);
+            let whole = decode(seg, d.len() as u16, false, &mut dd, &mut ii).unwrap();
+            assert_eq!(whole.used, seg.len(), "segment {k}: no byte after its CRC");
+            let first = k * SEGMENT_POINTS;
+            assert_eq!(&dd[..whole.points], &d[first..first + whole.points]);
+        }
+    }
+
+    /// A batch of classic frames the sink has no room for is lost whole and counted,
+    /// the run stops, and the frames that did get a slot are the scan's first ones.
+    #[test]
+    fn classic_frames_without_a_slot_are_counted_and_stop_the_run() {
+        let d: std::vec::Vec<u32> = (0..300).map(|k| 128 + 1000 + (k * 37 % 301)).collect();
+        let id = IdWindow::DEFAULT.node(0).unwrap().id(Kind::Data);
+        let code = |&v: &u32| (v, 0);
+        let misses = core::cell::Cell::new(0);
+        let mut all = Frames::new();
+        let mut out = Out::new(&mut all, id, false);
+        let mut s = ScanStream::new(7, d.len() as u16, false, 8, &[0; 8], &[0; 8]);
+        for line in d.chunks(21) {
+            s.push_run(line, code, &misses, &mut out);
+        }
+        // Room for 10 frames, handed out 4 at a time: the run that needs the 11th stops
+        // there, with every frame it had due and no slot for counted as lost.
+        let mut sink = Batches {
+            frames: Frames::new(),
+            room: 10,
+            batch: 4,
+            single: 0,
+            asked: vec![],
+        };
+        let mut out = Out::new(&mut sink, id, false);
+        let mut s = ScanStream::new(7, d.len() as u16, false, 8, &[0; 8], &[0; 8]);
+        let mut stopped = None;
+        for (n, line) in d.chunks(21).enumerate() {
+            let (taken, _) = s.push_run(line, code, &misses, &mut out);
+            if out.lost > 0 {
+                stopped = Some((n, taken));
+                break;
+            }
+            assert_eq!(taken, line.len());
+        }
+        let (n, taken) = stopped.expect("a run ran out of slots");
+        assert!(taken <= 21 && n > 0);
+        assert_eq!(out.frames, 10);
+        assert!(out.lost >= 1);
+        assert_eq!(&sink.frames[..], &all[..10]);
+    }
+
     #[test]
     fn reserved_codes_and_bad_crc_are_corrupt() {
         let mut sink = Frames::new();

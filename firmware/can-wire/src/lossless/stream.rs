@@ -211,6 +211,9 @@ impl ScanStream {
                 }
             }
         }
+        // The run's full frames (classic CAN gathers them): every frame due is in the
+        // sink when the run returns.
+        self.w.flush(out);
         let missed = misses.get().wrapping_sub(base);
         self.nonrange = self.nonrange.wrapping_add(missed as u16);
         (taken, missed as usize)
