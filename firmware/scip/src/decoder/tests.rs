@@ -294,13 +294,23 @@ fn scan(data: DataSet, n: u16) -> (Vec<u8>, Vec<(u32, u32)>) {
 }
 
 /// Every event of `stream` fed in `chunk`-byte pieces, as text, and every reading.
-fn decode(mut dec: Decoder, stream: &[u8], chunk: usize) -> (Vec<String>, Vec<Reading>) {
+fn decode(dec: Decoder, stream: &[u8], chunk: usize) -> (Vec<String>, Vec<Reading>) {
+    decode_pieces(dec, stream.chunks(chunk))
+}
+
+/// Every event of the stream fed to `dec` as `pieces`, as text, and every reading;
+/// each call of `feed` takes bytes or gives an event.
+fn decode_pieces<'a>(
+    mut dec: Decoder,
+    pieces: impl IntoIterator<Item = &'a [u8]>,
+) -> (Vec<String>, Vec<Reading>) {
     let mut log = Vec::new();
     let mut readings = Vec::new();
-    for piece in stream.chunks(chunk) {
+    for piece in pieces {
         let mut rest = piece;
         while !rest.is_empty() {
             let (used, ev) = dec.feed(rest);
+            assert!(used > 0 || ev.is_some(), "no progress");
             rest = &rest[used..];
             if let Some(ev) = ev {
                 if let Event::Data(line) = &ev {
@@ -343,28 +353,7 @@ fn assert_same(stream: &[u8]) -> Vec<String> {
 
 /// Every event of `stream` fed to `dec` in two pieces, split at `at`.
 fn decode_split(dec: Decoder, stream: &[u8], at: usize) -> (Vec<String>, Vec<Reading>) {
-    let (log_a, mut readings) = (Vec::new(), Vec::new());
-    let mut log = log_a;
-    let mut dec = dec;
-    for piece in [&stream[..at], &stream[at..]] {
-        let mut rest = piece;
-        while !rest.is_empty() {
-            let (used, ev) = dec.feed(rest);
-            assert!(used > 0 || ev.is_some(), "no progress at {at}");
-            rest = &rest[used..];
-            if let Some(ev) = ev {
-                if let Event::Data(line) = &ev {
-                    readings.extend_from_slice(line.readings);
-                }
-                log.push(format!("{ev:?}"));
-            }
-        }
-    }
-    if let Some(ev) = dec.finish() {
-        log.push(format!("{ev:?}"));
-    }
-    log.push(format!("{:?}", dec.stats()));
-    (log, readings)
+    decode_pieces(dec, [&stream[..at], &stream[at..]])
 }
 
 /// The paths of 32-bit targets (the line copy that checks and sums), with the stream
