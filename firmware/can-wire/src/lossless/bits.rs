@@ -66,7 +66,7 @@ pub struct Writer {
     /// Length of a full frame.
     full: usize,
     /// The length at which a word cuts the full frames gathered: a full frame's on CAN
-    /// FD, [`CLASSIC_BATCH_LEN`] on classic CAN (whose whole frames wait for
+    /// FD, `CLASSIC_BATCH_LEN` (eight frames) on classic CAN (whose whole frames wait for
     /// [`Writer::flush`], the segment's end or this length; set at the segment's start,
     /// where the writer learns the frame format).
     limit: usize,
@@ -172,8 +172,8 @@ impl Writer {
     }
 
     /// Sends the full frames gathered, if any: on classic CAN they wait for this (or
-    /// for the segment's end, or for [`CLASSIC_BATCH_LEN`] bytes), so that they go
-    /// into slots taken a batch at a time. Call it where a frame the sink had no slot
+    /// for the segment's end, or for eight frames' bytes, `CLASSIC_BATCH_LEN`), so that
+    /// they go into slots taken a batch at a time. Call it where a frame the sink had no slot
     /// for should be known ([`Out::lost`]): the stream calls it at the end of each run.
     #[inline(always)]
     pub fn flush<S: FrameSink + ?Sized>(&mut self, out: &mut Out<'_, S>) {
