@@ -81,8 +81,9 @@ impl BenchEncoding {
     }
 }
 
-/// Bytes per `on_uart` call, as in the firmware.
-pub const CHUNK: usize = 64;
+/// Bytes per `on_uart` call, as in the bench firmware: what the STM32 boards read from
+/// their UART's DMA ring per call at the streaming rate (board-common's `UART_CHUNK`).
+pub const CHUNK: usize = 128;
 
 /// The byte that ends the stream for the firmware (never part of SCIP).
 pub const EOT: u8 = 0x04;

@@ -49,7 +49,11 @@ fn fnv(mut h: u32, bytes: &[u8]) -> u32 {
     h
 }
 
-/// The stream through the core as the bench firmware feeds it: 64-byte calls at the
+/// Bytes per `on_uart` call in the bench firmware: the STM32 boards' UART read size
+/// (board-common's `UART_CHUNK`), written out here again so the bench's is checked too.
+const BOARD_CHUNK: usize = 128;
+
+/// The stream through the core as the bench firmware feeds it: [`BOARD_CHUNK`]-byte calls at the
 /// time the chunk's last byte arrives at 10 bits per byte, frames popped after each.
 /// Returns the frame count and hash.
 fn replay(stream: &[u8]) -> (u64, u32) {
@@ -57,7 +61,7 @@ fn replay(stream: &[u8]) -> (u64, u32) {
         Bridge::new(qemu_config::bridge().unwrap()).unwrap();
     let (mut frames, mut hash) = (0u64, 0x811C_9DC5u32);
     let mut pos = 0u64;
-    for chunk in stream.chunks(64) {
+    for chunk in stream.chunks(BOARD_CHUNK) {
         pos += chunk.len() as u64;
         core.on_uart(chunk, pos * 10_000 / u64::from(qemu_config::BAUD));
         while let Some(f) = core.pop_frame() {
@@ -89,7 +93,7 @@ fn firmware_matches_the_host_core_and_repeats(model: ModelKind, scans: usize) {
     );
     assert_eq!((m.host.frames, m.host.hash.0), (frames, hash));
     assert_eq!(fw.bytes, s.len() as u64);
-    assert_eq!(fw.chunks, s.len().div_ceil(64) as u64);
+    assert_eq!(fw.chunks, s.len().div_ceil(BOARD_CHUNK) as u64);
     assert_eq!(
         (fw.scans_in, fw.scans_sent, fw.scans_aborted),
         (scans as u64, scans as u64, 0),

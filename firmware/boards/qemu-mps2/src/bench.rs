@@ -33,8 +33,10 @@ use bridge::engine::Bridge;
 use can_wire::Encoding;
 use embedded_io::{Read, Write};
 
-/// Bytes given to the core per call (a DMA half-buffer of the STM32 boards).
-const CHUNK: usize = 64;
+/// Bytes given to the core per call: what the STM32 boards read from their UART's DMA ring
+/// per call at the streaming rate (`board_common::config::UART_CHUNK`; the host side's
+/// `icount::CHUNK` must agree).
+const CHUNK: usize = 128;
 
 /// The byte that ends the stream.
 const EOT: u8 = 0x04;
