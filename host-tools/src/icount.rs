@@ -612,6 +612,11 @@ pub struct IcountArgs {
     /// One JSON object instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Also write the exact bytes given to the firmware's UART0 (the control frames
+    /// ahead of the stream, then the stream; without the closing EOT) to this file, e.g.
+    /// for `firmware/boards/on_uart_profile.py`.
+    #[arg(long)]
+    pub save_input: Option<PathBuf>,
 }
 
 /// Runs `scip2can icount`.
@@ -657,6 +662,11 @@ pub fn run(args: IcountArgs) -> anyhow::Result<()> {
         Some(p) => (p.text.clone(), p.frames.clone()),
         None => ("none".to_string(), Vec::new()),
     };
+    if let Some(path) = &args.save_input {
+        let mut input = control_header(&controls);
+        input.extend_from_slice(&stream);
+        std::fs::write(path, input).with_context(|| format!("writing {}", path.display()))?;
+    }
     let m = measure_with(&args.qemu, &firmware, &stream, args.encoding, &controls)?;
     let f = &m.firmware;
     let mut out = std::io::stdout().lock();
