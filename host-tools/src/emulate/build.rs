@@ -7,9 +7,26 @@ use anyhow::{bail, Context};
 
 use super::{FIRMWARE, FIRMWARE_ETH};
 
-/// The board workspace, from this crate's folder.
+/// The board workspace: that of the checkout the current directory lies in, else that
+/// of the checkout this binary was built from (so a binary copied into, or run from,
+/// another checkout builds and runs that checkout's firmware, not its own).
 pub fn boards_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/boards")
+    std::env::current_dir()
+        .ok()
+        .and_then(|dir| checkout_of(&dir))
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join(".."))
+        .join("firmware/boards")
+}
+
+/// The root of the scip2can checkout that `dir` lies in: the nearest folder holding
+/// both the board workspace and the host tools.
+fn checkout_of(dir: &Path) -> Option<PathBuf> {
+    dir.ancestors()
+        .find(|a| {
+            a.join("firmware/boards/Cargo.toml").is_file()
+                && a.join("host-tools/Cargo.toml").is_file()
+        })
+        .map(Path::to_path_buf)
 }
 
 /// Where `cargo build --release` in the board workspace puts the firmware (its own
@@ -69,5 +86,26 @@ pub fn firmware(path: Option<&Path>) -> anyhow::Result<PathBuf> {
             p.display()
         ),
         None => build_firmware(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_checkout_is_found_from_any_folder_inside_it() {
+        let root = std::env::temp_dir().join(format!("scip2can-checkout-{}", std::process::id()));
+        let deep = root.join("tests/it");
+        std::fs::create_dir_all(&deep).unwrap();
+        // Not a checkout yet: only the board workspace.
+        std::fs::create_dir_all(root.join("firmware/boards")).unwrap();
+        std::fs::write(root.join("firmware/boards/Cargo.toml"), "").unwrap();
+        assert_eq!(checkout_of(&deep), None);
+        std::fs::create_dir_all(root.join("host-tools")).unwrap();
+        std::fs::write(root.join("host-tools/Cargo.toml"), "").unwrap();
+        assert_eq!(checkout_of(&deep), Some(root.clone()));
+        assert_eq!(checkout_of(&root), Some(root.clone()));
+        std::fs::remove_dir_all(&root).unwrap();
     }
 }
