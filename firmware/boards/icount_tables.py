@@ -1,0 +1,93 @@
+#!/usr/bin/env python3
+"""The instruction-count tables of BENCHMARKS.md, measured afresh with `scip2can icount`.
+
+    cargo build --release -p scip2can-host
+    python3 firmware/boards/icount_tables.py streams     # DL and D16 on the six streams
+    python3 firmware/boards/icount_tables.py pipelines   # every pipeline configuration
+
+Run from the repository's root (beside ../shared/recordings). Every row's frames are
+checked against the host core by `icount` itself (it fails otherwise). Prints Markdown
+tables: `on_uart` instructions per UART byte, and with `pop_frame_with`.
+"""
+import json
+import subprocess
+import sys
+
+TOOL = "target/release/scip2can"
+MODELS = [
+    ("URG-04LX", ["--model", "urg04lx"], 50, 20),
+    ("UTM-30LX", ["--model", "utm30lx"], 20, 10),
+    ("UST-10LX", ["--model", "ust10lx"], 20, 10),
+    ("UXM-30LX-E", ["--model", "uxm30lxe"], 10, 5),
+]
+CAPTURES = [
+    ("URG-04LX capture (1 GD scan)", "../shared/recordings/hokuyoaist_example_urg_04lx.rx.scip"),
+    ("UTM-30LX capture (1 ME scan, I16)", "../shared/recordings/hokuyoaist_example_utm_30lx.rx.scip"),
+]
+PIPELINES = [
+    None,
+    "window=100:30000",
+    "intensity=500",
+    "speckle",
+    "median=3",
+    "median=5",
+    "decimate=2:first",
+    "decimate=2:min",
+    "decimate=2:mean",
+    "decimate=3:mean",
+    "roi=100:900",
+    "window=100:30000,speckle,median=3",
+    "roi=100:900,window=100:30000,intensity=500,speckle,median=5,decimate=3:mean",
+]
+
+
+def icount(args, encoding, pipeline=None):
+    cmd = [TOOL, "icount", *args, "--encoding", encoding, "--json"]
+    if pipeline:
+        cmd += ["--pipeline", pipeline]
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    if out.returncode != 0:
+        sys.exit(f"{' '.join(cmd)} failed:\n{out.stderr}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def n(x):
+    """A whole number with thin groups of three digits, as BENCHMARKS.md writes them."""
+    return f"{x:,}".replace(",", " ")
+
+
+def streams():
+    print("| stream | UART bytes | DL `on_uart` | DL with pop | D16 `on_uart` | D16 with pop | frames DL / D16 |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    rows = [(f"{name}, {scans} scans", [*args, "--scans", str(scans)]) for name, args, scans, _ in MODELS]
+    rows += [(name, ["--stream", path]) for name, path in CAPTURES]
+    for name, args in rows:
+        dl, d16 = icount(args, "dl"), icount(args, "d16")
+        print(f"| {name} | {n(dl['bytes'])} | **{dl['instructions_per_byte']:.1f}** | "
+              f"{dl['with_pop_frame_instructions_per_byte']:.1f} | {d16['instructions_per_byte']:.1f} | "
+              f"{d16['with_pop_frame_instructions_per_byte']:.1f} | {n(dl['frames'])} / {n(d16['frames'])} |",
+              flush=True)
+
+
+def pipelines():
+    head = [f"{name} {enc}" for enc in ("D16", "DL") for name, *_ in MODELS]
+    print("| `--pipeline` | " + " | ".join(head) + " |")
+    print("|---|" + "---:|" * len(head))
+    for p in PIPELINES:
+        cells = []
+        for enc in ("d16", "dl"):
+            for _, args, _, scans in MODELS:
+                m = icount([*args, "--scans", str(scans)], enc, p)
+                cells.append(f"{m['instructions_per_byte']:.1f} / {m['with_pop_frame_instructions_per_byte']:.1f}")
+        label = f"`{p}`" if p else "(none: the direct path)"
+        print(f"| {label} | " + " | ".join(cells) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    what = sys.argv[1] if len(sys.argv) > 1 else ""
+    if what == "streams":
+        streams()
+    elif what == "pipelines":
+        pipelines()
+    else:
+        sys.exit(__doc__)
