@@ -603,7 +603,9 @@ pub struct IcountArgs {
     /// Pipeline stages, set up by control frames (SPEC 6) before the stream, e.g.
     /// `window=100:30000,speckle,median=3,decimate=2:min,roi=100:900,intensity=500`
     /// (window MIN:MAX mm; speckle; median 3 or 5; decimate K[:first|min|mean]; roi
-    /// FIRST:LAST steps; intensity threshold on the 16-bit scale). Default: none.
+    /// FIRST:LAST steps; intensity threshold on the 16-bit scale; and, not a stage, frame
+    /// N: the largest frame, 8 for classic CAN or 12..=64 for CAN FD, e.g. `frame=64`).
+    /// Default: none.
     #[arg(long, value_parser = parse_pipeline_spec)]
     pub pipeline: Option<PipelineSpec>,
     /// The QEMU binary.
@@ -810,9 +812,12 @@ pub fn parse_pipeline_spec(text: &str) -> Result<PipelineSpec, String> {
             "intensity" => C::IntensityThreshold {
                 threshold: num(value)?,
             },
+            "frame" => C::FrameSize {
+                max_len: num(value)?,
+            },
             _ => {
                 return Err(format!(
-                    "{key:?}: one of window, speckle, median, decimate, roi, intensity"
+                    "{key:?}: one of window, speckle, median, decimate, roi, intensity, frame"
                 ))
             }
         };
@@ -857,7 +862,12 @@ mod tests {
             [SOH, 3, 0x11, 2, 1],
             "SOH, length, data"
         );
-        for bad in ["median=4", "decimate=2:max", "window=5", "blur"] {
+        // SPEC 6, 0x21 frame size: `max_len` 64 (CAN FD).
+        assert_eq!(
+            parse_pipeline_spec("frame=64").unwrap().frames,
+            [vec![0x21, 1, 64]]
+        );
+        for bad in ["median=4", "decimate=2:max", "window=5", "blur", "frame=x"] {
             assert!(parse_pipeline_spec(bad).is_err(), "{bad}");
         }
     }

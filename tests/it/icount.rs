@@ -179,3 +179,30 @@ fn the_simulated_stream_is_fixed_by_the_seed_and_holds_n_intact_full_range_scans
         assert!(dec.between_responses() && a.ends_with(b"\n\n"));
     }
 }
+
+#[test]
+fn can_fd_frames_from_the_firmware_are_the_host_cores_in_both_encodings() {
+    // The board switched to 64-byte CAN FD frames by a control frame (SPEC 6, 0x21)
+    // ahead of the stream, as `icount --pipeline frame=64` does; both cores take it.
+    let Some(elf) = bench_firmware() else { return };
+    let d16 = elf.with_file_name(icount::BenchEncoding::D16.firmware_name());
+    let controls = icount::parse_pipeline_spec("frame=64").unwrap().frames;
+    let s = stream(ModelKind::Urg04lx, 7, 3);
+    for (elf, encoding) in [
+        (&elf, icount::BenchEncoding::Dl),
+        (&d16, icount::BenchEncoding::D16),
+    ] {
+        let m = icount::measure_with(QEMU, elf, &s, encoding, &controls).unwrap();
+        // `measure_with` fails unless the firmware's frames are the host core's.
+        assert_eq!((m.firmware.scans_sent, m.firmware.scans_aborted), (3, 0));
+        // FD frames: a classic frame holds at most 8 data bytes, so 3 scans of 682
+        // points need far more frames than 3 x 682 x 2 / 64 if they were classic.
+        let classic = icount::measure(QEMU, elf, &s, encoding).unwrap();
+        assert!(
+            m.firmware.frames * 3 < classic.firmware.frames,
+            "{encoding:?}: {} FD frames, {} classic",
+            m.firmware.frames,
+            classic.firmware.frames
+        );
+    }
+}
