@@ -228,17 +228,20 @@ impl Writer {
                 break;
             }
             let given = slots.len().min(left);
-            for frame in slots.iter_mut().take(given) {
+            // One exit test per frame, the counter in a register.
+            let mut counter = self.counter;
+            for frame in slots.get_mut(..given).unwrap_or_default() {
                 let end = at.wrapping_add(CLASSIC_LEN);
                 if let Some(head) = self.buf.get(at..end).and_then(|b| b.first_chunk()) {
                     let mut head: [u8; CLASSIC_LEN] = *head;
                     head[0] = framing;
                     frame.set_classic_as(out.id, head, shape);
                 }
-                self.counter = self.counter.wrapping_add(1);
-                framing = self.counter & COUNTER_MASK;
+                counter = counter.wrapping_add(1);
+                framing = counter & COUNTER_MASK;
                 at = at.wrapping_add(CLASSIC_STREAM_BYTES);
             }
+            self.counter = counter;
             out.frames = out.frames.wrapping_add(given as u32);
             left = left.wrapping_sub(given);
         }
