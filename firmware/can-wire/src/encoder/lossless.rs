@@ -85,6 +85,12 @@ impl Lossless {
 #[cold]
 #[inline(never)]
 fn lossless_code(rule: &RangeRule, d: u32, e: u32) -> (u32, bool) {
+    if d < rule.min.min(code::ERROR_CODES) {
+        // The common case here: below `min` (no range, none the window rejects) and
+        // below the first value past the sensors' error codes, an error code coded as
+        // itself (what the full test below gives it).
+        return (d, false);
+    }
     let e = e & 0xF;
     if rule.rejects(d) {
         // A range the window takes away has no sensor value.
