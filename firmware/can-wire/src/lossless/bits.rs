@@ -288,18 +288,17 @@ impl Writer {
         }
     }
 
-    /// Put the field `head` of `head_bits` bits (at most 31; a block's header), then the
-    /// Rice codes of `u` with parameter `k` (at most 15), none of whose quotients
-    /// `x >> k` may reach [`ESCAPE_ONES`] (the caller checked): like [`Writer::put`]
-    /// and [`Writer::put_rice`] for each, with the gathering word kept in registers. Two
-    /// codes per turn: when they have at most 31 bits together (the common case), the
-    /// second is set above the first and the pair goes into the word as one field, the
-    /// same bits in the same order as one after the other.
+    /// Put the field `head` (its value, then its width: at most 31 bits; a block's
+    /// header), then the Rice codes of `u` with parameter `k` (at most 15), none of
+    /// whose quotients `x >> k` may reach [`ESCAPE_ONES`] (the caller checked): like
+    /// [`Writer::put`] and [`Writer::put_rice`] for each, with the gathering word kept
+    /// in registers. Two codes per turn: when they have at most 31 bits together (the
+    /// common case), the second is set above the first and the pair goes into the word
+    /// as one field, the same bits in the same order as one after the other.
     #[inline(always)]
     pub fn put_rices<S: FrameSink + ?Sized>(
         &mut self,
-        head: u32,
-        head_bits: u32,
+        head: (u32, u32),
         u: &[u32],
         k: u32,
         out: &mut Out<'_, S>,
@@ -317,7 +316,7 @@ impl Writer {
             (code, q.wrapping_add(k1))
         };
         let (mut acc, mut nbits) = (self.acc, self.nbits);
-        self.gather(&mut acc, &mut nbits, head, head_bits, out);
+        self.gather(&mut acc, &mut nbits, head.0, head.1, out);
         let mut pairs = u.chunks_exact(2);
         for pair in &mut pairs {
             let &[x0, x1] = pair else {
@@ -355,8 +354,9 @@ impl Writer {
         self.nbits = nbits;
     }
 
-    /// Put the field `head` of `head_bits` bits (at most 31; a block's header), then the
-    /// Rice codes of `u` with parameter `k` (at most 15), escapes included: like
+    /// Put the field `head` (its value, then its width: at most 31 bits; a block's
+    /// header), then the Rice codes of `u` with parameter `k` (at most 15), escapes
+    /// included: like
     /// [`Writer::put`] and [`Writer::put_rice`] of each `u` with the value of `values`
     /// beside it (in `value_bits` bits, at most 31), with the gathering word kept in
     /// registers (a block with an escape is not rare in real scans: a jump to or from an
@@ -364,8 +364,7 @@ impl Writer {
     #[inline(always)]
     pub fn put_rices_escaped<S: FrameSink + ?Sized>(
         &mut self,
-        head: u32,
-        head_bits: u32,
+        head: (u32, u32),
         u: &[u32],
         values: &[u32],
         k: u32,
@@ -377,7 +376,7 @@ impl Writer {
         let value_bits = value_bits.min(31);
         let value_mask = (1u32 << value_bits).wrapping_sub(1);
         let (mut acc, mut nbits) = (self.acc, self.nbits);
-        self.gather(&mut acc, &mut nbits, head, head_bits, out);
+        self.gather(&mut acc, &mut nbits, head.0, head.1, out);
         for (&x, &v) in u.iter().zip(values) {
             let q = x >> k;
             if q < ESCAPE_ONES {
@@ -654,7 +653,7 @@ mod tests {
             w.begin_segment(0, 0, &mut out);
             let u: std::vec::Vec<u32> = (0..40u32).map(|i| (i * 7919) % (20 << k)).collect();
             let values: std::vec::Vec<u32> = (0..40u32).map(|i| 0xF_0000 | i).collect();
-            w.put_rices_escaped(1 | k << 2, 6, &u, &values, k, 20, &mut out);
+            w.put_rices_escaped((1 | k << 2, 6), &u, &values, k, 20, &mut out);
             w.end_segment(&mut out);
             let mut stream = vec![];
             for f in &sink {
@@ -698,7 +697,7 @@ mod tests {
         let mut out = Out::new(&mut sink, id(), true);
         let mut w = Writer::new(64);
         w.begin_segment(0, 0, &mut out);
-        w.put_rices(0, 0, &[5, 2], 2, &mut out);
+        w.put_rices((0, 0), &[5, 2], 2, &mut out);
         w.end_segment(&mut out);
         // Byte 0: the header's 8 low bits (0). Byte 1: header bit 8 (0), then 1,0,1,0,
         // 0,0,1 in bits 1..=7: 0x02 + 0x08 + 0x80 = 0x8A. Nothing past it.
@@ -711,9 +710,10 @@ mod tests {
     }
 
     /// `put_rices` (the header field, then two codes per field where they fit) writes
-    /// the same frames as `put` and `put_rice` value by value, the general rule: every k, quotients from 0 to 15
-    /// (pairs from 2 to 62 bits, so pairs too long for one field as well), odd and even
-    /// counts, each offset of the gathering word, and runs long enough to cut frames.
+    /// the same frames as `put` and `put_rice` value by value, the general rule: every
+    /// k, quotients from 0 to 15 (pairs from 2 to 62 bits, so pairs too long for one
+    /// field as well), odd and even counts, each offset of the gathering word, and runs
+    /// long enough to cut frames.
     #[test]
     fn rice_codes_in_pairs_equal_codes_one_by_one() {
         for k in 0..=15u32 {
@@ -735,7 +735,7 @@ mod tests {
                         .collect();
                     // A block's header first (mode 2, k), as `put_block` writes it.
                     let head = 2 | k << 2;
-                    let pairs = segment_frames(lead, |w, out| w.put_rices(head, 6, &u, k, out));
+                    let pairs = segment_frames(lead, |w, out| w.put_rices((head, 6), &u, k, out));
                     let one_by_one = segment_frames(lead, |w, out| {
                         w.put(head, 6, out);
                         for &x in &u {

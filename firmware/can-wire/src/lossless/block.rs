@@ -197,11 +197,11 @@ pub fn put_block<S: FrameSink + ?Sized>(
         }
     }
     // The header goes into the word the codes gather in.
-    let head = mode as u32 | k << MODE_BITS;
+    let head = (mode as u32 | k << MODE_BITS, MODE_BITS + K_BITS);
     if escapes {
-        w.put_rices_escaped(head, MODE_BITS + K_BITS, u, values, k, VALUE_BITS, out);
+        w.put_rices_escaped(head, u, values, k, VALUE_BITS, out);
     } else {
-        w.put_rices(head, MODE_BITS + K_BITS, u, k, out);
+        w.put_rices(head, u, k, out);
     }
     mode
 }
