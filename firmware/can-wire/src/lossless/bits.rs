@@ -356,11 +356,10 @@ impl Writer {
 
     /// Put the field `head` (its value, then its width: at most 31 bits; a block's
     /// header), then the Rice codes of `u` with parameter `k` (at most 15), escapes
-    /// included: like
-    /// [`Writer::put`] and [`Writer::put_rice`] of each `u` with the value of `values`
-    /// beside it (in `value_bits` bits, at most 31), with the gathering word kept in
-    /// registers (a block with an escape is not rare in real scans: a jump to or from an
-    /// error code).
+    /// included: like [`Writer::put`] and [`Writer::put_rice`] of each `u` with the
+    /// value of `values` beside it (in `value_bits` bits, at most 31), with the
+    /// gathering word kept in registers (a block with an escape is not rare in real
+    /// scans: a jump to or from an error code).
     #[inline(always)]
     pub fn put_rices_escaped<S: FrameSink + ?Sized>(
         &mut self,
@@ -688,9 +687,10 @@ mod tests {
         sink
     }
 
-    /// Two Rice codes in one field, written by hand: k = 2, u = 5 (q 1, low 1: `1 0 01`,
-    /// 4 bits) then u = 2 (q 0, low 2: `0 10`, 3 bits), after the 9 header bits of
-    /// segment 0 of sequence 0: stream bits 9.. are 1,0,1,0, 0,0,1 (LSB first).
+    /// Two Rice codes in one field, written by hand: k = 2, u = 5 (q 1, low 1: a one,
+    /// the zero, then low's 2 bits LSB first: 1,0,1,0) then u = 2 (q 0, low 2: the
+    /// zero, then 0,1), after the 9 header bits of segment 0 of sequence 0: stream bits
+    /// 9..=15 are 1,0,1,0, 0,0,1.
     #[test]
     fn a_pair_of_rice_codes_by_hand() {
         let mut sink = Frames::new();
