@@ -21,6 +21,9 @@ pub(super) struct Lossless {
     pub(super) stream: ScanStream,
     /// What a run needs of the scan's encoding, worked out once per scan.
     units: Units,
+    /// The data frames' identifier, worked out at the scan's first run (the bridge's
+    /// identifiers never change).
+    data_id: Option<embedded_can::Id>,
 }
 
 /// The per-point constants of a run that follow from the scan's encoding alone: the
@@ -70,6 +73,7 @@ impl Lossless {
             units: Units::of(&header.encoding),
             header,
             stream,
+            data_id: None,
         }
     }
 }
@@ -81,6 +85,12 @@ impl Lossless {
 #[cold]
 #[inline(never)]
 fn lossless_code(rule: &RangeRule, d: u32, e: u32) -> (u32, bool) {
+    if d < rule.min.min(code::ERROR_CODES) {
+        // The common case here: below `min` (no range, none the window rejects) and
+        // below the first value past the sensors' error codes, an error code coded as
+        // itself (what the full test below gives it).
+        return (d, false);
+    }
     let e = e & 0xF;
     if rule.rejects(d) {
         // A range the window takes away has no sensor value.
@@ -111,8 +121,10 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
+        let ids = self.ids;
         let l = self.open.lossless_mut().ok_or(Error::NoScan)?;
-        let mut out = Out::new(sink, self.ids.id(Kind::Data), self.format.is_fd());
+        let id = *l.data_id.get_or_insert_with(|| ids.id(Kind::Data));
+        let mut out = Out::new(sink, id, self.format.is_fd());
         // The per-point work with every constant worked out once: those of the encoding
         // once per scan, the rule's here.
         let (min, [a, b]) = (rule.min, rule.except);

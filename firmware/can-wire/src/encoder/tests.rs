@@ -393,3 +393,122 @@ fn lossless_run_counts_the_window_rejections_it_took() {
     assert_eq!(run.invalid, 3);
     assert_eq!(run.rejected, 2);
 }
+
+/// A lossless run codes each raw distance as SPEC 4.2's code table says, whichever of
+/// the run's paths takes it (the ranges of the common span, the error codes below the
+/// rule's minimum, the full test): written here from the table, for minimums below,
+/// at and above the sensors' 100 error codes, with exceptions, a band and a window,
+/// and the distances around each bound.
+#[test]
+fn lossless_runs_code_every_distance_as_the_code_table_says() {
+    use crate::reassembly::{Decoder, Event};
+    let enc = Encoding {
+        distance: DistanceEncoding::Lossless,
+        intensity: IntensityEncoding::None,
+        unit_exp: 0,
+    };
+    let ids = IdWindow::DEFAULT.node(4).unwrap();
+    // The code table: a range inside the window keeps its millimetres (below
+    // 2^20 - 128 with unit 1 mm), a range outside it is invalid, and what is no range
+    // keeps its error code if it has one (0..=99, 65533..=65535), out of range or
+    // invalid otherwise.
+    let reference = |rule: &RangeRule, d: u32| {
+        let sensor_range = d >= rule.min
+            && d != rule.except[0]
+            && d != rule.except[1]
+            && rule.band.is_none_or(|s| d < s || d > s + 2);
+        if sensor_range {
+            if d < rule.window[0] || d > rule.window[1] {
+                Distance::Invalid
+            } else if d > (1 << 20) - 129 {
+                Distance::OutOfRange
+            } else {
+                Distance::Mm(d)
+            }
+        } else if d < 100 || (65533..=65535).contains(&d) {
+            Distance::SensorError(d)
+        } else if d >= 1 << 24 {
+            Distance::Invalid
+        } else {
+            Distance::OutOfRange
+        }
+    };
+    let mut raw: Vec<u32> = (0..=210).collect();
+    raw.extend([
+        4095,
+        65532,
+        65533,
+        65534,
+        65535,
+        65536,
+        (1 << 20) - 130,
+        (1 << 20) - 129,
+        (1 << 20) - 128,
+        (1 << 24) - 1,
+        1 << 24,
+        u32::MAX,
+    ]);
+    for min in [0, 1, 20, 23, 99, 100, 101, 150] {
+        for (except, band, window) in [
+            ([u32::MAX; 2], None, [0, u32::MAX]),
+            ([0, 21], Some(65533), [0, u32::MAX]),
+            ([4095, 120], None, [22, 180]),
+            ([u32::MAX; 2], Some(98), [0, 65534]),
+        ] {
+            let rule = RangeRule {
+                min,
+                except,
+                band,
+                window,
+            };
+            let mut e = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+            let count = raw.len() as u16;
+            let mut frames: Vec<Frame> = e.begin(&header(count, enc)).unwrap().to_vec();
+            let mut sink = VecSink {
+                frames: Vec::new(),
+                room: usize::MAX,
+                batch: 3,
+            };
+            // Runs of a data line's length.
+            let (mut invalid, mut rejected) = (0, 0);
+            for line in raw.chunks(21) {
+                let run = e
+                    .push_run(line, rule, |&d: &u32| (d, 0), &mut sink)
+                    .unwrap();
+                assert_eq!(run.points as usize, line.len());
+                invalid += run.invalid as usize;
+                rejected += run.rejected as usize;
+            }
+            let what = format!("min {min} except {except:?} band {band:?} window {window:?}");
+            // No range: every code but a range's (too long ones included).
+            assert_eq!(
+                invalid,
+                raw.iter()
+                    .filter(|&&d| !matches!(reference(&rule, d), Distance::Mm(_)))
+                    .count(),
+                "{what}"
+            );
+            assert_eq!(
+                rejected,
+                raw.iter().filter(|&&d| rule.rejects(d)).count(),
+                "{what}"
+            );
+            frames.extend(sink.frames);
+            frames.extend(e.finish(TrailerFlags::default()).unwrap().iter().cloned());
+            let mut dec: Box<Decoder<512, 1>> = Box::new(Decoder::new(IdWindow::DEFAULT));
+            let mut got = None;
+            for f in &frames {
+                if let Ok(Some(Event::Scan { scan, .. })) = dec.push_frame(f) {
+                    assert!(scan.is_intact(), "{what}");
+                    got = Some(
+                        scan.points()
+                            .map(|p| p.map_or(Distance::Invalid, |p| p.distance))
+                            .collect::<Vec<_>>(),
+                    );
+                }
+            }
+            let want: Vec<Distance> = raw.iter().map(|&d| reference(&rule, d)).collect();
+            assert_eq!(got.as_ref(), Some(&want), "{what}");
+        }
+    }
+}

@@ -228,17 +228,20 @@ impl Writer {
                 break;
             }
             let given = slots.len().min(left);
-            for frame in slots.iter_mut().take(given) {
+            // One exit test per frame, the counter in a register.
+            let mut counter = self.counter;
+            for frame in slots.get_mut(..given).unwrap_or_default() {
                 let end = at.wrapping_add(CLASSIC_LEN);
                 if let Some(head) = self.buf.get(at..end).and_then(|b| b.first_chunk()) {
                     let mut head: [u8; CLASSIC_LEN] = *head;
                     head[0] = framing;
                     frame.set_classic_as(out.id, head, shape);
                 }
-                self.counter = self.counter.wrapping_add(1);
-                framing = self.counter & COUNTER_MASK;
+                counter = counter.wrapping_add(1);
+                framing = counter & COUNTER_MASK;
                 at = at.wrapping_add(CLASSIC_STREAM_BYTES);
             }
+            self.counter = counter;
             out.frames = out.frames.wrapping_add(given as u32);
             left = left.wrapping_sub(given);
         }
@@ -285,43 +288,82 @@ impl Writer {
         }
     }
 
-    /// Put the Rice codes of `u` with parameter `k` (at most 15), none of whose
-    /// quotients `x >> k` may reach [`ESCAPE_ONES`] (the caller checked): like
-    /// [`Writer::put_rice`] for each, with the gathering word kept in registers.
+    /// Put the field `head` (its value, then its width: at most 31 bits; a block's
+    /// header), then the Rice codes of `u` with parameter `k` (at most 15), none of
+    /// whose quotients `x >> k` may reach [`ESCAPE_ONES`] (the caller checked): like
+    /// [`Writer::put`] and [`Writer::put_rice`] for each, with the gathering word kept
+    /// in registers. Two codes per turn: when they have at most 31 bits together (the
+    /// common case), the second is set above the first and the pair goes into the word
+    /// as one field, the same bits in the same order as one after the other.
     #[inline(always)]
-    pub fn put_rices<S: FrameSink + ?Sized>(&mut self, u: &[u32], k: u32, out: &mut Out<'_, S>) {
+    pub fn put_rices<S: FrameSink + ?Sized>(
+        &mut self,
+        head: (u32, u32),
+        u: &[u32],
+        k: u32,
+        out: &mut Out<'_, S>,
+    ) {
         let k = k.min(ESCAPE_ONES - 1);
         let mask = (1u32 << k).wrapping_sub(1);
-        let (mut acc, mut nbits) = (self.acc, self.nbits);
-        for &x in u {
-            // q < 16 (checked by the caller) and k <= 15: the code has q + 1 + k <= 31
-            // bits; `(2·low + 1) << q` less 1 is the low bits after q ones and a zero.
+        let k1 = k.wrapping_add(1);
+        // One code and its width: q < 16 (checked by the caller) and k <= 15, so the
+        // code has q + 1 + k <= 31 bits; `(2·low + 1) << q` less 1 is the low bits
+        // after q ones and a zero.
+        let rice = |x: u32| {
             let q = x >> k;
             let low = x & mask;
             let code = (low.wrapping_mul(2) | 1).wrapping_shl(q).wrapping_sub(1);
-            let bits = q.wrapping_add(1).wrapping_add(k);
-            acc |= code.wrapping_shl(nbits);
-            let total = nbits.wrapping_add(bits);
-            if total >= 32 {
-                self.word_inline(acc, out);
-                // Here `nbits` >= 1 (a code has at most 31 bits): the bits that did not fit.
-                acc = code.wrapping_shr(32u32.wrapping_sub(nbits));
-                nbits = total.wrapping_sub(32);
+            (code, q.wrapping_add(k1))
+        };
+        let (mut acc, mut nbits) = (self.acc, self.nbits);
+        self.gather(&mut acc, &mut nbits, head.0, head.1, out);
+        let mut pairs = u.chunks_exact(2);
+        for pair in &mut pairs {
+            let &[x0, x1] = pair else {
+                continue;
+            };
+            let (c0, b0) = rice(x0);
+            let (c1, b1) = rice(x1);
+            // Each width at most 31: no wrap.
+            let bits = b0.wrapping_add(b1);
+            if bits <= 31 {
+                // `c1` has `b1` bits: shifted by `b0 <= 31` it stays below 2^31.
+                let code = c0 | c1.wrapping_shl(b0);
+                acc |= code.wrapping_shl(nbits);
+                let total = nbits.wrapping_add(bits);
+                if total >= 32 {
+                    self.word_inline(acc, out);
+                    // Here `nbits` >= 1 (the pair has at most 31 bits): the bits that
+                    // did not fit.
+                    acc = code.wrapping_shr(32u32.wrapping_sub(nbits));
+                    nbits = total.wrapping_sub(32);
+                } else {
+                    nbits = total;
+                }
             } else {
-                nbits = total;
+                // Too long for one field: one code after the other.
+                self.gather(&mut acc, &mut nbits, c0, b0, out);
+                self.gather(&mut acc, &mut nbits, c1, b1, out);
             }
+        }
+        if let &[x] = pairs.remainder() {
+            let (c, b) = rice(x);
+            self.gather(&mut acc, &mut nbits, c, b, out);
         }
         self.acc = acc;
         self.nbits = nbits;
     }
 
-    /// Put the Rice codes of `u` with parameter `k` (at most 15), escapes included:
-    /// like [`Writer::put_rice`] of each `u` with the value of `values` beside it (in
-    /// `value_bits` bits, at most 31), with the gathering word kept in registers (a
-    /// block with an escape is not rare in real scans: a jump to or from an error code).
+    /// Put the field `head` (its value, then its width: at most 31 bits; a block's
+    /// header), then the Rice codes of `u` with parameter `k` (at most 15), escapes
+    /// included: like [`Writer::put`] and [`Writer::put_rice`] of each `u` with the
+    /// value of `values` beside it (in `value_bits` bits, at most 31), with the
+    /// gathering word kept in registers (a block with an escape is not rare in real
+    /// scans: a jump to or from an error code).
     #[inline(always)]
     pub fn put_rices_escaped<S: FrameSink + ?Sized>(
         &mut self,
+        head: (u32, u32),
         u: &[u32],
         values: &[u32],
         k: u32,
@@ -333,6 +375,7 @@ impl Writer {
         let value_bits = value_bits.min(31);
         let value_mask = (1u32 << value_bits).wrapping_sub(1);
         let (mut acc, mut nbits) = (self.acc, self.nbits);
+        self.gather(&mut acc, &mut nbits, head.0, head.1, out);
         for (&x, &v) in u.iter().zip(values) {
             let q = x >> k;
             if q < ESCAPE_ONES {
@@ -609,7 +652,7 @@ mod tests {
             w.begin_segment(0, 0, &mut out);
             let u: std::vec::Vec<u32> = (0..40u32).map(|i| (i * 7919) % (20 << k)).collect();
             let values: std::vec::Vec<u32> = (0..40u32).map(|i| 0xF_0000 | i).collect();
-            w.put_rices_escaped(&u, &values, k, 20, &mut out);
+            w.put_rices_escaped((1 | k << 2, 6), &u, &values, k, 20, &mut out);
             w.end_segment(&mut out);
             let mut stream = vec![];
             for f in &sink {
@@ -617,6 +660,7 @@ mod tests {
             }
             let mut r = Reader::new(&stream);
             r.read(9);
+            assert_eq!(r.read(6), Some(1 | k << 2), "the header field first");
             for (&x, &v) in u.iter().zip(&values) {
                 let expect = if (x >> k) < ESCAPE_ONES {
                     Ok(x)
@@ -624,6 +668,82 @@ mod tests {
                     Err(v)
                 };
                 assert_eq!(r.read_rice(k, 20), Some(expect), "u {x} k {k}");
+            }
+        }
+    }
+
+    /// The frames of one segment: `lead` bits of ones after its header, then what
+    /// `write` puts, on classic CAN (frames cut a batch at a time).
+    fn segment_frames(lead: u32, write: impl FnOnce(&mut Writer, &mut Out<'_, Frames>)) -> Frames {
+        let mut sink = Frames::new();
+        let mut out = Out::new(&mut sink, id(), false);
+        let mut w = Writer::new(8);
+        w.begin_segment(3, 1, &mut out);
+        if lead > 0 {
+            w.put((1u32 << lead) - 1, lead, &mut out);
+        }
+        write(&mut w, &mut out);
+        w.end_segment(&mut out);
+        sink
+    }
+
+    /// Two Rice codes in one field, written by hand: k = 2, u = 5 (q 1, low 1: a one,
+    /// the zero, then low's 2 bits LSB first: 1,0,1,0) then u = 2 (q 0, low 2: the
+    /// zero, then 0,1), after the 9 header bits of segment 0 of sequence 0: stream bits
+    /// 9..=15 are 1,0,1,0, 0,0,1.
+    #[test]
+    fn a_pair_of_rice_codes_by_hand() {
+        let mut sink = Frames::new();
+        let mut out = Out::new(&mut sink, id(), true);
+        let mut w = Writer::new(64);
+        w.begin_segment(0, 0, &mut out);
+        w.put_rices((0, 0), &[5, 2], 2, &mut out);
+        w.end_segment(&mut out);
+        // Byte 0: the header's 8 low bits (0). Byte 1: header bit 8 (0), then 1,0,1,0,
+        // 0,0,1 in bits 1..=7: 0x02 + 0x08 + 0x80 = 0x8A. Nothing past it.
+        let crc = {
+            let mut c = ScanCrc::start();
+            c.bytes(&[0x00, 0x8A]);
+            c.value().to_le_bytes()
+        };
+        assert_eq!(sink[0].data(), &[0x80, 0x00, 0x8A, crc[0], crc[1]]);
+    }
+
+    /// `put_rices` (the header field, then two codes per field where they fit) writes
+    /// the same frames as `put` and `put_rice` value by value, the general rule: every
+    /// k, quotients from 0 to 15 (pairs from 2 to 62 bits, so pairs too long for one
+    /// field as well), odd and even counts, each offset of the gathering word, and runs
+    /// long enough to cut frames.
+    #[test]
+    fn rice_codes_in_pairs_equal_codes_one_by_one() {
+        for k in 0..=15u32 {
+            for len in [0usize, 1, 2, 3, 16, 41] {
+                for lead in [0u32, 1, 7, 22, 31] {
+                    let u: std::vec::Vec<u32> = (0..len as u32)
+                        .map(|i| {
+                            let q = (i.wrapping_mul(2_654_435_761) >> 7) % 16;
+                            let q = if i % 5 == 0 {
+                                15
+                            } else if i % 7 == 0 {
+                                0
+                            } else {
+                                q
+                            };
+                            let low = i.wrapping_mul(40_503) & ((1u32 << k) - 1);
+                            (q << k) | low
+                        })
+                        .collect();
+                    // A block's header first (mode 2, k), as `put_block` writes it.
+                    let head = 2 | k << 2;
+                    let pairs = segment_frames(lead, |w, out| w.put_rices((head, 6), &u, k, out));
+                    let one_by_one = segment_frames(lead, |w, out| {
+                        w.put(head, 6, out);
+                        for &x in &u {
+                            w.put_rice(x, k, 0, 20, out);
+                        }
+                    });
+                    assert_eq!(pairs, one_by_one, "k {k} len {len} lead {lead}");
+                }
             }
         }
     }

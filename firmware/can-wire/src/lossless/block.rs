@@ -196,11 +196,12 @@ pub fn put_block<S: FrameSink + ?Sized>(
             return Mode::Verbatim;
         }
     }
-    w.put(mode as u32 | k << MODE_BITS, MODE_BITS + K_BITS, out);
+    // The header goes into the word the codes gather in.
+    let head = (mode as u32 | k << MODE_BITS, MODE_BITS + K_BITS);
     if escapes {
-        w.put_rices_escaped(u, values, k, VALUE_BITS, out);
+        w.put_rices_escaped(head, u, values, k, VALUE_BITS, out);
     } else {
-        w.put_rices(u, k, out);
+        w.put_rices(head, u, k, out);
     }
     mode
 }
