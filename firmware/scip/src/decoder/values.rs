@@ -36,16 +36,17 @@ impl Decoder {
         Some(self.data_event())
     }
 
-    /// True where a 64-bit host takes the paths of 32-bit targets (the line copy that
-    /// checks and sums): in tests and fuzzing, for a decoder made by
-    /// [`Decoder::m4_paths`]. (32-bit targets take those paths without asking.)
-    #[cfg(not(target_pointer_width = "32"))]
+    /// True where the paths of 32-bit targets are taken (a data line's bytes copied,
+    /// checked and summed a word at a time, then decoded from the line buffer): always
+    /// on 32-bit targets, and on a 64-bit host in tests and fuzzing for a decoder made
+    /// by [`Decoder::m4_paths`].
     #[inline(always)]
     pub(super) fn on_m4_paths(&self) -> bool {
-        #[cfg(any(test, fuzzing))]
-        if self.m4 {
-            return true;
-        }
+        #[cfg(target_pointer_width = "32")]
+        return true;
+        #[cfg(all(not(target_pointer_width = "32"), any(test, fuzzing)))]
+        return self.m4;
+        #[cfg(all(not(target_pointer_width = "32"), not(any(test, fuzzing))))]
         false
     }
 
