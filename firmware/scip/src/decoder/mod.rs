@@ -448,7 +448,7 @@ impl Decoder {
         // of `input` when it ends before, copied and checked a word at a time.
         if self.state == State::Payload(Payload::Data) && !self.overflow && self.on_m4_paths() {
             if let Some((used, ends)) = self.take_data_words(input) {
-                let ev = if ends { self.line_event() } else { None };
+                let ev = if ends { self.full_line_event() } else { None };
                 return (used, ev);
             }
         }

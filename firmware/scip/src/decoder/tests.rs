@@ -80,14 +80,16 @@ fn distance_lines_after_intensity_lines_carry_no_old_intensity() {
     let (gd, values) = scan(DataSet::Distance, 100);
     let mut both = ge.clone();
     both.extend_from_slice(&gd);
-    for chunk in [1, 7, 64, 4096] {
-        let (_, after) = decode(Decoder::new(), &both, chunk);
-        let (_, alone) = decode(Decoder::new(), &gd, chunk);
-        assert_eq!(&after[100..], &alone[..], "chunk {chunk}");
-        assert!(alone
-            .iter()
-            .zip(&values)
-            .all(|(r, &(d, _))| r.distance == d && r.aux == 0));
+    for chunk in [1, 7, 64, 128, 4096] {
+        for make in [Decoder::new, Decoder::m4_paths] {
+            let (_, after) = decode(make(), &both, chunk);
+            let (_, alone) = decode(make(), &gd, chunk);
+            assert_eq!(&after[100..], &alone[..], "chunk {chunk}");
+            assert!(alone
+                .iter()
+                .zip(&values)
+                .all(|(r, &(d, _))| r.distance == d && r.aux == 0 && r.echo == 0));
+        }
     }
 }
 
