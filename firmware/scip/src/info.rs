@@ -27,15 +27,18 @@ pub enum ParamName {
 impl ParamName {
     /// The name of a PP field, if it is one of the parameters.
     pub fn from_name(name: &[u8]) -> Option<Self> {
+        // The four letters as one word: one compare per name, no library call.
+        let word = |n: &[u8; 4]| u32::from_le_bytes(*n);
+        let name = word(name.try_into().ok()?);
         Some(match name {
-            b"MODL" => Self::Modl,
-            b"DMIN" => Self::Dmin,
-            b"DMAX" => Self::Dmax,
-            b"ARES" => Self::Ares,
-            b"AMIN" => Self::Amin,
-            b"AMAX" => Self::Amax,
-            b"AFRT" => Self::Afrt,
-            b"SCAN" => Self::Scan,
+            n if n == word(b"MODL") => Self::Modl,
+            n if n == word(b"DMIN") => Self::Dmin,
+            n if n == word(b"DMAX") => Self::Dmax,
+            n if n == word(b"ARES") => Self::Ares,
+            n if n == word(b"AMIN") => Self::Amin,
+            n if n == word(b"AMAX") => Self::Amax,
+            n if n == word(b"AFRT") => Self::Afrt,
+            n if n == word(b"SCAN") => Self::Scan,
             _ => return None,
         })
     }
@@ -160,21 +163,27 @@ impl Param {
     /// (`MODL` included), [`ParamError::BadValue`] for a value that is not a whole
     /// decimal number.
     pub fn try_parse(name: &[u8], value: &[u8]) -> Result<Option<Self>, ParamError> {
-        let ctor: fn(u32) -> Param = match ParamName::from_name(name) {
-            Some(ParamName::Dmin) => Param::Dmin,
-            Some(ParamName::Dmax) => Param::Dmax,
-            Some(ParamName::Ares) => Param::Ares,
-            Some(ParamName::Amin) => Param::Amin,
-            Some(ParamName::Amax) => Param::Amax,
-            Some(ParamName::Afrt) => Param::Afrt,
-            Some(ParamName::Scan) => Param::Scan,
-            Some(ParamName::Modl) | None => return Ok(None),
+        match ParamName::from_name(name) {
+            Some(which) => Self::of(which, value),
+            None => Ok(None),
+        }
+    }
+
+    /// [`Param::try_parse`] of a field whose name is known.
+    fn of(which: ParamName, value: &[u8]) -> Result<Option<Self>, ParamError> {
+        let ctor: fn(u32) -> Param = match which {
+            ParamName::Dmin => Param::Dmin,
+            ParamName::Dmax => Param::Dmax,
+            ParamName::Ares => Param::Ares,
+            ParamName::Amin => Param::Amin,
+            ParamName::Amax => Param::Amax,
+            ParamName::Afrt => Param::Afrt,
+            ParamName::Scan => Param::Scan,
+            ParamName::Modl => return Ok(None),
         };
         match whole_number(value) {
             Some(v) => Ok(Some(ctor(v))),
-            None => Err(ParamError::BadValue(
-                ParamName::from_name(name).unwrap_or(ParamName::Modl),
-            )),
+            None => Err(ParamError::BadValue(which)),
         }
     }
 }
@@ -232,10 +241,17 @@ impl KnownModel {
 }
 
 /// Whether `needle` (not empty) occurs in `model`: out of line, so that the model names'
-/// needles share one loop (reading an II/PP answer is not on a hot path).
+/// needles share one loop. A window is compared further only where its first byte is
+/// the needle's, byte by byte (no library call per window: a model string has dozens).
 #[inline(never)]
 fn contains(model: &[u8], needle: &[u8]) -> bool {
-    model.windows(needle.len().max(1)).any(|w| w == needle)
+    let Some((&first, rest)) = needle.split_first() else {
+        return false;
+    };
+    model.windows(needle.len()).any(|w| match w.split_first() {
+        Some((&c, more)) => c == first && more.iter().zip(rest).all(|(a, b)| a == b),
+        None => false,
+    })
 }
 
 /// A model family: how to read error codes below DMIN.
@@ -504,23 +520,31 @@ impl SensorParams {
     /// Records one PP field. A damaged value (see [`Param::try_parse`]) or a field seen
     /// before is not taken, and recorded as the answer's [`SensorParams::fault`].
     pub fn apply(&mut self, name: &[u8], value: &[u8]) {
-        let Some(which) = ParamName::from_name(name) else {
-            return;
-        };
+        self.apply_parsed(name, value);
+    }
+
+    /// [`SensorParams::apply`], returning what [`Param::parse`] gives for the field
+    /// (a repeated field's value too, though it is not taken): the name is looked up
+    /// and the value parsed once for both.
+    pub(crate) fn apply_parsed(&mut self, name: &[u8], value: &[u8]) -> Option<Param> {
+        let which = ParamName::from_name(name)?;
+        if which == ParamName::Modl {
+            if self.family.is_some() {
+                self.fault.get_or_insert(ParamError::Repeated(which));
+            } else if value.is_empty() || !value.iter().all(|c| (0x20..0x7F).contains(c)) {
+                self.fault.get_or_insert(ParamError::BadValue(which));
+            } else {
+                self.family = Some(ModelFamily::from_model(value));
+                self.model = KnownModel::from_model(value);
+            }
+            return None;
+        }
+        let parsed = Param::of(which, value);
         if self.get(which).is_some() {
             self.fault.get_or_insert(ParamError::Repeated(which));
-            return;
+            return parsed.ok().flatten();
         }
-        if which == ParamName::Modl {
-            if value.is_empty() || !value.iter().all(|c| (0x20..0x7F).contains(c)) {
-                self.fault.get_or_insert(ParamError::BadValue(which));
-                return;
-            }
-            self.family = Some(ModelFamily::from_model(value));
-            self.model = KnownModel::from_model(value);
-            return;
-        }
-        match Param::try_parse(name, value) {
+        match parsed {
             Ok(Some(Param::Dmin(v))) => self.dmin = Some(v),
             Ok(Some(Param::Dmax(v))) => self.dmax = Some(v),
             Ok(Some(Param::Ares(v))) => self.ares = Some(v),
@@ -533,6 +557,7 @@ impl SensorParams {
                 self.fault.get_or_insert(e);
             }
         }
+        parsed.ok().flatten()
     }
 
     /// A field's value (`MODL`: 0 when present), if it was received whole.
@@ -860,5 +885,111 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The word lookup of the names against the names spelled out, and near misses.
+    #[test]
+    fn names_by_word() {
+        let all = [
+            ParamName::Modl,
+            ParamName::Dmin,
+            ParamName::Dmax,
+            ParamName::Ares,
+            ParamName::Amin,
+            ParamName::Amax,
+            ParamName::Afrt,
+            ParamName::Scan,
+        ];
+        for n in all {
+            assert_eq!(ParamName::from_name(n.as_str().as_bytes()), Some(n));
+        }
+        for other in [
+            &b""[..],
+            b"DMI",
+            b"DMINX",
+            b"dmin",
+            b"DMIn",
+            b"NIMD",
+            b"MODL ",
+            b"\0MODL",
+            b"PROD",
+        ] {
+            assert_eq!(ParamName::from_name(other), None, "{other:?}");
+        }
+    }
+
+    /// `contains` against the plain definition (some window equals the needle), at
+    /// the start, the end, cut off at the end, and with the first byte repeated.
+    #[test]
+    fn contains_agrees_with_windows() {
+        let reference = |model: &[u8], needle: &[u8]| {
+            !needle.is_empty() && model.windows(needle.len()).any(|w| w == needle)
+        };
+        let models: [&[u8]; 9] = [
+            b"",
+            b"U",
+            b"UTM-30LX(Hokuyo Automatic Co.,Ltd.)",
+            b"UUTM",
+            b"xxUXM-30LX-",
+            b"UXM-30LX-E",
+            b"URG-04LX-UG01",
+            b"SOKUIKI Sensor UST-10LX",
+            b"-E(-EW",
+        ];
+        let needles: [&[u8]; 9] = [
+            b"",
+            b"U",
+            b"UTM",
+            b"UXM-30LX-E",
+            b"URG-04LX",
+            b"-EW",
+            b"-E(",
+            b"UST",
+            b"X",
+        ];
+        for model in models {
+            for needle in needles {
+                assert_eq!(
+                    contains(model, needle),
+                    reference(model, needle),
+                    "{model:?} {needle:?}"
+                );
+            }
+        }
+    }
+
+    /// What `apply_parsed` returns is `Param::parse` of the field, whether the field
+    /// is taken, repeated or damaged; the parameters recorded, by hand.
+    #[test]
+    fn apply_parsed_returns_the_parse() {
+        let fields: [(&[u8], &[u8]); 12] = [
+            (b"MODL", b"URG-04LX(Hokuyo Automatic Co.,Ltd.)"),
+            (b"DMIN", b"20"),
+            (b"DMAX", b"5600<-comment"),
+            (b"ARES", b"1024"),
+            (b"AMIN", b"44"),
+            (b"AMAX", b"725"),
+            (b"AFRT", b"38q"),
+            (b"SCAN", b"600"),
+            (b"DMIN", b"21"),
+            (b"MODL", b"UTM-30LX"),
+            (b"PROD", b"x"),
+            (b"SCAN", b"x"),
+        ];
+        let mut a = SensorParams::default();
+        for (name, value) in fields {
+            assert_eq!(a.apply_parsed(name, value), Param::parse(name, value));
+        }
+        // The first of each taken, the damaged one not, the first fault kept.
+        assert_eq!(a.model, Some(KnownModel::Urg04lx));
+        assert_eq!(
+            (a.ares, a.amin, a.amax, a.scan_rpm),
+            (Some(1024), Some(44), Some(725), Some(600))
+        );
+        assert_eq!(a.dmin, Some(20));
+        assert_eq!(a.dmax, Some(5600));
+        assert_eq!(a.afrt, None);
+        assert_eq!(a.family, Some(ModelFamily::Urg04lx));
+        assert_eq!(a.fault, Some(ParamError::BadValue(ParamName::Afrt)));
     }
 }

@@ -118,13 +118,10 @@ impl Decoder {
             self.buf.get(value_start..body_len).unwrap_or(&[]),
         );
         let param = if is_pp {
-            Param::parse(name, value)
+            self.pp.apply_parsed(name, value)
         } else {
             None
         };
-        if is_pp {
-            self.pp.apply(name, value);
-        }
         let (name, value) = (
             self.buf.get(..name_end).unwrap_or(&[]),
             self.buf.get(value_start..body_len).unwrap_or(&[]),

@@ -5,33 +5,14 @@ use super::*;
 
 impl Decoder {
     /// Copies `bytes` up to the first LF into the line buffer and returns the LF's
-    /// index, or copies them all and returns `None`. One pass that also takes what
-    /// [`Self::data_line`] needs: the byte sum (mod 64) and whether every byte is a
-    /// value char. Words of value chars go through [`copy_value_words`]; a word with
-    /// anything else in it (the LF, the sum char of some lines, a damaged byte) goes byte
-    /// by byte. Past the buffer's capacity the line is
-    /// marked overflowed and its bytes are not kept.
+    /// index, or copies them all and returns `None`: the LF found eight bytes at a
+    /// time, the bytes copied. The accumulators of the sum and char check are flagged
+    /// as unusable, so that [`Self::line_sum_and_check`] takes them from the line
+    /// itself ([`sum_and_check`], vectorised on 64-bit hosts); the data lines of
+    /// [`Self::feed`]'s fast paths take them on the way instead. Past the buffer's
+    /// capacity the line is marked overflowed and its bytes are not kept.
     #[inline]
     pub(super) fn take_line_bytes(&mut self, bytes: &[u8]) -> Option<usize> {
-        #[cfg(target_pointer_width = "32")]
-        {
-            self.take_line_bytes_fused(bytes)
-        }
-        #[cfg(not(target_pointer_width = "32"))]
-        {
-            if self.on_m4_paths() {
-                return self.take_line_bytes_fused(bytes);
-            }
-            self.take_line_bytes_plain(bytes)
-        }
-    }
-
-    /// [`Self::take_line_bytes`] as 64-bit hosts do it best: the LF found eight bytes at
-    /// a time, the bytes copied, and the sum and char check left to [`sum_and_check`]
-    /// (vectorised there) by flagging the accumulators as unusable.
-    #[cfg_attr(target_pointer_width = "32", allow(dead_code))]
-    #[inline]
-    pub(super) fn take_line_bytes_plain(&mut self, bytes: &[u8]) -> Option<usize> {
         self.bad = 0xC0;
         let lf = find_lf(bytes);
         let line = bytes.get(..lf.unwrap_or(bytes.len())).unwrap_or(&[]);
@@ -49,74 +30,48 @@ impl Decoder {
         lf
     }
 
-    /// [`Self::take_line_bytes`] as 32-bit MCUs do it best: one pass of
-    /// [`copy_value_words`] and a byte loop for the rest, the sum and char check taken
-    /// on the way.
+    /// The fast path of [`Self::feed`] in a data line (no overflow) on 32-bit targets
+    /// (and for [`Decoder::m4_paths`]): the bytes of `input` up to where a full data
+    /// line's LF must be (64 data chars and the sum char after the bytes buffered),
+    /// when that byte is an LF, or all of `input` when it ends before. They must all be
+    /// value chars (so none is an LF: the LF found is the line's first); they are copied
+    /// into the line buffer a word at a time, summed and checked on the way (see
+    /// [`copy_check_words`]), the stream offset and byte counter advanced. Returns the
+    /// bytes taken and whether they end the line (its LF taken too, the line complete
+    /// in the buffer for [`Self::line_event`]); `None`, having taken nothing, for
+    /// anything else (another length, a char that is not a value char), which the
+    /// general path then handles.
     ///
     /// Kept out of line: [`Decoder::feed`] is inlined into its callers, and in a caller
     /// optimised for size (as the boards' main code is) the word loop inlined with it
-    /// is compiled for size too, about a third slower on a Cortex-M4.
-    #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+    /// is compiled for size too.
     #[inline(never)]
-    pub(super) fn take_line_bytes_fused(&mut self, bytes: &[u8]) -> Option<usize> {
-        if self.overflow {
-            return find_lf(bytes);
-        }
-        if self.len == 0 {
-            (self.sum, self.bad) = (0, 0);
-        }
-        let (mut len, mut sum, mut bad) = (self.len, self.sum, self.bad);
-        // What is left of `bytes`: a tail of it, so `bytes.len() - rest.len()` is
-        // where it starts (no wrap).
-        let mut rest = bytes;
-        let found = loop {
-            // Whole words of value chars, as many as the input and the buffer have.
-            let room = self.buf.get_mut(len..).unwrap_or(&mut []);
-            let (taken, add) = copy_value_words(rest, room);
-            sum = sum.wrapping_add(add);
-            // `len` stays within the line buffer (`taken` fits it): no wrap.
-            len = len.wrapping_add(taken);
-            // Then up to four bytes one at a time.
-            let next = rest.get(taken..).unwrap_or(&[]);
-            if next.is_empty() {
-                break None;
-            }
-            let at = bytes.len().wrapping_sub(next.len());
-            let mut lf = None;
-            for (i, &b) in next.iter().take(4).enumerate() {
-                // Indices within `bytes`: no wrap.
-                if b == b'\n' {
-                    lf = Some(at.wrapping_add(i));
-                    break;
-                }
-                match self.buf.get_mut(len) {
-                    Some(slot) => *slot = b,
-                    None => {
-                        self.overflow = true;
-                        let from = at.wrapping_add(i);
-                        lf = Some(
-                            find_lf(bytes.get(from..).unwrap_or(&[]))
-                                .map_or(usize::MAX, |j| from.wrapping_add(j)),
-                        );
-                        break;
-                    }
-                }
-                len = len.wrapping_add(1);
-                sum = sum.wrapping_add(u32::from(b));
-                bad |= u32::from(b.wrapping_sub(CHAR_MIN));
-            }
-            match lf {
-                Some(usize::MAX) => break None,
-                Some(i) => break Some(i),
-                // The input's last bytes (a chunk's end): done, without another round.
-                None => match next.get(4..) {
-                    Some(more) if !more.is_empty() => rest = more,
-                    _ => break None,
-                },
-            }
+    pub(super) fn take_data_words(&mut self, input: &[u8]) -> Option<(usize, bool)> {
+        let buffered = self.len;
+        let rest = (DATA_CHARS + 1).checked_sub(buffered)?;
+        let (n, ends) = match input.get(rest) {
+            Some(&b'\n') => (rest, true),
+            Some(_) => return None,
+            None => (input.len(), false),
         };
-        (self.len, self.sum, self.bad) = (len, sum, bad);
-        found
+        let src = input.get(..n)?;
+        // Both at most a full line: no wrap.
+        let end = buffered.wrapping_add(n);
+        let (add, valid) = copy_check_words(src, self.buf.get_mut(buffered..end)?);
+        if !valid {
+            return None;
+        }
+        if buffered == 0 {
+            (self.sum, self.bad) = (add, 0);
+        } else {
+            self.sum = self.sum.wrapping_add(add);
+        }
+        self.len = end;
+        let used = n.wrapping_add(usize::from(ends));
+        // The stream offset and the byte counter wrap (after 2^64 bytes).
+        self.offset = self.offset.wrapping_add(used as u64);
+        self.stats.bytes = self.stats.bytes.wrapping_add(used as u64);
+        Some((used, ends))
     }
 
     /// The other fast path of [`Self::feed`] on 64-bit hosts:
@@ -172,40 +127,69 @@ impl Decoder {
     }
 }
 
-/// Copies the longest run of whole 4-byte words of value chars (`0x30..=0x6F`) at the
-/// start of `input` into `dst` (as far as `dst` has room); returns the bytes copied and
-/// their sum less `0x30` each (so the same mod 64). A word is tested at once: no byte of
-/// `w - 0x30303030` has bit 6 or 7 set exactly when every byte is a value char (a byte
-/// below 0x30 flags itself, whatever it borrows); its four values below 0x40 are summed
-/// by one multiplication (no partial sum carries).
-#[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+/// Copies `src` into `dst` (of the same length; false otherwise) and tells whether
+/// every byte is a value char (`0x30..=0x6F`), with a sum of them that is their sum
+/// mod 64 (meaningless when they are not all value chars). A word at a time: no
+/// byte of `w - 0x30303030` has bit 6 or 7 set exactly when every byte is a value char
+/// (a byte below 0x30 flags itself, whatever it borrows), the flags gathered by OR and
+/// tested once at the end; the four values below 0x40 summed by one multiplication (no
+/// partial sum carries). The last one to three bytes are the last word's top bytes,
+/// read again overlapping the word before (those bytes shifted out), or, with fewer
+/// than four bytes in all, one at a time.
 #[inline(always)]
-pub(super) fn copy_value_words(input: &[u8], dst: &mut [u8]) -> (usize, u32) {
+pub(super) fn copy_check_words(src: &[u8], dst: &mut [u8]) -> (u32, bool) {
     const FLAGS: u32 = 0xC0C0_C0C0;
     const CHARS: u32 = 0x3030_3030;
-    let (mut words, mut sum) = (0usize, 0u32);
-    for (src, out) in input.chunks_exact(4).zip(dst.chunks_exact_mut(4)) {
-        let Ok(four) = <[u8; 4]>::try_from(src) else {
+    if src.len() != dst.len() {
+        return (0, false);
+    }
+    let (mut sum, mut flags) = (0u32, 0u32);
+    let mut from = src.chunks_exact(4);
+    let mut to = dst.chunks_exact_mut(4);
+    for (s, d) in (&mut from).zip(&mut to) {
+        let Ok(four) = <[u8; 4]>::try_from(s) else {
             break;
         };
         let v = u32::from_le_bytes(four).wrapping_sub(CHARS);
-        if v & FLAGS != 0 {
-            break;
-        }
-        out.copy_from_slice(&four);
-        // Words of `input`: neither this count nor `4 * words` below wraps.
-        words = words.wrapping_add(1);
+        flags |= v;
+        d.copy_from_slice(&four);
         // The top byte of v·0x01010101 is the sum of v's four bytes.
         sum = sum.wrapping_add(v.wrapping_mul(0x0101_0101) >> 24);
     }
-    (words.wrapping_mul(4), sum)
+    let tail = from.remainder().len();
+    if tail != 0 {
+        match (src.last_chunk::<4>(), dst.last_chunk_mut::<4>()) {
+            (Some(last), Some(out)) => {
+                // The word's low `4 - tail` bytes were checked and summed above (valid
+                // ones borrow nothing from the bytes above them). 1..=3: no wrap.
+                let v = u32::from_le_bytes(*last).wrapping_sub(CHARS)
+                    >> (32usize.wrapping_sub(tail.wrapping_mul(8)));
+                flags |= v;
+                // The `0x30` of each of the `tail` bytes back (a word's four make 0
+                // mod 64).
+                sum = sum
+                    .wrapping_add(v.wrapping_mul(0x0101_0101) >> 24)
+                    .wrapping_add((tail as u32).wrapping_mul(0x30));
+                *out = *last;
+            }
+            // Fewer than four bytes: no word above.
+            _ => {
+                for (d, &c) in dst.iter_mut().zip(src) {
+                    *d = c;
+                    flags |= u32::from(c.wrapping_sub(CHAR_MIN));
+                    sum = sum.wrapping_add(u32::from(c));
+                }
+            }
+        }
+    }
+    (sum, flags & FLAGS == 0)
 }
 
 /// Copies `src` into `dst` (of the same length) and tells whether every byte is a
 /// value char (`0x30..=0x6F`); false when one is not or the lengths differ (`dst` then
 /// holds part or all of `src`, beyond what the caller counts as taken). Eight bytes at a
 /// time (see [`copy_words`]) with no branch per word but the length's: the word test is
-/// [`copy_value_words`]', its flags gathered by OR and tested once at the end.
+/// [`copy_check_words`]', its flags gathered by OR and tested once at the end.
 #[cfg(not(target_pointer_width = "32"))]
 #[inline(always)]
 pub(super) fn copy_value_chars(src: &[u8], dst: &mut [u8]) -> bool {

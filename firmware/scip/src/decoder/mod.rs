@@ -413,7 +413,9 @@ impl Decoder {
     ///
     /// On 64-bit hosts a full data line (64 value chars, its sum char, the LF) is taken
     /// without an LF search and, when all of it is in `input`, decoded from there
-    /// without a copy into the line buffer; the events are the same.
+    /// without a copy into the line buffer. On 32-bit targets the bytes of a data line
+    /// up to a full line's LF are copied, checked and summed a word at a time, without
+    /// an LF search either. The events are the same.
     #[inline]
     pub fn feed(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
         // 64-bit hosts, in a data line: with the state, the overflow flag and the line's
@@ -440,6 +442,14 @@ impl Decoder {
                     None if self.take_data_chars(input, buffered) => return (input.len(), None),
                     _ => {}
                 }
+            }
+        }
+        // 32-bit targets, in a data line: the bytes up to a full data line's LF, or all
+        // of `input` when it ends before, copied and checked a word at a time.
+        if self.state == State::Payload(Payload::Data) && !self.overflow && self.on_m4_paths() {
+            if let Some((used, ends)) = self.take_data_words(input) {
+                let ev = if ends { self.full_line_event() } else { None };
+                return (used, ev);
             }
         }
         let mut consumed: usize = 0;

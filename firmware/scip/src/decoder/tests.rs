@@ -80,17 +80,22 @@ fn distance_lines_after_intensity_lines_carry_no_old_intensity() {
     let (gd, values) = scan(DataSet::Distance, 100);
     let mut both = ge.clone();
     both.extend_from_slice(&gd);
-    for chunk in [1, 7, 64, 4096] {
-        let (_, after) = decode(Decoder::new(), &both, chunk);
-        let (_, alone) = decode(Decoder::new(), &gd, chunk);
-        assert_eq!(&after[100..], &alone[..], "chunk {chunk}");
-        assert!(alone
-            .iter()
-            .zip(&values)
-            .all(|(r, &(d, _))| r.distance == d && r.aux == 0));
+    for chunk in [1, 7, 64, 128, 4096] {
+        for make in [Decoder::new, Decoder::m4_paths] {
+            let (_, after) = decode(make(), &both, chunk);
+            let (_, alone) = decode(make(), &gd, chunk);
+            assert_eq!(&after[100..], &alone[..], "chunk {chunk}");
+            assert!(alone
+                .iter()
+                .zip(&values)
+                .all(|(r, &(d, _))| r.distance == d && r.aux == 0 && r.echo == 0));
+        }
     }
 }
 
+/// The word copy of the 32-bit data-line path against a byte-by-byte copy, check and
+/// sum: every length up to past a full line, one arbitrary byte anywhere (the first,
+/// the last, the overlapped last word's), lengths that differ.
 #[test]
 fn value_words_copied_agree_with_bytes() {
     let mut x = 0x0BAD_CAFEu32;
@@ -98,26 +103,51 @@ fn value_words_copied_agree_with_bytes() {
         x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
         x >> 8
     };
-    for _ in 0..20_000 {
-        let len = next() as usize % 100;
-        let mut input: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
-        if len > 0 && next() % 2 == 0 {
-            let at = next() as usize % len;
-            input[at] = next() as u8;
+    for len in 0..=LINE_CAP + 5 {
+        for round in 0..300 {
+            let mut src: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
+            if len > 0 && round % 2 == 1 {
+                let at = match round % 10 {
+                    1 => 0,
+                    3 => len - 1,
+                    5 => len.saturating_sub(4),
+                    _ => next() as usize % len,
+                };
+                // Edge values around the value chars, or any byte.
+                src[at] = match round % 7 {
+                    0 => 0x2F,
+                    1 => 0x70,
+                    2 => 0x30,
+                    3 => 0x6F,
+                    4 => b'\n',
+                    _ => next() as u8,
+                };
+            }
+            let valid = src.iter().all(|c| (0x30..=0x6F).contains(c));
+            let mut dst = vec![0xAAu8; len];
+            let (sum, ok) = copy_check_words(&src, &mut dst);
+            assert_eq!(ok, valid, "{src:?}");
+            assert_eq!(dst, src);
+            if valid {
+                let bytes_sum: u32 = src.iter().map(|&b| u32::from(b)).sum();
+                assert_eq!(sum % 64, bytes_sum % 64, "{src:?}");
+            }
         }
-        let room = next() as usize % 110;
-        let mut d = vec![0u8; room];
-        let (taken, sum) = copy_value_words(&input, &mut d);
-        assert_eq!(&d[..taken], &input[..taken]);
-        // The longest whole-word prefix of value chars that fits.
-        let valid = input
-            .iter()
-            .take_while(|&&b| (0x30..=0x6F).contains(&b))
-            .count();
-        assert_eq!(taken, valid.min(room) / 4 * 4, "{input:?} room {room}");
-        let bytes_sum: u32 = input[..taken].iter().map(|&b| u32::from(b) - 0x30).sum();
-        assert_eq!(sum, bytes_sum, "{input:?}");
+        // Lengths that differ: refused.
+        let src = vec![b'0'; len];
+        assert!(!copy_check_words(&src, &mut vec![0u8; len + 1]).1);
     }
+    // Hand-computed, mod 64: "012345" is 6·48 + 15 = 303 (47); seven of the largest
+    // char, 7·0x6F = 777 (9); "012" is 147 (19).
+    let mut dst = [0u8; 6];
+    let (sum, ok) = copy_check_words(b"012345", &mut dst);
+    assert_eq!((sum % 64, ok), (47, true));
+    let (sum, ok) = copy_check_words(&[0x6F; 7], &mut [0u8; 7]);
+    assert_eq!((sum % 64, ok), (9, true));
+    let (sum, ok) = copy_check_words(b"012", &mut [0u8; 3]);
+    assert_eq!((sum % 64, ok), (19, true));
+    assert!(!copy_check_words(b"01234/", &mut dst).1);
+    assert!(!copy_check_words(b"p12345", &mut dst).1);
 }
 
 /// The word copies of split data lines (64-bit hosts) against a byte-by-byte copy and
@@ -174,15 +204,21 @@ fn word_copies_of_split_lines_agree_with_bytes() {
 #[test]
 fn sum_and_check_taken_while_copying_equals_the_bytewise_one() {
     // Lines of value chars (some with one arbitrary byte, never LF), their LF, in
-    // pseudo-random pieces: what `take_line_bytes` takes must be what
-    // `sum_and_check_bytes` computes over the line's data.
+    // pseudo-random pieces, taken as `feed` takes them in a data line on 32-bit
+    // targets (the word path, else the general copy): the sum and check then
+    // given for the line must be what `sum_and_check_bytes` computes over its data.
     let mut x = 0x9E37_79B9u32;
     let mut next = || {
         x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
         x >> 8
     };
-    for _ in 0..20_000 {
-        let len = 1 + next() as usize % 90;
+    for round in 0..20_000 {
+        // Mostly full lines (64 data chars and the sum char), the paths' common case.
+        let len = if round % 2 == 0 {
+            DATA_CHARS + 1
+        } else {
+            1 + next() as usize % 90
+        };
         let mut line: Vec<u8> = (0..len).map(|_| 0x30 + (next() % 0x40) as u8).collect();
         if next() % 2 == 0 {
             let at = next() as usize % len;
@@ -193,26 +229,45 @@ fn sum_and_check_taken_while_copying_equals_the_bytewise_one() {
         }
         let mut stream = line.clone();
         stream.push(b'\n');
-        let fused = next() % 2 == 0;
+        // And what follows it.
+        stream.extend_from_slice(b"0\n");
         let mut d = Decoder::new();
+        d.state = State::Payload(Payload::Data);
         let mut rest = &stream[..];
         let mut lf = None;
         let mut base = 0;
         while lf.is_none() && !rest.is_empty() {
             let piece = (1 + next() as usize % 70).min(rest.len());
-            let found = if fused {
-                d.take_line_bytes_fused(&rest[..piece])
+            let taken = if d.overflow {
+                None
             } else {
-                d.take_line_bytes_plain(&rest[..piece])
+                d.take_data_words(&rest[..piece])
             };
-            lf = found.map(|i| base + i);
-            base += piece;
-            rest = &rest[piece..];
+            let used = match taken {
+                Some((used, ends)) => {
+                    if ends {
+                        lf = Some(base + used - 1);
+                    }
+                    used
+                }
+                None => match d.take_line_bytes(&rest[..piece]) {
+                    Some(i) => {
+                        lf = Some(base + i);
+                        i + 1
+                    }
+                    None => piece,
+                },
+            };
+            base += used;
+            rest = &rest[used..];
         }
         assert_eq!(lf, Some(len), "{line:?}");
         let expect = sum_and_check_bytes(&line[..len - 1]);
         let overflow = len > LINE_CAP;
+        assert_eq!(d.overflow, overflow);
         if !overflow {
+            assert_eq!(d.len, len);
+            assert_eq!(&d.buf[..len], &line[..]);
             let (sum, found, valid) = d.line_sum_and_check(len).unwrap();
             assert_eq!(found, line[len - 1]);
             assert_eq!((sum, valid), expect, "{line:?}");

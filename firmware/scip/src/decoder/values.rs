@@ -36,16 +36,108 @@ impl Decoder {
         Some(self.data_event())
     }
 
-    /// True where a 64-bit host takes the paths of 32-bit targets (the line copy that
-    /// checks and sums): in tests and fuzzing, for a decoder made by
-    /// [`Decoder::m4_paths`]. (32-bit targets take those paths without asking.)
-    #[cfg(not(target_pointer_width = "32"))]
+    /// The event of the full data line [`Self::feed`]'s 32-bit fast path just
+    /// completed in the line buffer (64 value chars and the sum char, see
+    /// [`Self::take_data_words`]): [`Self::line_event`]'s bookkeeping, then, for a line
+    /// of 3-char distances whose readings are plain, its sum checked from the
+    /// accumulators and its steps decoded with the line's lengths fixed
+    /// ([`Self::plain_full_line`]); anything else (a bad sum, a line after a short
+    /// one, another data set ...) goes to [`Self::data_line`] as the general path
+    /// would. Same events, readings and state.
+    #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+    #[inline(never)]
+    pub(super) fn full_line_event(&mut self) -> Option<Event<'_>> {
+        let len = self.len;
+        self.len = 0;
+        self.current_line = self.line_start;
+        self.line_start = self.offset;
+        self.line_no = self.line_no.saturating_add(1);
+        #[cfg(any(test, fuzzing))]
+        let plain = self.readings_plain && !self.char_by_char;
+        #[cfg(not(any(test, fuzzing)))]
+        let plain = self.readings_plain;
+        let sum_ok = match self.buf.get(DATA_CHARS) {
+            // 0x30..=0x6F: no wrap.
+            Some(&s) => {
+                ((self.sum.wrapping_sub(u32::from(s)) & 0x3F) as u8).wrapping_add(0x30) == s
+            }
+            None => false,
+        };
+        if len == DATA_CHARS + 1
+            && sum_ok
+            && self.bad & 0xC0 == 0
+            && plain
+            && !self.short_line_seen
+            && self.shape.data == DataSet::Distance
+            && !self.shape.multi_echo
+        {
+            return match self.plain_full_line() {
+                Ok(()) => Some(self.data_event()),
+                Err(kind) => self.fail(kind),
+            };
+        }
+        self.data_line(len)
+    }
+
+    /// [`Self::decode_steps`] for 3-char distances on a full line of valid value chars
+    /// in the line buffer, the readings plain (echo 0 and aux 0 in every slot): the
+    /// step begun on the previous line (0, 1 or 2 chars carried) completed, the 20 or
+    /// 21 whole steps after it, the 0 to 2 chars left carried: every length follows
+    /// from the chars carried. Same readings, state and errors.
+    #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
+    #[inline(always)]
+    fn plain_full_line(&mut self) -> Result<(), ErrorKind> {
+        const D: usize = 3;
+        let Some(chars) = self.buf.first_chunk::<DATA_CHARS>() else {
+            return Ok(());
+        };
+        // Chars of the first whole step's value before it: 0, 2 or 1 (the step's rest).
+        let (head, off) = match self.carry_n {
+            0 => (false, 0),
+            1 => (true, 2),
+            _ => (true, 1),
+        };
+        // 21, 20, 21 whole steps; 1, 2, 0 chars left.
+        let whole: usize = if off == 2 { 20 } else { 21 };
+        let total = whole.wrapping_add(usize::from(head));
+        if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
+            return Err(self.too_many());
+        }
+        let mut index = self.values;
+        let (first, slots) = self.readings.split_at_mut(usize::from(head));
+        if let Some(slot) = first.first_mut() {
+            slot.distance = continue_valid(self.carry, chars.get(..off).unwrap_or(&[]));
+            slot.index = index;
+            index = index.wrapping_add(1);
+        }
+        // `off + 3 * 21` is at most 64: within the line.
+        let steps = chars.get(off..).unwrap_or(&[]);
+        let (mid, tail) = steps.split_at(whole.wrapping_mul(D).min(steps.len()));
+        let slots = slots.get_mut(..whole).unwrap_or(&mut []);
+        // The chars' address hidden from the optimiser: known as the line buffer's, the
+        // loop indexes chars and slots by one counter (15 instructions a step on a
+        // Cortex-M4) instead of walking two pointers (11).
+        index = put_step_run::<D, 0, true>(slots, core::hint::black_box(mid), index);
+        self.echo_no = 0;
+        self.values = index;
+        self.n_readings = total;
+        self.carry = continue_valid(0, tail);
+        // 0, 1 or 2 chars: fits.
+        self.carry_n = tail.len() as u8;
+        Ok(())
+    }
+
+    /// True where the paths of 32-bit targets are taken (a data line's bytes copied,
+    /// checked and summed a word at a time, then decoded from the line buffer): always
+    /// on 32-bit targets, and on a 64-bit host in tests and fuzzing for a decoder made
+    /// by [`Decoder::m4_paths`].
     #[inline(always)]
     pub(super) fn on_m4_paths(&self) -> bool {
-        #[cfg(any(test, fuzzing))]
-        if self.m4 {
-            return true;
-        }
+        #[cfg(target_pointer_width = "32")]
+        return true;
+        #[cfg(all(not(target_pointer_width = "32"), any(test, fuzzing)))]
+        return self.m4;
+        #[cfg(all(not(target_pointer_width = "32"), not(any(test, fuzzing))))]
         false
     }
 
