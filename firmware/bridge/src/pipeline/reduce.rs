@@ -78,6 +78,39 @@ impl Written<'_> {
         // At most the line's points.
         self.invalid = self.invalid.wrapping_add(usize::from(none));
     }
+
+    /// The output points of the pairs of `cells`, `point` of each (the pairs behind the
+    /// slots written so far: each output over a cell already read), in one loop
+    /// without a check per output; returns the point left over (when `cells` has an
+    /// odd length).
+    #[inline(always)]
+    fn pairs<'c>(
+        &mut self,
+        cells: &'c [Cell<Reading>],
+        point: impl Fn(&Cell<Reading>, &Cell<Reading>) -> (u32, u32),
+    ) -> Option<&'c Cell<Reading>> {
+        let pairs = cells.chunks_exact(2);
+        let left = pairs.remainder().first();
+        let slots = self.slots.as_slice();
+        let (mut invalid, out_none) = (self.invalid, self.out_none);
+        let mut taken = 0usize;
+        for (slot, pair) in slots.iter().zip(pairs) {
+            if let [a, b] = pair {
+                let (d, aux) = point(a, b);
+                let none = d == NONE;
+                let mut r = slot.get();
+                r.distance = if none { out_none } else { d.max(1) };
+                r.aux = aux;
+                slot.set(r);
+                // Both at most the line's points.
+                invalid = invalid.wrapping_add(usize::from(none));
+                taken = taken.wrapping_add(1);
+            }
+        }
+        self.invalid = invalid;
+        self.slots = slots.get(taken..).unwrap_or_default().iter();
+        left
+    }
 }
 
 /// A point into the running minimum `best` (range, intensity): NONE is above every
@@ -120,15 +153,9 @@ fn min_line(
         // (The line ended in the open group.)
         return open;
     }
-    let mut pairs = rest.chunks_exact(2);
-    for pair in &mut pairs {
-        if let [a, b] = pair {
-            o.emit(min1(value(b), min1(value(a), EMPTY)));
-        }
-    }
-    match pairs.remainder() {
-        [c] => (1, min1(value(c), EMPTY)),
-        _ => (0, EMPTY),
+    match o.pairs(rest, |a, b| min1(value(b), min1(value(a), EMPTY))) {
+        Some(c) => (1, min1(value(c), EMPTY)),
+        None => (0, EMPTY),
     }
 }
 
@@ -224,20 +251,17 @@ fn mean_line(
         // (The line ended in the open group.)
         return open;
     }
-    let mut pairs = rest.chunks_exact(2);
-    for pair in &mut pairs {
-        if let [a, b] = pair {
-            let (a, b) = (a.get().distance, b.get().distance);
-            // A point without a range takes the other's: the mean of the valid ones,
-            // no range when neither is (the mean of two ranges is a range).
-            let a = if a == NONE { b } else { a };
-            let b = if b == NONE { a } else { b };
-            o.emit((mean2(a, b), 0));
-        }
-    }
-    match pairs.remainder() {
-        [c] => (1, Sums::EMPTY.add(value(c), 0)),
-        _ => (0, Sums::EMPTY),
+    let left = o.pairs(rest, |a, b| {
+        let (a, b) = (a.get().distance, b.get().distance);
+        // A point without a range takes the other's: the mean of the valid ones, no
+        // range when neither is (the mean of two ranges is a range).
+        let a = if a == NONE { b } else { a };
+        let b = if b == NONE { a } else { b };
+        (mean2(a, b), 0)
+    });
+    match left {
+        Some(c) => (1, Sums::EMPTY.add(value(c), 0)),
+        None => (0, Sums::EMPTY),
     }
 }
 
