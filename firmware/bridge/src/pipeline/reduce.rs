@@ -57,6 +57,7 @@ pub(super) fn mean2(a: u32, b: u32) -> u32 {
 /// The output side of [`reduce_line`]: the cells the output points go to, in order
 /// (each written after the points of its group were read, so never ahead of the
 /// reading), and how many of the outputs have no range.
+#[derive(Clone)]
 struct Written<'a> {
     slots: core::slice::Iter<'a, Cell<Reading>>,
     out_none: u32,
@@ -79,33 +80,31 @@ impl Written<'_> {
         self.invalid = self.invalid.wrapping_add(usize::from(none));
     }
 
-    /// The output points of the pairs of `cells`, `point` of each (the pairs behind the
-    /// slots written so far: each output over a cell already read), in one loop
-    /// without a check per output; returns the point left over (when `cells` has an
-    /// odd length).
+    /// The output points of the groups of `k` of `cells`, `point` of each (the groups
+    /// behind the slots written so far: each output over a cell already read), in one
+    /// loop without a check per output; returns the points left over (fewer than `k`).
     #[inline(always)]
-    fn pairs<'c>(
+    fn groups<'c>(
         &mut self,
         cells: &'c [Cell<Reading>],
-        point: impl Fn(&Cell<Reading>, &Cell<Reading>) -> (u32, u32),
-    ) -> Option<&'c Cell<Reading>> {
-        let pairs = cells.chunks_exact(2);
-        let left = pairs.remainder().first();
+        k: usize,
+        point: impl Fn(&[Cell<Reading>]) -> (u32, u32),
+    ) -> &'c [Cell<Reading>] {
+        let groups = cells.chunks_exact(k);
+        let left = groups.remainder();
         let slots = self.slots.as_slice();
         let (mut invalid, out_none) = (self.invalid, self.out_none);
         let mut taken = 0usize;
-        for (slot, pair) in slots.iter().zip(pairs) {
-            if let [a, b] = pair {
-                let (d, aux) = point(a, b);
-                let none = d == NONE;
-                let mut r = slot.get();
-                r.distance = if none { out_none } else { d.max(1) };
-                r.aux = aux;
-                slot.set(r);
-                // Both at most the line's points.
-                invalid = invalid.wrapping_add(usize::from(none));
-                taken = taken.wrapping_add(1);
-            }
+        for (slot, group) in slots.iter().zip(groups) {
+            let (d, aux) = point(group);
+            let none = d == NONE;
+            let mut r = slot.get();
+            r.distance = if none { out_none } else { d.max(1) };
+            r.aux = aux;
+            slot.set(r);
+            // Both at most the line's points.
+            invalid = invalid.wrapping_add(usize::from(none));
+            taken = taken.wrapping_add(1);
         }
         self.invalid = invalid;
         self.slots = slots.get(taken..).unwrap_or_default().iter();
@@ -143,20 +142,7 @@ fn min_line(
     open: (usize, (u32, u32)),
     o: &mut Written<'_>,
 ) -> (usize, (u32, u32)) {
-    if k != 2 {
-        return min_count(cells, k, open, o);
-    }
-    // Pairs, after the open group's rest (its one missing point).
-    let (head, rest) = cells.split_at(open.0.min(cells.len()));
-    let open = min_count(head, k, open, o);
-    if open.0 > 0 {
-        // (The line ended in the open group.)
-        return open;
-    }
-    match o.pairs(rest, |a, b| min1(value(b), min1(value(a), EMPTY))) {
-        Some(c) => (1, min1(value(c), EMPTY)),
-        None => (0, EMPTY),
-    }
+    min_count(cells, k, open, o)
 }
 
 /// [`min_line`]'s loop for any factor, counting each group's points down.
@@ -169,14 +155,17 @@ fn min_count(
 ) -> (usize, (u32, u32)) {
     // Points until the group is complete (`have` is below `k`).
     let mut left = k.wrapping_sub(have);
+    // The writer in registers for the loop.
+    let mut w = o.clone();
     for c in cells {
         best = min1(value(c), best);
         left = left.wrapping_sub(1);
         if left == 0 {
-            o.emit(best);
+            w.emit(best);
             (best, left) = (EMPTY, k);
         }
     }
+    *o = w;
     (k.wrapping_sub(left), best)
 }
 
@@ -240,29 +229,62 @@ fn mean_line(
     aux_mask: u32,
     o: &mut Written<'_>,
 ) -> (usize, Sums) {
-    // Pairs of points without intensities (the common case) take the quick path.
-    if k != 2 || aux_mask != 0 || open.1.auxes != 0 {
+    // Points without intensities (the common case): whole groups in a loop of their
+    // own, a quick one for pairs.
+    if aux_mask != 0 || open.1.auxes != 0 {
         return mean_count(cells, k, open, aux_mask, o);
     }
-    // Pairs, after the open group's rest (its one missing point).
-    let (head, rest) = cells.split_at(open.0.min(cells.len()));
+    // The open group's rest first (`have` is below `k`).
+    let rest = if open.0 == 0 {
+        0
+    } else {
+        k.wrapping_sub(open.0)
+    };
+    let (head, rest) = cells.split_at(rest.min(cells.len()));
     let open = mean_count(head, k, open, aux_mask, o);
     if open.0 > 0 {
         // (The line ended in the open group.)
         return open;
     }
-    let left = o.pairs(rest, |a, b| {
-        let (a, b) = (a.get().distance, b.get().distance);
-        // A point without a range takes the other's: the mean of the valid ones, no
-        // range when neither is (the mean of two ranges is a range).
-        let a = if a == NONE { b } else { a };
-        let b = if b == NONE { a } else { b };
-        (mean2(a, b), 0)
-    });
-    match left {
-        Some(c) => (1, Sums::EMPTY.add(value(c), 0)),
-        None => (0, Sums::EMPTY),
-    }
+    let left = whole_groups(rest, k, o);
+    let s = left.iter().fold(Sums::EMPTY, |s, c| s.add(value(c), 0));
+    (left.len(), s)
+}
+
+/// The whole groups of `k` of `cells` (a group beginning at the first), the points
+/// without intensities: their `Mean`, in one loop writing the output points behind them
+/// (of pairs without a division). Returns the points left over.
+#[inline(never)]
+fn whole_groups<'c>(
+    cells: &'c [Cell<Reading>],
+    k: usize,
+    o: &mut Written<'_>,
+) -> &'c [Cell<Reading>] {
+    o.groups(cells, k, |g| match g {
+        [a, b] => {
+            let (a, b) = (a.get().distance, b.get().distance);
+            // A point without a range takes the other's: the mean of the valid ones,
+            // no range when neither is (the mean of two ranges is a range).
+            let a = if a == NONE { b } else { a };
+            let b = if b == NONE { a } else { b };
+            (mean2(a, b), 0)
+        }
+        g => {
+            let (mut sum, mut valid) = (0u64, 0u32);
+            for c in g {
+                let d = c.get().distance;
+                let range = d != NONE;
+                // At most the factor's u32s: no wrap.
+                sum = sum.wrapping_add(u64::from(if range { d } else { 0 }));
+                valid = valid.wrapping_add(u32::from(range));
+            }
+            if valid == 0 {
+                EMPTY
+            } else {
+                (mean(sum, valid), 0)
+            }
+        }
+    })
 }
 
 /// [`mean_line`]'s loop for any factor, counting each group's points down.
@@ -276,14 +298,17 @@ fn mean_count(
 ) -> (usize, Sums) {
     // Points until the group is complete (`have` is below `k`).
     let mut left = k.wrapping_sub(have);
+    // The writer in registers for the loop.
+    let mut w = o.clone();
     for c in cells {
         s = s.add(value(c), aux_mask);
         left = left.wrapping_sub(1);
         if left == 0 {
-            o.emit(s.point());
+            w.emit(s.point());
             (s, left) = (Sums::EMPTY, k);
         }
     }
+    *o = w;
     (k.wrapping_sub(left), s)
 }
 
