@@ -564,7 +564,7 @@ impl Pipeline {
             // encoder's form.
             let n = input.len();
             let cells = buf.get_mut(..n).unwrap_or_default();
-            smooth::classify(input, cells, &line, &mut t);
+            smooth::classify(input, cells, line, &mut t);
             let (m, invalid) = if line.decimate {
                 let back = u32::try_from(last).unwrap_or(0).saturating_mul(cluster);
                 let first = last_step.saturating_sub(back);
@@ -583,7 +583,7 @@ impl Pipeline {
         }
         let (sp, md) = (&mut h.speckle, &mut h.median);
         // The output is converted after decimation, or in the loops.
-        let (w, mut invalid, changed) = smooth::line(input, buf, &line, sp, md, &mut t);
+        let (w, mut invalid, changed) = smooth::line(input, buf, line, sp, md, &mut t);
         let decimate = line.decimate;
         // Points held back by the windows (steps count back from `last_step`).
         let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
