@@ -2086,25 +2086,36 @@ mod tests {
         }
 
         /// The line path mixed with the point path in one scan (a line out of order, or
-        /// with several echoes, goes point by point in the engine): the windows' state
-        /// passes between them. Ranges up to near `u32::MAX` and speckle thresholds up
-        /// to it take the exact speckle loop. Points, counters and `filtered` as the
-        /// whole-scan reference.
+        /// with several echoes, goes point by point in the engine): the windows' and
+        /// the decimator's state pass between them. Ranges up to near `u32::MAX` and
+        /// speckle thresholds up to it take the exact speckle loop (and means of such
+        /// ranges the 64-bit sum). Points, counters and `filtered` as the whole-scan
+        /// reference.
         #[test]
         fn line_and_point_paths_mixed_match_the_reference(
             inputs in proptest::collection::vec(
-                (proptest::prop_oneof![0u32..3000, (u32::MAX - 3000)..(u32::MAX - 1)], 0u8..6),
+                (
+                    proptest::prop_oneof![
+                        0u32..3000,
+                        ((1u32 << 31) - 3000)..((1u32 << 31) + 3000),
+                        (u32::MAX - 3000)..(u32::MAX - 1),
+                    ],
+                    0u8..6,
+                ),
                 1..60,
             ),
             speckle in proptest::option::of(proptest::prop_oneof![0u32..500, (u32::MAX - 5000)..u32::MAX]),
             median in 0u8..3,
-            decimate in proptest::bool::ANY,
+            decimation in proptest::option::of((1u16..6, 0usize..3)),
             chunks in proptest::collection::vec((1usize..25, proptest::bool::ANY), 1..6),
         ) {
             let config = PipelineConfig {
                 speckle: speckle.map(|max_jump_mm| SpeckleFilter { max_jump_mm }),
                 median: [None, Some(MedianWidth::Three), Some(MedianWidth::Five)][usize::from(median)],
-                decimation: decimate.then_some(Decimation { factor: 2, mode: DecimationMode::Min }),
+                decimation: decimation.map(|(factor, m)| Decimation {
+                    factor,
+                    mode: [DecimationMode::First, DecimationMode::Min, DecimationMode::Mean][m],
+                }),
                 ..PipelineConfig::default()
             };
             let n = inputs.len() as u16;

@@ -452,4 +452,112 @@ mod tests {
         );
         assert!(!p.filtered());
     }
+
+    /// The mean of two without a division is `(a + b + 1) / 2` in 64 bits: every pair
+    /// below 2^10 (and their neighbourhoods at 2^31 and at the top of the range), and
+    /// random pairs over the whole range.
+    #[test]
+    fn mean_of_two_is_the_rounded_mean() {
+        let want = |a: u32, b: u32| ((u64::from(a) + u64::from(b) + 1) / 2) as u32;
+        let bases = [0u32, (1 << 31) - 512, u32::MAX - 1023];
+        for &x in &bases {
+            for &y in &bases {
+                for i in 0..1024u32 {
+                    for j in (0..1024u32).step_by(7) {
+                        let (a, b) = (x + i, y + j);
+                        assert_eq!(super::mean2(a, b), want(a, b), "{a} {b}");
+                    }
+                }
+            }
+        }
+        // A fixed-seed xorshift over all u32 pairs.
+        let mut r = 0x9E37_79B9_7F4A_7C15u64;
+        for _ in 0..1_000_000 {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            let (a, b) = (r as u32, (r >> 32) as u32);
+            assert_eq!(super::mean2(a, b), want(a, b), "{a} {b}");
+        }
+    }
+
+    /// Mean of 2 and of 3 by hand through lines of odd lengths (groups across lines),
+    /// with error codes, a group without a range, and ranges whose sums pass 2^32.
+    #[test]
+    fn means_across_lines_by_hand() {
+        const BIG: u32 = u32::MAX - 10;
+        const HALF: u32 = 1 << 31;
+        let run = |factor: u16, lines: &[&[u32]]| {
+            let config = PipelineConfig {
+                decimation: Some(Decimation {
+                    factor,
+                    mode: DecimationMode::Mean,
+                }),
+                ..PipelineConfig::default()
+            };
+            let mut p = Pipeline::new(config).unwrap();
+            let n: usize = lines.iter().map(|l| l.len()).sum();
+            let info = ScanInfo {
+                seq: 0,
+                timestamp_ms: 0,
+                first_step: 0,
+                last_step: n as u16 - 1,
+                cluster: 1,
+            };
+            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
+            let rule = can_wire::RangeRule::at_least(1);
+            let none = 7_777_777;
+            let mut out = Vec::new();
+            let mut step = 0u16;
+            for line in lines {
+                let input: Vec<_> = line.iter().map(|&d| reading(d, 0)).collect();
+                let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
+                let k = p.filter_line(step, &input, &mut cells, rule, false, none);
+                let k = k.unwrap();
+                out.extend(
+                    cells[..k]
+                        .iter()
+                        .map(|c| (c.distance != none).then_some(c.distance)),
+                );
+                step += line.len() as u16;
+            }
+            p.end_scan(true, &mut |x: Point| out.push(x.range_mm));
+            (out, p.stats().points_out_invalid)
+        };
+        // Pairs: [1000 1001] [0 0] [BIG BIG] [HALF HALF+1] [5 0] [0 7] [3]
+        // -> 1001 (1000.5 up), none, BIG, HALF+1, 5, 7, 3 (the short last group).
+        let lines: [&[u32]; 3] = [
+            &[1000, 1001, 0],
+            &[0, BIG, BIG, HALF],
+            &[HALF + 1, 5, 0, 0, 7, 3],
+        ];
+        assert_eq!(
+            run(2, &lines),
+            (
+                std::vec![
+                    Some(1001),
+                    None,
+                    Some(BIG),
+                    Some(HALF + 1),
+                    Some(5),
+                    Some(7),
+                    Some(3)
+                ],
+                1
+            )
+        );
+        // Threes: [1000 1001 0] [0 BIG BIG] [HALF HALF+1 5] [0 0 7] [3]
+        // -> 1001 (2001 / 2 = 1000.5 up), BIG, (2^32 + 6) / 3 = 1431655767 (the sum
+        // past 32 bits; (2^32 + 6 + 1) / 3 rounds down to it), 7, 3.
+        assert_eq!(
+            run(3, &lines),
+            (
+                std::vec![Some(1001), Some(BIG), Some(1_431_655_767), Some(7), Some(3)],
+                0
+            )
+        );
+        // The scan as one line: the same.
+        let all: Vec<u32> = lines.concat();
+        assert_eq!(run(3, &[&all]).0, run(3, &lines).0);
+    }
 }
