@@ -458,7 +458,7 @@ mod tests {
     /// random pairs over the whole range.
     #[test]
     fn mean_of_two_is_the_rounded_mean() {
-        let want = |a: u32, b: u32| ((u64::from(a) + u64::from(b) + 1) / 2) as u32;
+        let want = |a: u32, b: u32| (u64::from(a) + u64::from(b)).div_ceil(2) as u32;
         let bases = [0u32, (1 << 31) - 512, u32::MAX - 1023];
         for &x in &bases {
             for &y in &bases {
