@@ -164,6 +164,12 @@ pub struct Pipeline {
     held: Held,
     /// The runs [`Pipeline::pass_run`] takes with `config`, worked out when it is set.
     direct: DirectRuns,
+    /// What [`Pipeline::filter_line`]'s stages need of `config`, worked out when it is
+    /// set (a line fills in the sensor's rule, the intensity threshold when its points
+    /// carry intensities, and the encoder's value for no range).
+    line: LineConsts,
+    /// The intensity threshold of `config` (0: none).
+    min_intensity: u32,
 }
 
 /// The runs [`Pipeline::pass_run`] takes with a configuration.
@@ -227,6 +233,8 @@ impl Pipeline {
             stats: Stats::default(),
             filtered: false,
             direct: DirectRuns::of(&config),
+            line: LineConsts::of(&config),
+            min_intensity: config.min_intensity.unwrap_or(0),
             held: Held {
                 live: false,
                 speckle: window::Regs::default(),
@@ -282,6 +290,8 @@ impl Pipeline {
         if let Some(config) = self.next_config.take() {
             self.config = config;
             self.direct = DirectRuns::of(&config);
+            self.line = LineConsts::of(&config);
+            self.min_intensity = config.min_intensity.unwrap_or(0);
             self.median = CentredWindow::new(window::median_half(config.median));
             self.decimator = Decimator::new(config.decimation);
             self.gate.reset();
@@ -529,33 +539,32 @@ impl Pipeline {
         let Some(last) = input.len().checked_sub(1) else {
             return Some(0);
         };
-        // Step of the slice's last point (the run fits the scan's u16 steps).
-        let last_step = u32::from(first_step).saturating_add(
-            u32::try_from(lo.saturating_add(last))
-                .unwrap_or(u32::MAX)
-                .saturating_mul(cluster),
+        // Step of the slice's last point: the run fits the scan's u16 steps, so `lo +
+        // last` is below 2^16 and times the cluster (below 2^16) below 2^32.
+        let last_step = u32::from(first_step).wrapping_add(
+            u32::try_from(lo.wrapping_add(last))
+                .unwrap_or(0)
+                .wrapping_mul(cluster),
         );
-        let cfg = self.config;
         // Four words (a `Counts::default()` here was a call to clear 25 bytes a line).
         let mut t = Tally::default();
-        let window = cfg
-            .range_window
-            .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
-        let line = LineConsts {
-            rule: can_wire::RangeRule { window, ..sensor },
-            min_intensity: cfg.min_intensity.filter(|_| intensity).unwrap_or(0),
-            jump: cfg.speckle.map(|f| f.max_jump_mm),
-            median: cfg.median,
-            decimate: self.decimator.is_active(),
-            out_none,
+        // The settings' part is kept from when they were set: the line's part only.
+        let line = &mut self.line;
+        let [wmin, wmax] = line.rule.window;
+        line.rule = can_wire::RangeRule {
+            window: [wmin, wmax],
+            ..sensor
         };
+        line.min_intensity = if intensity { self.min_intensity } else { 0 };
+        line.out_none = out_none;
+        let line = &self.line;
         let windows = line.jump.is_some() || line.median.is_some();
         if !windows {
             // The classification, then decimation (pipeline/reduce.rs) or the
             // encoder's form.
             let n = input.len();
             let cells = buf.get_mut(..n).unwrap_or_default();
-            smooth::classify(input, cells, &line, &mut t);
+            smooth::classify(input, cells, line, &mut t);
             let (m, invalid) = if line.decimate {
                 let back = u32::try_from(last).unwrap_or(0).saturating_mul(cluster);
                 let first = last_step.saturating_sub(back);
@@ -574,7 +583,7 @@ impl Pipeline {
         }
         let (sp, md) = (&mut h.speckle, &mut h.median);
         // The output is converted after decimation, or in the loops.
-        let (w, mut invalid, changed) = smooth::line(input, buf, &line, sp, md, &mut t);
+        let (w, mut invalid, changed) = smooth::line(input, buf, line, sp, md, &mut t);
         let decimate = line.decimate;
         // Points held back by the windows (steps count back from `last_step`).
         let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
@@ -821,7 +830,9 @@ impl Pipeline {
 /// No range, inside a line.
 const NONE: u32 = u32::MAX;
 
-/// What [`smooth::line`] needs of the settings, worked out once per line.
+/// What [`smooth::line`] needs of the settings, worked out when they are set, with the
+/// line's own parts filled in for each line.
+#[derive(Debug, Clone, Copy)]
 struct LineConsts {
     /// The sensor's range test with the range window.
     rule: can_wire::RangeRule,
@@ -835,6 +846,27 @@ struct LineConsts {
     decimate: bool,
     /// The encoder's value for no range.
     out_none: u32,
+}
+
+impl LineConsts {
+    /// The constants of `config`'s lines, the line's own parts (the sensor's rule but
+    /// the window, the intensity threshold, the value for no range) left to fill in.
+    fn of(config: &PipelineConfig) -> LineConsts {
+        let window = config
+            .range_window
+            .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
+        LineConsts {
+            rule: can_wire::RangeRule {
+                window,
+                ..can_wire::RangeRule::at_least(0)
+            },
+            min_intensity: 0,
+            jump: config.speckle.map(|f| f.max_jump_mm),
+            median: config.median,
+            decimate: config.decimation_factor() > 1,
+            out_none: 0,
+        }
+    }
 }
 
 /// What [`Pipeline::filter_line`]'s classification and speckle removal rejected in a
@@ -2054,25 +2086,36 @@ mod tests {
         }
 
         /// The line path mixed with the point path in one scan (a line out of order, or
-        /// with several echoes, goes point by point in the engine): the windows' state
-        /// passes between them. Ranges up to near `u32::MAX` and speckle thresholds up
-        /// to it take the exact speckle loop. Points, counters and `filtered` as the
-        /// whole-scan reference.
+        /// with several echoes, goes point by point in the engine): the windows' and
+        /// the decimator's state pass between them. Ranges up to near `u32::MAX` and
+        /// speckle thresholds up to it take the exact speckle loop (and means of such
+        /// ranges the 64-bit sum). Points, counters and `filtered` as the whole-scan
+        /// reference.
         #[test]
         fn line_and_point_paths_mixed_match_the_reference(
             inputs in proptest::collection::vec(
-                (proptest::prop_oneof![0u32..3000, (u32::MAX - 3000)..(u32::MAX - 1)], 0u8..6),
+                (
+                    proptest::prop_oneof![
+                        0u32..3000,
+                        ((1u32 << 31) - 3000)..((1u32 << 31) + 3000),
+                        (u32::MAX - 3000)..(u32::MAX - 1),
+                    ],
+                    0u8..6,
+                ),
                 1..60,
             ),
             speckle in proptest::option::of(proptest::prop_oneof![0u32..500, (u32::MAX - 5000)..u32::MAX]),
             median in 0u8..3,
-            decimate in proptest::bool::ANY,
+            decimation in proptest::option::of((1u16..6, 0usize..3)),
             chunks in proptest::collection::vec((1usize..25, proptest::bool::ANY), 1..6),
         ) {
             let config = PipelineConfig {
                 speckle: speckle.map(|max_jump_mm| SpeckleFilter { max_jump_mm }),
                 median: [None, Some(MedianWidth::Three), Some(MedianWidth::Five)][usize::from(median)],
-                decimation: decimate.then_some(Decimation { factor: 2, mode: DecimationMode::Min }),
+                decimation: decimation.map(|(factor, m)| Decimation {
+                    factor,
+                    mode: [DecimationMode::First, DecimationMode::Min, DecimationMode::Mean][m],
+                }),
                 ..PipelineConfig::default()
             };
             let n = inputs.len() as u16;

@@ -5,41 +5,26 @@
 //! [`reduce_line`] carries the open group from line to line in the [`Decimator`]'s
 //! state, so that it gives exactly what [`Decimator::push`] gives point by point (the
 //! groups span lines; the end of the scan flushes the last one with
-//! [`Decimator::flush`]). The group's state is kept in locals for the line, with a loop
-//! per mode: `First` emits a group's first point, `Min` keeps a running minimum (the
-//! first of equals) and `Mean` a sum and a count with one division per group.
+//! [`Decimator::flush`]). One loop per mode, the group's state in registers: `First`
+//! copies every `factor`-th point (from the first group that begins in the line);
+//! `Min` keeps a running minimum (the first of equals) and `Mean` a sum and a count
+//! with one division per group, both counting a group's points down. Groups of 2, the
+//! common factor, take a loop of pairs: the minimum of two, and the rounded mean of two
+//! without a division (`(a | b) - ((a ^ b) >> 1)`). The points are read and written
+//! through a slice of [`Cell`]s, each output over a cell already read (no index
+//! checks).
+
+use core::cell::Cell;
+
+use scip::Reading;
 
 use super::config::DecimationMode;
 use super::decimate::Decimator;
 use super::NONE;
 
-/// A group's running state, in the line loop's registers.
-#[derive(Clone, Copy)]
-struct Acc {
-    /// `Min`: the smallest range so far ([`NONE`]: none yet) and its intensity.
-    best: u32,
-    best_aux: u32,
-    /// `Mean`: the sum and count of the valid ranges, and of their intensities.
-    sum: u64,
-    valid: u32,
-    aux_sum: u64,
-    auxes: u32,
-}
-
-impl Acc {
-    const EMPTY: Acc = Acc {
-        best: NONE,
-        best_aux: 0,
-        sum: 0,
-        valid: 0,
-        aux_sum: 0,
-        auxes: 0,
-    };
-}
-
-/// Rounded mean (halves up) of `sum / n` ([`NONE`] when `n` is 0), the division in 32
-/// bits when the sum fits (one instruction on the Cortex-M4). Once per group: out of
-/// line (code size).
+/// Rounded mean (halves up) of `sum / n`, `n` at least 1: the division in 32 bits when
+/// the sum fits (one instruction on the Cortex-M4). Once per group: out of line (code
+/// size, and the group loop's registers).
 #[inline(never)]
 fn mean(sum: u64, n: u32) -> u32 {
     let half = n >> 1;
@@ -49,7 +34,7 @@ fn mean(sum: u64, n: u32) -> u32 {
     }
 }
 
-/// [`mean`] of a sum past 32 bits (groups of thousands of long ranges).
+/// [`mean`] of a sum past 32 bits (long ranges).
 #[cold]
 #[inline(never)]
 fn wide_mean(sum: u64, n: u32) -> u32 {
@@ -60,13 +45,168 @@ fn wide_mean(sum: u64, n: u32) -> u32 {
         .unwrap_or(NONE)
 }
 
-impl Acc {
-    /// The group's output point in `Mean`: distance ([`NONE`] for no range) and
-    /// intensity.
+/// The rounded mean (halves up) of two values, `(a + b + 1) / 2` without the 33-bit
+/// sum: `a + b` is `(a ^ b) + 2 (a & b)`, so the mean is `(a & b) + ceil((a ^ b) / 2)`,
+/// which is `(a | b) - floor((a ^ b) / 2)`.
+#[inline(always)]
+pub(super) fn mean2(a: u32, b: u32) -> u32 {
+    // `a | b` is at least `a ^ b`, which is at least half of it: no wrap.
+    (a | b).wrapping_sub((a ^ b) >> 1)
+}
+
+/// The output side of [`reduce_line`]: the cells the output points go to, in order
+/// (each written after the points of its group were read, so never ahead of the
+/// reading), and how many of the outputs have no range.
+#[derive(Clone)]
+struct Written<'a> {
+    slots: core::slice::Iter<'a, Cell<Reading>>,
+    out_none: u32,
+    invalid: usize,
+}
+
+impl Written<'_> {
+    /// One output point, in the encoder's form (no range as `out_none`, a range of 0
+    /// as 1).
     #[inline(always)]
-    fn mean(&self) -> (u32, u32) {
+    fn emit(&mut self, (d, aux): (u32, u32)) {
+        let none = d == NONE;
+        if let Some(slot) = self.slots.next() {
+            let mut r = slot.get();
+            r.distance = if none { self.out_none } else { d.max(1) };
+            r.aux = aux;
+            slot.set(r);
+        }
+        // At most the line's points.
+        self.invalid = self.invalid.wrapping_add(usize::from(none));
+    }
+
+    /// The output points of the groups of `k` of `cells`, `point` of each (the groups
+    /// behind the slots written so far: each output over a cell already read), in one
+    /// loop without a check per output; returns the points left over (fewer than `k`).
+    #[inline(always)]
+    fn groups<'c>(
+        &mut self,
+        cells: &'c [Cell<Reading>],
+        k: usize,
+        point: impl Fn(&[Cell<Reading>]) -> (u32, u32),
+    ) -> &'c [Cell<Reading>] {
+        let groups = cells.chunks_exact(k);
+        let left = groups.remainder();
+        let slots = self.slots.as_slice();
+        let (mut invalid, out_none) = (self.invalid, self.out_none);
+        let mut taken = 0usize;
+        for (slot, group) in slots.iter().zip(groups) {
+            let (d, aux) = point(group);
+            let none = d == NONE;
+            let mut r = slot.get();
+            r.distance = if none { out_none } else { d.max(1) };
+            r.aux = aux;
+            slot.set(r);
+            // Both at most the line's points.
+            invalid = invalid.wrapping_add(usize::from(none));
+            taken = taken.wrapping_add(1);
+        }
+        self.invalid = invalid;
+        self.slots = slots.get(taken..).unwrap_or_default().iter();
+        left
+    }
+}
+
+/// A point into the running minimum `best` (range, intensity): NONE is above every
+/// range, so an invalid point never wins; of equals the first stays.
+#[inline(always)]
+fn min1((d, aux): (u32, u32), best: (u32, u32)) -> (u32, u32) {
+    if d < best.0 {
+        (d, aux)
+    } else {
+        best
+    }
+}
+
+/// A cell's distance and intensity.
+#[inline(always)]
+fn value(cell: &Cell<Reading>) -> (u32, u32) {
+    let r = cell.get();
+    (r.distance, r.aux)
+}
+
+/// No range, no intensity: an empty group's minimum.
+const EMPTY: (u32, u32) = (NONE, 0);
+
+/// `Min` over the line (see [`reduce_line`]): the open group's `have` points (below
+/// `k`) and their minimum `best` in, the same of the group left open out.
+#[inline(always)]
+fn min_line(
+    cells: &[Cell<Reading>],
+    k: usize,
+    open: (usize, (u32, u32)),
+    o: &mut Written<'_>,
+) -> (usize, (u32, u32)) {
+    min_count(cells, k, open, o)
+}
+
+/// [`min_line`]'s loop for any factor, counting each group's points down.
+#[inline(never)]
+fn min_count(
+    cells: &[Cell<Reading>],
+    k: usize,
+    (have, mut best): (usize, (u32, u32)),
+    o: &mut Written<'_>,
+) -> (usize, (u32, u32)) {
+    // Points until the group is complete (`have` is below `k`).
+    let mut left = k.wrapping_sub(have);
+    // The writer in registers for the loop.
+    let mut w = o.clone();
+    for c in cells {
+        best = min1(value(c), best);
+        left = left.wrapping_sub(1);
+        if left == 0 {
+            w.emit(best);
+            (best, left) = (EMPTY, k);
+        }
+    }
+    *o = w;
+    (k.wrapping_sub(left), best)
+}
+
+/// A `Mean` group's sums: of the valid ranges, their count, and of their intensities
+/// and the count of those.
+#[derive(Clone, Copy)]
+struct Sums {
+    sum: u64,
+    valid: u32,
+    aux_sum: u64,
+    auxes: u32,
+}
+
+impl Sums {
+    const EMPTY: Sums = Sums {
+        sum: 0,
+        valid: 0,
+        aux_sum: 0,
+        auxes: 0,
+    };
+
+    /// The sums with a point added (its intensity masked with `aux_mask`, `u32::MAX`
+    /// when the points carry intensities, 0 otherwise).
+    #[inline(always)]
+    fn add(mut self, (d, aux): (u32, u32), aux_mask: u32) -> Sums {
+        if d != NONE {
+            // Each count at most the scan's points, each sum of u32s: no wrap.
+            self.sum = self.sum.wrapping_add(u64::from(d));
+            self.valid = self.valid.wrapping_add(1);
+            self.aux_sum = self.aux_sum.wrapping_add(u64::from(aux & aux_mask));
+            self.auxes = self.auxes.wrapping_add(1 & aux_mask);
+        }
+        self
+    }
+
+    /// The group's output point: the rounded means, no range (and intensity 0) when no
+    /// point was valid, intensity 0 when none carried one.
+    #[inline(always)]
+    fn point(&self) -> (u32, u32) {
         if self.valid == 0 {
-            (NONE, 0)
+            EMPTY
         } else {
             let aux = if self.auxes == 0 {
                 0
@@ -78,113 +218,98 @@ impl Acc {
     }
 }
 
-impl Decimator {
-    /// The open group's state as [`reduce_line`] keeps it.
-    fn load(&self) -> Acc {
-        let (best, best_aux) = match self.best {
-            Some((r, i)) => (r, i.unwrap_or(0)),
-            None => (NONE, 0),
-        };
-        Acc {
-            best,
-            best_aux,
-            sum: self.sum,
-            valid: self.valid,
-            aux_sum: self.intensity_sum,
-            auxes: self.intensities,
-        }
-    }
-
-    /// Keeps [`reduce_line`]'s open group: `count` points (below the factor), the first
-    /// at `first_step`.
-    fn store(&mut self, acc: &Acc, count: usize, first_step: u16, intensity: bool) {
-        self.count = u16::try_from(count).unwrap_or(0);
-        self.first_step = first_step;
-        self.best = (acc.best != NONE).then_some((acc.best, intensity.then_some(acc.best_aux)));
-        self.sum = acc.sum;
-        self.valid = acc.valid;
-        self.intensity_sum = acc.aux_sum;
-        self.intensities = acc.auxes;
-    }
-}
-
-/// The output side of [`reduce_line`]: the points written so far (at the front of the
-/// line's cells, never past the point being read) and how many of them have no range.
-struct Written {
-    /// Points written.
-    at: usize,
-    out_none: u32,
-    invalid: usize,
-}
-
-impl Written {
-    /// One output point (the encoder's form) into `cells`.
-    #[inline(always)]
-    fn emit(&mut self, cells: &mut [scip::Reading], d: u32, aux: u32) {
-        let none = d == NONE;
-        if let Some(slot) = cells.get_mut(self.at) {
-            slot.distance = if none { self.out_none } else { d.max(1) };
-            slot.aux = aux;
-        }
-        // Each at most the line's points.
-        self.at = self.at.wrapping_add(1);
-        self.invalid = self.invalid.wrapping_add(usize::from(none));
-    }
-}
-
-/// The decimation modes of [`reduce_loop`].
-const FIRST: u8 = 0;
-const MIN: u8 = 1;
-const MEAN: u8 = 2;
-
-/// [`reduce_line`]'s loop for one mode: the group's state `acc` with `pos` of its points
-/// seen (below `k`), `aux_mask` `u32::MAX` when the points carry intensities.
+/// `Mean` over the line (see [`reduce_line`]): the open group's `have` points (below
+/// `k`) and their sums in, the same of the group left open out. `aux_mask` is
+/// `u32::MAX` when the points carry intensities, 0 otherwise.
 #[inline(always)]
-fn reduce_loop<const MODE: u8>(
-    cells: &mut [scip::Reading],
+fn mean_line(
+    cells: &[Cell<Reading>],
     k: usize,
-    (acc, pos): (&mut Acc, &mut usize),
+    open: (usize, Sums),
     aux_mask: u32,
-    o: &mut Written,
-) {
-    for i in 0..cells.len() {
-        let Some(&r) = cells.get(i) else {
-            break;
-        };
-        let (d, aux) = (r.distance, r.aux);
-        if MODE == FIRST {
-            if *pos == 0 {
-                o.emit(cells, d, aux);
-            }
-        } else if MODE == MIN {
-            // NONE is above every range: an invalid point never wins.
-            if d < acc.best {
-                (acc.best, acc.best_aux) = (d, aux);
-            }
-        } else if d != NONE {
-            // Each count at most the scan's points: no wrap.
-            acc.sum = acc.sum.wrapping_add(u64::from(d));
-            acc.valid = acc.valid.wrapping_add(1);
-            acc.aux_sum = acc.aux_sum.wrapping_add(u64::from(aux & aux_mask));
-            acc.auxes = acc.auxes.wrapping_add(1 & aux_mask);
+    o: &mut Written<'_>,
+) -> (usize, Sums) {
+    // Points without intensities (the common case): whole groups in a loop of their
+    // own, a quick one for pairs.
+    if aux_mask != 0 || open.1.auxes != 0 {
+        return mean_count(cells, k, open, aux_mask, o);
+    }
+    // The open group's rest first (`have` is below `k`).
+    let rest = if open.0 == 0 {
+        0
+    } else {
+        k.wrapping_sub(open.0)
+    };
+    let (head, rest) = cells.split_at(rest.min(cells.len()));
+    let open = mean_count(head, k, open, aux_mask, o);
+    if open.0 > 0 {
+        // (The line ended in the open group.)
+        return open;
+    }
+    let left = whole_groups(rest, k, o);
+    let s = left.iter().fold(Sums::EMPTY, |s, c| s.add(value(c), 0));
+    (left.len(), s)
+}
+
+/// The whole groups of `k` of `cells` (a group beginning at the first), the points
+/// without intensities: their `Mean`, in one loop writing the output points behind them
+/// (of pairs without a division). Returns the points left over.
+#[inline(never)]
+fn whole_groups<'c>(
+    cells: &'c [Cell<Reading>],
+    k: usize,
+    o: &mut Written<'_>,
+) -> &'c [Cell<Reading>] {
+    o.groups(cells, k, |g| match g {
+        [a, b] => {
+            let (a, b) = (a.get().distance, b.get().distance);
+            // A point without a range takes the other's: the mean of the valid ones,
+            // no range when neither is (the mean of two ranges is a range).
+            let a = if a == NONE { b } else { a };
+            let b = if b == NONE { a } else { b };
+            (mean2(a, b), 0)
         }
-        // Below `k` before the add.
-        *pos = pos.wrapping_add(1);
-        if *pos >= k {
-            // The next group: only the mode's own fields (the others stay as empty as
-            // they came: no other mode's loop runs on this decimator).
-            if MODE == MIN {
-                o.emit(cells, acc.best, acc.best_aux);
-                (acc.best, acc.best_aux) = (Acc::EMPTY.best, Acc::EMPTY.best_aux);
-            } else if MODE == MEAN {
-                let (d, aux) = acc.mean();
-                o.emit(cells, d, aux);
-                (acc.sum, acc.valid) = (Acc::EMPTY.sum, Acc::EMPTY.valid);
-                (acc.aux_sum, acc.auxes) = (Acc::EMPTY.aux_sum, Acc::EMPTY.auxes);
+        g => {
+            let (mut sum, mut valid) = (0u64, 0u32);
+            for c in g {
+                let d = c.get().distance;
+                let range = d != NONE;
+                // At most the factor's u32s: no wrap.
+                sum = sum.wrapping_add(u64::from(if range { d } else { 0 }));
+                valid = valid.wrapping_add(u32::from(range));
             }
-            *pos = 0;
+            if valid == 0 {
+                EMPTY
+            } else {
+                (mean(sum, valid), 0)
+            }
+        }
+    })
+}
+
+/// [`mean_line`]'s loop for any factor, counting each group's points down.
+#[inline(never)]
+fn mean_count(
+    cells: &[Cell<Reading>],
+    k: usize,
+    (have, mut s): (usize, Sums),
+    aux_mask: u32,
+    o: &mut Written<'_>,
+) -> (usize, Sums) {
+    // Points until the group is complete (`have` is below `k`).
+    let mut left = k.wrapping_sub(have);
+    // The writer in registers for the loop.
+    let mut w = o.clone();
+    for c in cells {
+        s = s.add(value(c), aux_mask);
+        left = left.wrapping_sub(1);
+        if left == 0 {
+            w.emit(s.point());
+            (s, left) = (Sums::EMPTY, k);
         }
     }
+    *o = w;
+    (k.wrapping_sub(left), s)
 }
 
 /// Decimation of a line's classified points `cells` (no range as [`NONE`]) in place,
@@ -196,32 +321,58 @@ fn reduce_loop<const MODE: u8>(
 #[inline(never)]
 pub(super) fn reduce_line(
     dec: &mut Decimator,
-    cells: &mut [scip::Reading],
+    cells: &mut [Reading],
     (step, cluster, intensity): (u32, u32, bool),
     out_none: u32,
 ) -> (usize, usize) {
     let n = cells.len();
+    let cells = Cell::from_mut(cells).as_slice_of_cells();
     let k = usize::from(dec.factor.max(1));
     let mut o = Written {
-        at: 0,
+        slots: cells.iter(),
         out_none,
         invalid: 0,
     };
+    let have = usize::from(dec.count);
     // `u32::MAX` when the points carry intensities, 0 otherwise.
     let aux_mask = if intensity { u32::MAX } else { 0 };
-    // One loop per mode, the group's bookkeeping the same.
-    let mut acc = dec.load();
-    let mut pos = usize::from(dec.count);
-    let state = (&mut acc, &mut pos);
-    match dec.mode {
-        DecimationMode::First => reduce_loop::<FIRST>(cells, k, state, aux_mask, &mut o),
-        DecimationMode::Min => reduce_loop::<MIN>(cells, k, state, aux_mask, &mut o),
-        DecimationMode::Mean => reduce_loop::<MEAN>(cells, k, state, aux_mask, &mut o),
-    }
-    if dec.mode == DecimationMode::First {
-        acc = Acc::EMPTY;
-    }
-    dec.store(&acc, pos, dec.first_step, intensity);
+    // The points of the group left open.
+    let pos = match dec.mode {
+        DecimationMode::First => {
+            // Each group's first point: from the first group that begins in the line
+            // (`have` is below `k`: no wrap), every `k`-th.
+            let mut i = if have == 0 { 0 } else { k.wrapping_sub(have) };
+            while let Some(c) = cells.get(i) {
+                o.emit(value(c));
+                // Below the slice's length plus 2^16: no wrap.
+                i = i.wrapping_add(k);
+            }
+            // (`have` + n) mod `k`.
+            have.wrapping_add(n).checked_rem(k).unwrap_or(0)
+        }
+        DecimationMode::Min => {
+            let open = match dec.best {
+                Some((r, i)) => (r, i.unwrap_or(0)),
+                None => EMPTY,
+            };
+            let (have, best) = min_line(cells, k, (have, open), &mut o);
+            dec.best = (best.0 != NONE).then_some((best.0, intensity.then_some(best.1)));
+            have
+        }
+        DecimationMode::Mean => {
+            let open = Sums {
+                sum: dec.sum,
+                valid: dec.valid,
+                aux_sum: dec.intensity_sum,
+                auxes: dec.intensities,
+            };
+            let (have, s) = mean_line(cells, k, (have, open), aux_mask, &mut o);
+            (dec.sum, dec.valid) = (s.sum, s.valid);
+            (dec.intensity_sum, dec.intensities) = (s.aux_sum, s.auxes);
+            have
+        }
+    };
+    dec.count = u16::try_from(pos).unwrap_or(0);
     // The group open after the line: `pos` points, its first in this line when there
     // are at most the line's points in it (the run fits the scan's u16 steps).
     if pos > 0 && pos <= n {
@@ -229,7 +380,8 @@ pub(super) fn reduce_line(
         let first = step.wrapping_add(at.wrapping_mul(cluster));
         dec.first_step = u16::try_from(first).unwrap_or(u16::MAX);
     }
-    (o.at, o.invalid)
+    // The outputs written: the cells the writer took.
+    (n.wrapping_sub(o.slots.len()), o.invalid)
 }
 
 #[cfg(test)]
@@ -299,5 +451,113 @@ mod tests {
             (1, 3, 0)
         );
         assert!(!p.filtered());
+    }
+
+    /// The mean of two without a division is `(a + b + 1) / 2` in 64 bits: every pair
+    /// below 2^10 (and their neighbourhoods at 2^31 and at the top of the range), and
+    /// random pairs over the whole range.
+    #[test]
+    fn mean_of_two_is_the_rounded_mean() {
+        let want = |a: u32, b: u32| (u64::from(a) + u64::from(b)).div_ceil(2) as u32;
+        let bases = [0u32, (1 << 31) - 512, u32::MAX - 1023];
+        for &x in &bases {
+            for &y in &bases {
+                for i in 0..1024u32 {
+                    for j in (0..1024u32).step_by(7) {
+                        let (a, b) = (x + i, y + j);
+                        assert_eq!(super::mean2(a, b), want(a, b), "{a} {b}");
+                    }
+                }
+            }
+        }
+        // A fixed-seed xorshift over all u32 pairs.
+        let mut r = 0x9E37_79B9_7F4A_7C15u64;
+        for _ in 0..1_000_000 {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            let (a, b) = (r as u32, (r >> 32) as u32);
+            assert_eq!(super::mean2(a, b), want(a, b), "{a} {b}");
+        }
+    }
+
+    /// Mean of 2 and of 3 by hand through lines of odd lengths (groups across lines),
+    /// with error codes, a group without a range, and ranges whose sums pass 2^32.
+    #[test]
+    fn means_across_lines_by_hand() {
+        const BIG: u32 = u32::MAX - 10;
+        const HALF: u32 = 1 << 31;
+        let run = |factor: u16, lines: &[&[u32]]| {
+            let config = PipelineConfig {
+                decimation: Some(Decimation {
+                    factor,
+                    mode: DecimationMode::Mean,
+                }),
+                ..PipelineConfig::default()
+            };
+            let mut p = Pipeline::new(config).unwrap();
+            let n: usize = lines.iter().map(|l| l.len()).sum();
+            let info = ScanInfo {
+                seq: 0,
+                timestamp_ms: 0,
+                first_step: 0,
+                last_step: n as u16 - 1,
+                cluster: 1,
+            };
+            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
+            let rule = can_wire::RangeRule::at_least(1);
+            let none = 7_777_777;
+            let mut out = Vec::new();
+            let mut step = 0u16;
+            for line in lines {
+                let input: Vec<_> = line.iter().map(|&d| reading(d, 0)).collect();
+                let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
+                let k = p.filter_line(step, &input, &mut cells, rule, false, none);
+                let k = k.unwrap();
+                out.extend(
+                    cells[..k]
+                        .iter()
+                        .map(|c| (c.distance != none).then_some(c.distance)),
+                );
+                step += line.len() as u16;
+            }
+            p.end_scan(true, &mut |x: Point| out.push(x.range_mm));
+            (out, p.stats().points_out_invalid)
+        };
+        // Pairs: [1000 1001] [0 0] [BIG BIG] [HALF HALF+1] [5 0] [0 7] [3]
+        // -> 1001 (1000.5 up), none, BIG, HALF+1, 5, 7, 3 (the short last group).
+        let lines: [&[u32]; 3] = [
+            &[1000, 1001, 0],
+            &[0, BIG, BIG, HALF],
+            &[HALF + 1, 5, 0, 0, 7, 3],
+        ];
+        assert_eq!(
+            run(2, &lines),
+            (
+                std::vec![
+                    Some(1001),
+                    None,
+                    Some(BIG),
+                    Some(HALF + 1),
+                    Some(5),
+                    Some(7),
+                    Some(3)
+                ],
+                1
+            )
+        );
+        // Threes: [1000 1001 0] [0 BIG BIG] [HALF HALF+1 5] [0 0 7] [3]
+        // -> 1001 (2001 / 2 = 1000.5 up), BIG, (2^32 + 6) / 3 = 1431655767 (the sum
+        // past 32 bits; (2^32 + 6 + 1) / 3 rounds down to it), 7, 3.
+        assert_eq!(
+            run(3, &lines),
+            (
+                std::vec![Some(1001), Some(BIG), Some(1_431_655_767), Some(7), Some(3)],
+                0
+            )
+        );
+        // The scan as one line: the same.
+        let all: Vec<u32> = lines.concat();
+        assert_eq!(run(3, &[&all]).0, run(3, &lines).0);
     }
 }
