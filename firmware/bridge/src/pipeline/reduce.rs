@@ -5,14 +5,16 @@
 //! [`reduce_line`] carries the open group from line to line in the [`Decimator`]'s
 //! state, so that it gives exactly what [`Decimator::push`] gives point by point (the
 //! groups span lines; the end of the scan flushes the last one with
-//! [`Decimator::flush`]). One loop per mode, the group's state in registers: `First`
+//! [`Decimator::flush`]). A loop per mode, the group's state in registers: `First`
 //! copies every `factor`-th point (from the first group that begins in the line);
-//! `Min` keeps a running minimum (the first of equals) and `Mean` a sum and a count
-//! with one division per group, both counting a group's points down. Groups of 2, the
-//! common factor, take a loop of pairs: the minimum of two, and the rounded mean of two
-//! without a division (`(a | b) - ((a ^ b) >> 1)`). The points are read and written
-//! through a slice of [`Cell`]s, each output over a cell already read (no index
-//! checks).
+//! `Min` keeps a running minimum (the first of equals), counting each group's points
+//! down. `Mean` of points without intensities (the common case) completes the group
+//! the line before left open the same way, then takes the whole groups in a loop of
+//! their own that writes each output through a zip with the cells behind it (no check
+//! per output): pairs by the rounded mean of two without a division (`(a | b) -
+//! ((a ^ b) >> 1)`), other factors a sum and a count with one division per group;
+//! with intensities every group counts down. The points are read and written through
+//! a slice of [`Cell`]s, each output over a cell already read.
 
 use core::cell::Cell;
 
@@ -49,7 +51,7 @@ fn wide_mean(sum: u64, n: u32) -> u32 {
 /// sum: `a + b` is `(a ^ b) + 2 (a & b)`, so the mean is `(a & b) + ceil((a ^ b) / 2)`,
 /// which is `(a | b) - floor((a ^ b) / 2)`.
 #[inline(always)]
-pub(super) fn mean2(a: u32, b: u32) -> u32 {
+fn mean2(a: u32, b: u32) -> u32 {
     // `a | b` is at least `a ^ b`, which is at least half of it: no wrap.
     (a | b).wrapping_sub((a ^ b) >> 1)
 }
@@ -133,19 +135,9 @@ fn value(cell: &Cell<Reading>) -> (u32, u32) {
 /// No range, no intensity: an empty group's minimum.
 const EMPTY: (u32, u32) = (NONE, 0);
 
-/// `Min` over the line (see [`reduce_line`]): the open group's `have` points (below
-/// `k`) and their minimum `best` in, the same of the group left open out.
-#[inline(always)]
-fn min_line(
-    cells: &[Cell<Reading>],
-    k: usize,
-    open: (usize, (u32, u32)),
-    o: &mut Written<'_>,
-) -> (usize, (u32, u32)) {
-    min_count(cells, k, open, o)
-}
-
-/// [`min_line`]'s loop for any factor, counting each group's points down.
+/// `Min` over the line (see [`reduce_line`]), counting each group's points down: the
+/// open group's `have` points (below `k`) and their minimum `best` in, the same of the
+/// group left open out.
 #[inline(never)]
 fn min_count(
     cells: &[Cell<Reading>],
@@ -355,7 +347,7 @@ pub(super) fn reduce_line(
                 Some((r, i)) => (r, i.unwrap_or(0)),
                 None => EMPTY,
             };
-            let (have, best) = min_line(cells, k, (have, open), &mut o);
+            let (have, best) = min_count(cells, k, (have, open), &mut o);
             dec.best = (best.0 != NONE).then_some((best.0, intensity.then_some(best.1)));
             have
         }
