@@ -385,35 +385,38 @@ fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
 /// new value (0: none changed) and the number of outputs without a range.
 #[inline(never)]
 fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
-    let Some((mut cell, rest)) = s.split_first_mut() else {
-        return (0, 0);
-    };
-    let Some((mut cell1, rest)) = rest.split_first_mut() else {
-        return (0, 0);
-    };
-    let (mut x2, mut x1, mut c, mut a1) = (b[1], b[0], cell.distance, cell1.distance);
-    // Bit i set: the i-th newest distance of the window is no range.
-    let none = |d: u32| u32::from(d == NONE);
-    let mut missing = none(x2) << 3 | none(x1) << 2 | none(c) << 1 | none(a1);
+    let dist = |i: usize| s.get(i).map_or(NONE, |r| r.distance);
+    let (mut x2, mut x1, mut c, mut a1) = (b[1], b[0], dist(0), dist(1));
     let (mut diff, mut invalid) = (0u32, 0usize);
-    for next in rest {
-        let a2 = next.distance;
-        missing = missing << 1 | none(a2);
-        let x = if missing & 0x1f == 0 {
+    for j in 2..s.len() {
+        let Some(a2) = s.get(j).map(|r| r.distance) else {
+            break;
+        };
+        // Each pair sorted (no range, the largest value, sorts last in its pair).
+        let (pl, ph) = (x2.min(x1), x2.max(x1));
+        let (ql, qh) = (a1.min(a2), a1.max(a2));
+        let x = if ph != NONE && qh != NONE && c != NONE {
             // Five ranges: the median of the two pairs' inner values and the centre.
-            let lo = x2.min(x1).max(a1.min(a2));
-            let hi = x2.max(x1).min(a1.max(a2));
+            let (lo, hi) = (pl.max(ql), ph.min(qh));
             c.min(lo).max(c.max(lo).min(hi))
         } else {
-            median_line(c, [x2, x1, a1, a2], NONE)
+            median5_exact(c, [x2, x1, a1, a2])
         };
         diff |= x ^ c;
-        cell.distance = out(x, out_none, &mut invalid);
+        if let Some(o) = s.get_mut(j.wrapping_sub(2)) {
+            o.distance = out(x, out_none, &mut invalid);
+        }
         (x2, x1, c, a1) = (x1, c, a1, a2);
-        (cell, cell1) = (cell1, next);
     }
     *b = [x1, x2];
     (diff, invalid)
+}
+
+/// The median of 5 by the general rule (any window with no range in it), for
+/// [`median5`]: out of its loop.
+#[inline(never)]
+fn median5_exact(c: u32, nb: [u32; 4]) -> u32 {
+    median_line(c, nb, NONE)
 }
 
 /// The output points into the encoder's form: no range as `out_none`, a range of 0 as
@@ -530,6 +533,60 @@ mod tests {
             assert_eq!((out, removed), (4, 2));
             assert_eq!(dist(&s), [1000, NONE, NONE, NONE, 3010]);
             assert_eq!((sp.b1, sp.p0.0, sp.np), (3000, 3010, 1));
+        }
+    }
+
+    /// The median of a window as the pipeline's rule says: a missing centre stays
+    /// missing; else the valid ranges sorted, `n` of them, the centre clamped into
+    /// `[sorted[(n - 1) / 2], sorted[n / 2]]`.
+    fn median_reference(window: &[u32], centre: usize) -> u32 {
+        let c = window[centre];
+        if c == NONE {
+            return c;
+        }
+        let mut v: Vec<u32> = window.iter().copied().filter(|&x| x != NONE).collect();
+        v.sort_unstable();
+        let n = v.len();
+        c.clamp(v[(n - 1) / 2], v[n / 2])
+    }
+
+    #[test]
+    fn median5_follows_the_rule_written_plainly() {
+        // Lines over edge values (no range, 0, ranges near 2^31 and NONE, ties), with
+        // the two distances before them: every output against the rule.
+        let vals = [0, 1, 7, 7, 1000, (1 << 31) - 1, 1 << 31, u32::MAX - 1, NONE];
+        let mut seed = 0x9e37_79b9_u32;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for _ in 0..20000 {
+            let len = next() as usize % 10;
+            let mut pick = || vals[next() as usize % vals.len()];
+            let stream: Vec<u32> = (0..len + 2).map(|_| pick()).collect();
+            // stream[0] is the older of the two distances before the line.
+            let mut s = cells(&stream[2..]);
+            let mut b = [stream[1], stream[0]];
+            let (diff, invalid) = median5(&mut s, &mut b, 9);
+            let outs = len.saturating_sub(2);
+            let want: Vec<u32> = (0..outs)
+                .map(|i| median_reference(&stream[i..i + 5], 2))
+                .collect();
+            let shown: Vec<u32> = want
+                .iter()
+                .map(|&x| if x == NONE { 9 } else { x })
+                .collect();
+            assert_eq!(dist(&s[..outs]), shown, "{stream:?}");
+            assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
+            assert_eq!(
+                diff != 0,
+                want.iter().zip(&stream[2..]).any(|(x, c)| x != c)
+            );
+            // The cells after the outputs stay; the two before the next centre move on.
+            assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
+            assert_eq!(b, [stream[outs + 1], stream[outs]]);
         }
     }
 }
