@@ -325,11 +325,19 @@ fn classify_loop<const THRESHOLD: bool>(
     n: &mut [usize; 3],
     big: &mut bool,
 ) {
-    let mut low_intensity = 0usize;
+    let (mut low_intensity, mut below) = (0usize, 0usize);
+    let min = k.rule.min;
     for (cell, r) in out.iter_mut().zip(input) {
         let (mut d, aux) = (r.distance, r.aux);
         if d.wrapping_sub(low) >= span {
-            d = classify_rare(&k.rule, d, n, big);
+            if d < min {
+                // An error code below the sensor's minimum (the common one): counted
+                // here, at most the line's points (no wrap).
+                below = below.wrapping_add(1);
+                d = NONE;
+            } else {
+                d = classify_rare(&k.rule, d, n, big);
+            }
         }
         if THRESHOLD && d != NONE && aux < k.min_intensity {
             // At most the line's points: no wrap.
@@ -339,6 +347,7 @@ fn classify_loop<const THRESHOLD: bool>(
         // Both words at once (adjacent in the cell).
         (cell.distance, cell.aux) = (d, aux);
     }
+    n[0] = n[0].wrapping_add(below);
     n[2] = n[2].wrapping_add(low_intensity);
 }
 
@@ -587,6 +596,91 @@ mod tests {
             // The cells after the outputs stay; the two before the next centre move on.
             assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
             assert_eq!(b, [stream[outs + 1], stream[outs]]);
+        }
+    }
+
+    #[test]
+    fn classify_follows_the_rule_written_plainly() {
+        // Distances around every edge of a few rules (the sensor's minimum, its error
+        // codes at or above it, the range window, 2^31, NONE), with and without an
+        // intensity threshold: each reading and the counts against the rule.
+        let rules = [
+            can_wire::RangeRule {
+                min: 20,
+                except: [65533, 65535],
+                band: Some(40),
+                window: [100, 30000],
+            },
+            can_wire::RangeRule::at_least(1),
+            can_wire::RangeRule {
+                window: [0, (1 << 31) + 5],
+                ..can_wire::RangeRule::at_least(20)
+            },
+        ];
+        let ds = [
+            0,
+            1,
+            19,
+            20,
+            21,
+            39,
+            40,
+            42,
+            43,
+            99,
+            100,
+            30000,
+            30001,
+            65533,
+            65534,
+            65535,
+            (1 << 31) - 1,
+            1 << 31,
+            (1 << 31) + 6,
+            u32::MAX - 1,
+            NONE,
+        ];
+        for rule in rules {
+            for min_intensity in [0, 50] {
+                let input: Vec<Reading> = ds
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &distance)| Reading {
+                        distance,
+                        aux: (i as u32 * 37) % 100,
+                        ..Reading::default()
+                    })
+                    .collect();
+                let k = LineConsts {
+                    rule,
+                    min_intensity,
+                    jump: None,
+                    median: None,
+                    decimate: false,
+                    out_none: 0,
+                };
+                let mut out = cells(&std::vec![7; ds.len()]);
+                let mut t = Tally::default();
+                classify(&input, &mut out, &k, &mut t);
+                let (mut e, mut w, mut l) = (0, 0, 0);
+                for (r, o) in input.iter().zip(&out) {
+                    let d = r.distance;
+                    let want = if d == NONE || !rule.is_sensor_range(d) {
+                        e += 1;
+                        NONE
+                    } else if !rule.is_range(d) {
+                        w += 1;
+                        NONE
+                    } else if r.aux < min_intensity {
+                        l += 1;
+                        NONE
+                    } else {
+                        d
+                    };
+                    assert_eq!((o.distance, o.aux), (want, r.aux), "{rule:?} {d}");
+                }
+                assert_eq!((t.error_code, t.out_of_range, t.low_intensity), (e, w, l));
+            }
         }
     }
 }
