@@ -683,4 +683,145 @@ mod tests {
             }
         }
     }
+
+    /// The median of 3 of `b`, `c`, `s` as the pipeline's rule says: a missing centre
+    /// stays missing, a missing neighbour leaves the centre, else the middle value.
+    fn median3_reference(b: u32, c: u32, s: u32) -> u32 {
+        if [b, c, s].contains(&NONE) {
+            c
+        } else {
+            let mut v = [b, c, s];
+            v.sort_unstable();
+            v[1]
+        }
+    }
+
+    /// Speckle removal as the pipeline's rule says: a range with no range within
+    /// `jump` beside it goes.
+    fn speckle_reference(b: u32, c: u32, a: u32, jump: u32) -> u32 {
+        let near = |x: u32| x != NONE && x.abs_diff(c) <= jump;
+        if c == NONE || near(b) || near(a) {
+            c
+        } else {
+            NONE
+        }
+    }
+
+    /// Runs `stages` over `d` (distances) with the distances before the stages' first
+    /// centres `bs` and `bm`: the outputs, how many have no range, whether the median
+    /// changed a range, speckle removal's count and the registers left.
+    fn run<const SP: bool, const MD: bool>(
+        d: &[u32],
+        (bs, bm): (u32, u32),
+        jump: u32,
+        exact: bool,
+        none: u32,
+    ) -> (Vec<u32>, usize, bool, usize, [u32; 4]) {
+        let mut c = cells(d);
+        let mut sp = Regs {
+            b1: bs,
+            ..Regs::default()
+        };
+        let mut md = Regs {
+            b1: bm,
+            ..Regs::default()
+        };
+        let (out, invalid, diff, removed) =
+            stages::<SP, MD>(&mut c, jump, exact, &mut sp, &mut md, none);
+        let regs = [sp.b1, sp.p0.0, md.b1, md.p0.0];
+        (dist(&c[..out]), invalid, diff != 0, removed, regs)
+    }
+
+    #[test]
+    fn both_loops_follow_the_rules_written_plainly() {
+        // Lines over edge values (no range, small ranges, ranges near 2^31 and NONE),
+        // every speckle threshold among them; the quick loop where it holds (every
+        // range below 2^31) and the exact loop everywhere.
+        let vals = [
+            1,
+            2,
+            40,
+            41,
+            1000,
+            (1 << 31) - 2,
+            (1 << 31) - 1,
+            1 << 31,
+            (1 << 31) + 1,
+            u32::MAX - 2,
+            u32::MAX - 1,
+            NONE,
+        ];
+        let mut seed = 0x2545_f491_u32;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for round in 0..6000 {
+            // Small values only half the time (the quick loop's domain).
+            let k = if round % 2 == 0 { 6 } else { vals.len() };
+            let len = next() as usize % 9;
+            let jump = [0, 1, 39, 40, (1 << 31) - 1, 1 << 31, NONE][next() as usize % 7];
+            let mut pick = || vals[next() as usize % k];
+            let line: Vec<u32> = (0..len).map(|_| pick()).collect();
+            let (b0, c0, b1, c1) = (pick(), pick(), pick(), pick());
+            let big = |v: &u32| *v != NONE && *v >= 1 << 31;
+            let quick_holds = !line.iter().chain(&[b0, c0, b1, c1]).any(big) && jump < 1 << 31;
+            for exact in [false, true] {
+                if !exact && !quick_holds {
+                    continue;
+                }
+                // Speckle removal alone: its centre c0 (b0 before it), then the line.
+                let s: Vec<u32> = std::iter::once(c0).chain(line.iter().copied()).collect();
+                let want: Vec<u32> = (0..len)
+                    .map(|i| {
+                        speckle_reference(if i == 0 { b0 } else { s[i - 1] }, s[i], s[i + 1], jump)
+                    })
+                    .collect();
+                let (got, _, _, removed, r) = run::<true, false>(&s, (b0, NONE), jump, exact, NONE);
+                assert_eq!(got, want, "speckle {b0} {s:?} {jump} {exact}");
+                let gone = want
+                    .iter()
+                    .zip(&s)
+                    .filter(|(x, c)| **x == NONE && **c != NONE)
+                    .count();
+                assert_eq!(removed, gone);
+                if len > 0 {
+                    assert_eq!((r[0], r[1]), (s[len - 1], s[len]));
+                }
+                // The median alone: its centre c1 (b1 before it), then the line.
+                let m: Vec<u32> = std::iter::once(c1).chain(line.iter().copied()).collect();
+                let want_m: Vec<u32> = (0..len)
+                    .map(|i| median3_reference(if i == 0 { b1 } else { m[i - 1] }, m[i], m[i + 1]))
+                    .collect();
+                let (got, invalid, changed, _, r) = run::<false, true>(&m, (NONE, b1), 0, exact, 9);
+                let shown: Vec<u32> = want_m
+                    .iter()
+                    .map(|&x| if x == NONE { 9 } else { x })
+                    .collect();
+                assert_eq!(got, shown, "median {b1} {m:?} {exact}");
+                assert_eq!(invalid, want_m.iter().filter(|&&x| x == NONE).count());
+                assert_eq!(changed, want_m.iter().zip(&m).any(|(x, c)| x != c));
+                if len > 0 {
+                    assert_eq!((r[2], r[3]), (m[len - 1], m[len]));
+                }
+                // Both: the median's centre c1 held, then speckle removal's c0 and the
+                // line; the median takes speckle removal's outputs.
+                let m2: Vec<u32> = std::iter::once(c1).chain(want.iter().copied()).collect();
+                let want2: Vec<u32> = (0..len)
+                    .map(|i| {
+                        median3_reference(if i == 0 { b1 } else { m2[i - 1] }, m2[i], m2[i + 1])
+                    })
+                    .collect();
+                let both: Vec<u32> = std::iter::once(c1).chain(s.iter().copied()).collect();
+                let (got, _, _, removed, _) = run::<true, true>(&both, (b0, b1), jump, exact, NONE);
+                assert_eq!(
+                    got, want2,
+                    "both {b0} {c0} {b1} {c1} {line:?} {jump} {exact}"
+                );
+                assert_eq!(removed, gone);
+            }
+        }
+    }
 }
