@@ -193,12 +193,12 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
 /// changed with its new value, and the number of ranges speckle removal took.
 ///
 /// Each stage first tries a quick test that holds when every range is below [`SMALL`]
-/// (else the caller sets `exact` and every point takes the exact rule). Speckle
-/// removal: a centre within `jump` of the point before it stays. The median: a centre
-/// between its neighbours is the median, found by one sign test, (c - b) and (s - c)
-/// of the same sign in 32-bit two's complement (exact for ranges below 2^31; with a
-/// neighbour or the centre missing the test can only pass when the answer is the
-/// centre too).
+/// (else the caller sets `exact` and every point takes the exact rule; with both
+/// stages on, in [`stages_exact`]). Speckle removal: a centre within `jump` of the
+/// point before it stays. The median: a centre between its neighbours is the median,
+/// found by one sign test, (c - b) and (s - c) of the same sign in 32-bit two's
+/// complement (exact for ranges below 2^31; with a neighbour or the centre missing
+/// the test can only pass when the answer is the centre too).
 #[inline(never)]
 fn stages<const SP: bool, const MD: bool>(
     d: &mut [Reading],
@@ -210,10 +210,15 @@ fn stages<const SP: bool, const MD: bool>(
 ) -> (usize, usize, u32, usize) {
     let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
     let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
+    // Both stages by the exact rules in a loop of their own (the quick loop then holds
+    // no `exact` in its registers).
+    if SP && MD && exact {
+        return stages_exact(d, jump, sp, md, none);
+    }
     let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
     // The quick tests made to fail when `exact`.
-    let quick_jump = if exact { 0 } else { jump };
-    let exact = if exact { SMALL } else { 0 };
+    let quick_jump = if exact && !MD { 0 } else { jump };
+    let exact = if exact && !SP { SMALL } else { 0 };
     // Speckle removal's output for the centre `cs` (`bs` before it, `a` after).
     let speckle = |bs: u32, cs: u32, a: u32, removed: &mut usize| {
         if bs.abs_diff(cs) <= quick_jump {
@@ -271,6 +276,51 @@ fn stages<const SP: bool, const MD: bool>(
         sp.p0 = (cs, aux(d, n.wrapping_sub(1)));
     }
     if MD && n > 0 {
+        md.np = 1;
+        md.b1 = bm;
+        md.p0 = (cm, aux(d, out));
+    }
+    (out, invalid, diff, removed)
+}
+
+/// [`stages`] with both stages on, by the exact rules (any ranges and threshold):
+/// rare (a range at or above [`SMALL`]), out of the quick loop.
+#[inline(never)]
+fn stages_exact(
+    d: &mut [Reading],
+    jump: u32,
+    sp: &mut Regs,
+    md: &mut Regs,
+    none: u32,
+) -> (usize, usize, u32, usize) {
+    let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
+    let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
+    let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
+    let n = d.len();
+    let (mut bs, mut cs) = (sp.b1, dist(d, 1));
+    let (mut bm, mut cm) = (md.b1, dist(d, 0));
+    for j in 2..n {
+        let a = dist(d, j);
+        let (s, gone) = speckle_exact(cs, bs, a, jump);
+        // At most the line's points: no wrap.
+        removed = removed.wrapping_add(usize::from(gone));
+        (bs, cs) = (cs, a);
+        let x = median3_exact(bm, cm, s);
+        diff |= x ^ cm;
+        (bm, cm) = (cm, s);
+        if let Some(o) = d.get_mut(j.wrapping_sub(2)) {
+            o.distance = if x == NONE {
+                no_range(&mut invalid, none)
+            } else {
+                x
+            };
+        }
+    }
+    let out = n.saturating_sub(2);
+    sp.np = n.min(1);
+    sp.b1 = bs;
+    sp.p0 = (cs, aux(d, n.wrapping_sub(1)));
+    if n > 0 {
         md.np = 1;
         md.b1 = bm;
         md.p0 = (cm, aux(d, out));
