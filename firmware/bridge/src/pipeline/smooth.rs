@@ -193,12 +193,12 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
 /// changed with its new value, and the number of ranges speckle removal took.
 ///
 /// Each stage first tries a quick test that holds when every range is below [`SMALL`]
-/// (else the caller sets `exact` and every point takes the exact rule). Speckle
-/// removal: a centre within `jump` of the point before it stays. The median: a centre
-/// between its neighbours is the median, found by one sign test, (c - b) and (s - c)
-/// of the same sign in 32-bit two's complement (exact for ranges below 2^31; with a
-/// neighbour or the centre missing the test can only pass when the answer is the
-/// centre too).
+/// (else the caller sets `exact` and every point takes the exact rule; with both
+/// stages on, in [`stages_exact`]). Speckle removal: a centre within `jump` of the
+/// point before it stays. The median: a centre between its neighbours is the median,
+/// found by one sign test, (c - b) and (s - c) of the same sign in 32-bit two's
+/// complement (exact for ranges below 2^31; with a neighbour or the centre missing
+/// the test can only pass when the answer is the centre too).
 #[inline(never)]
 fn stages<const SP: bool, const MD: bool>(
     d: &mut [Reading],
@@ -210,10 +210,15 @@ fn stages<const SP: bool, const MD: bool>(
 ) -> (usize, usize, u32, usize) {
     let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
     let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
+    // Both stages by the exact rules in a loop of their own (the quick loop then holds
+    // no `exact` in its registers).
+    if SP && MD && exact {
+        return stages_exact(d, jump, sp, md, none);
+    }
     let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
     // The quick tests made to fail when `exact`.
-    let quick_jump = if exact { 0 } else { jump };
-    let exact = if exact { SMALL } else { 0 };
+    let quick_jump = if exact && !MD { 0 } else { jump };
+    let exact = if exact && !SP { SMALL } else { 0 };
     // Speckle removal's output for the centre `cs` (`bs` before it, `a` after).
     let speckle = |bs: u32, cs: u32, a: u32, removed: &mut usize| {
         if bs.abs_diff(cs) <= quick_jump {
@@ -278,6 +283,51 @@ fn stages<const SP: bool, const MD: bool>(
     (out, invalid, diff, removed)
 }
 
+/// [`stages`] with both stages on, by the exact rules (any ranges and threshold):
+/// rare (a range at or above [`SMALL`]), out of the quick loop.
+#[inline(never)]
+fn stages_exact(
+    d: &mut [Reading],
+    jump: u32,
+    sp: &mut Regs,
+    md: &mut Regs,
+    none: u32,
+) -> (usize, usize, u32, usize) {
+    let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
+    let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
+    let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
+    let n = d.len();
+    let (mut bs, mut cs) = (sp.b1, dist(d, 1));
+    let (mut bm, mut cm) = (md.b1, dist(d, 0));
+    for j in 2..n {
+        let a = dist(d, j);
+        let (s, gone) = speckle_exact(cs, bs, a, jump);
+        // At most the line's points: no wrap.
+        removed = removed.wrapping_add(usize::from(gone));
+        (bs, cs) = (cs, a);
+        let x = median3_exact(bm, cm, s);
+        diff |= x ^ cm;
+        (bm, cm) = (cm, s);
+        if let Some(o) = d.get_mut(j.wrapping_sub(2)) {
+            o.distance = if x == NONE {
+                no_range(&mut invalid, none)
+            } else {
+                x
+            };
+        }
+    }
+    let out = n.saturating_sub(2);
+    sp.np = n.min(1);
+    sp.b1 = bs;
+    sp.p0 = (cs, aux(d, n.wrapping_sub(1)));
+    if n > 0 {
+        md.np = 1;
+        md.b1 = bm;
+        md.p0 = (cm, aux(d, out));
+    }
+    (out, invalid, diff, removed)
+}
+
 /// Error codes, the range window and the intensity threshold: `input` into `out` (as
 /// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
 /// [`SMALL`] passed, and whether no range of 0 can (in this line or, the rule being
@@ -325,11 +375,19 @@ fn classify_loop<const THRESHOLD: bool>(
     n: &mut [usize; 3],
     big: &mut bool,
 ) {
-    let mut low_intensity = 0usize;
+    let (mut low_intensity, mut below) = (0usize, 0usize);
+    let min = k.rule.min;
     for (cell, r) in out.iter_mut().zip(input) {
         let (mut d, aux) = (r.distance, r.aux);
         if d.wrapping_sub(low) >= span {
-            d = classify_rare(&k.rule, d, n, big);
+            if d < min {
+                // An error code below the sensor's minimum (the common one): counted
+                // here, at most the line's points (no wrap).
+                below = below.wrapping_add(1);
+                d = NONE;
+            } else {
+                d = classify_rare(&k.rule, d, n, big);
+            }
         }
         if THRESHOLD && d != NONE && aux < k.min_intensity {
             // At most the line's points: no wrap.
@@ -339,6 +397,7 @@ fn classify_loop<const THRESHOLD: bool>(
         // Both words at once (adjacent in the cell).
         (cell.distance, cell.aux) = (d, aux);
     }
+    n[0] = n[0].wrapping_add(below);
     n[2] = n[2].wrapping_add(low_intensity);
 }
 
@@ -385,35 +444,38 @@ fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
 /// new value (0: none changed) and the number of outputs without a range.
 #[inline(never)]
 fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
-    let Some((mut cell, rest)) = s.split_first_mut() else {
-        return (0, 0);
-    };
-    let Some((mut cell1, rest)) = rest.split_first_mut() else {
-        return (0, 0);
-    };
-    let (mut x2, mut x1, mut c, mut a1) = (b[1], b[0], cell.distance, cell1.distance);
-    // Bit i set: the i-th newest distance of the window is no range.
-    let none = |d: u32| u32::from(d == NONE);
-    let mut missing = none(x2) << 3 | none(x1) << 2 | none(c) << 1 | none(a1);
+    let dist = |i: usize| s.get(i).map_or(NONE, |r| r.distance);
+    let (mut x2, mut x1, mut c, mut a1) = (b[1], b[0], dist(0), dist(1));
     let (mut diff, mut invalid) = (0u32, 0usize);
-    for next in rest {
-        let a2 = next.distance;
-        missing = missing << 1 | none(a2);
-        let x = if missing & 0x1f == 0 {
+    for j in 2..s.len() {
+        let Some(a2) = s.get(j).map(|r| r.distance) else {
+            break;
+        };
+        // Each pair sorted (no range, the largest value, sorts last in its pair).
+        let (pl, ph) = (x2.min(x1), x2.max(x1));
+        let (ql, qh) = (a1.min(a2), a1.max(a2));
+        let x = if ph != NONE && qh != NONE && c != NONE {
             // Five ranges: the median of the two pairs' inner values and the centre.
-            let lo = x2.min(x1).max(a1.min(a2));
-            let hi = x2.max(x1).min(a1.max(a2));
+            let (lo, hi) = (pl.max(ql), ph.min(qh));
             c.min(lo).max(c.max(lo).min(hi))
         } else {
-            median_line(c, [x2, x1, a1, a2], NONE)
+            median5_exact(c, [x2, x1, a1, a2])
         };
         diff |= x ^ c;
-        cell.distance = out(x, out_none, &mut invalid);
+        if let Some(o) = s.get_mut(j.wrapping_sub(2)) {
+            o.distance = out(x, out_none, &mut invalid);
+        }
         (x2, x1, c, a1) = (x1, c, a1, a2);
-        (cell, cell1) = (cell1, next);
     }
     *b = [x1, x2];
     (diff, invalid)
+}
+
+/// The median of 5 by the general rule (any window with no range in it), for
+/// [`median5`]: out of its loop.
+#[inline(never)]
+fn median5_exact(c: u32, nb: [u32; 4]) -> u32 {
+    median_line(c, nb, NONE)
 }
 
 /// The output points into the encoder's form: no range as `out_none`, a range of 0 as
@@ -530,6 +592,286 @@ mod tests {
             assert_eq!((out, removed), (4, 2));
             assert_eq!(dist(&s), [1000, NONE, NONE, NONE, 3010]);
             assert_eq!((sp.b1, sp.p0.0, sp.np), (3000, 3010, 1));
+        }
+    }
+
+    /// The median of a window as the pipeline's rule says: a missing centre stays
+    /// missing; else the valid ranges sorted, `n` of them, the centre clamped into
+    /// `[sorted[(n - 1) / 2], sorted[n / 2]]`.
+    fn median_reference(window: &[u32], centre: usize) -> u32 {
+        let c = window[centre];
+        if c == NONE {
+            return c;
+        }
+        let mut v: Vec<u32> = window.iter().copied().filter(|&x| x != NONE).collect();
+        v.sort_unstable();
+        let n = v.len();
+        c.clamp(v[(n - 1) / 2], v[n / 2])
+    }
+
+    #[test]
+    fn median5_follows_the_rule_written_plainly() {
+        // Lines over edge values (no range, 0, ranges near 2^31 and NONE, ties), with
+        // the two distances before them: every output against the rule.
+        let vals = [0, 1, 7, 7, 1000, (1 << 31) - 1, 1 << 31, u32::MAX - 1, NONE];
+        let mut seed = 0x9e37_79b9_u32;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for _ in 0..20000 {
+            let len = next() as usize % 10;
+            let mut pick = || vals[next() as usize % vals.len()];
+            let stream: Vec<u32> = (0..len + 2).map(|_| pick()).collect();
+            // stream[0] is the older of the two distances before the line.
+            let mut s = cells(&stream[2..]);
+            let mut b = [stream[1], stream[0]];
+            let (diff, invalid) = median5(&mut s, &mut b, 9);
+            let outs = len.saturating_sub(2);
+            let want: Vec<u32> = (0..outs)
+                .map(|i| median_reference(&stream[i..i + 5], 2))
+                .collect();
+            let shown: Vec<u32> = want
+                .iter()
+                .map(|&x| if x == NONE { 9 } else { x })
+                .collect();
+            assert_eq!(dist(&s[..outs]), shown, "{stream:?}");
+            assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
+            assert_eq!(
+                diff != 0,
+                want.iter().zip(&stream[2..]).any(|(x, c)| x != c)
+            );
+            // The cells after the outputs stay; the two before the next centre move on.
+            assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
+            assert_eq!(b, [stream[outs + 1], stream[outs]]);
+        }
+    }
+
+    #[test]
+    fn classify_follows_the_rule_written_plainly() {
+        // Distances around every edge of a few rules (the sensor's minimum, its error
+        // codes at or above it, the range window, 2^31, NONE), with and without an
+        // intensity threshold: each reading and the counts against the rule.
+        let rules = [
+            can_wire::RangeRule {
+                min: 20,
+                except: [65533, 65535],
+                band: Some(40),
+                window: [100, 30000],
+            },
+            can_wire::RangeRule::at_least(1),
+            can_wire::RangeRule {
+                window: [0, (1 << 31) + 5],
+                ..can_wire::RangeRule::at_least(20)
+            },
+        ];
+        let ds = [
+            0,
+            1,
+            19,
+            20,
+            21,
+            39,
+            40,
+            42,
+            43,
+            99,
+            100,
+            30000,
+            30001,
+            65533,
+            65534,
+            65535,
+            (1 << 31) - 1,
+            1 << 31,
+            (1 << 31) + 6,
+            u32::MAX - 1,
+            NONE,
+        ];
+        for rule in rules {
+            for min_intensity in [0, 50] {
+                let input: Vec<Reading> = ds
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &distance)| Reading {
+                        distance,
+                        aux: (i as u32 * 37) % 100,
+                        ..Reading::default()
+                    })
+                    .collect();
+                let k = LineConsts {
+                    rule,
+                    min_intensity,
+                    jump: None,
+                    median: None,
+                    decimate: false,
+                    out_none: 0,
+                };
+                let mut out = cells(&std::vec![7; ds.len()]);
+                let mut t = Tally::default();
+                classify(&input, &mut out, &k, &mut t);
+                let (mut e, mut w, mut l) = (0, 0, 0);
+                for (r, o) in input.iter().zip(&out) {
+                    let d = r.distance;
+                    let want = if d == NONE || !rule.is_sensor_range(d) {
+                        e += 1;
+                        NONE
+                    } else if !rule.is_range(d) {
+                        w += 1;
+                        NONE
+                    } else if r.aux < min_intensity {
+                        l += 1;
+                        NONE
+                    } else {
+                        d
+                    };
+                    assert_eq!((o.distance, o.aux), (want, r.aux), "{rule:?} {d}");
+                }
+                assert_eq!((t.error_code, t.out_of_range, t.low_intensity), (e, w, l));
+            }
+        }
+    }
+
+    /// The median of 3 of `b`, `c`, `s` as the pipeline's rule says: a missing centre
+    /// stays missing, a missing neighbour leaves the centre, else the middle value.
+    fn median3_reference(b: u32, c: u32, s: u32) -> u32 {
+        if [b, c, s].contains(&NONE) {
+            c
+        } else {
+            let mut v = [b, c, s];
+            v.sort_unstable();
+            v[1]
+        }
+    }
+
+    /// Speckle removal as the pipeline's rule says: a range with no range within
+    /// `jump` beside it goes.
+    fn speckle_reference(b: u32, c: u32, a: u32, jump: u32) -> u32 {
+        let near = |x: u32| x != NONE && x.abs_diff(c) <= jump;
+        if c == NONE || near(b) || near(a) {
+            c
+        } else {
+            NONE
+        }
+    }
+
+    /// Runs `stages` over `d` (distances) with the distances before the stages' first
+    /// centres `bs` and `bm`: the outputs, how many have no range, whether the median
+    /// changed a range, speckle removal's count and the registers left.
+    fn run<const SP: bool, const MD: bool>(
+        d: &[u32],
+        (bs, bm): (u32, u32),
+        jump: u32,
+        exact: bool,
+        none: u32,
+    ) -> (Vec<u32>, usize, bool, usize, [u32; 4]) {
+        let mut c = cells(d);
+        let mut sp = Regs {
+            b1: bs,
+            ..Regs::default()
+        };
+        let mut md = Regs {
+            b1: bm,
+            ..Regs::default()
+        };
+        let (out, invalid, diff, removed) =
+            stages::<SP, MD>(&mut c, jump, exact, &mut sp, &mut md, none);
+        let regs = [sp.b1, sp.p0.0, md.b1, md.p0.0];
+        (dist(&c[..out]), invalid, diff != 0, removed, regs)
+    }
+
+    #[test]
+    fn both_loops_follow_the_rules_written_plainly() {
+        // Lines over edge values (no range, small ranges, ranges near 2^31 and NONE),
+        // every speckle threshold among them; the quick loop where it holds (every
+        // range below 2^31) and the exact loop everywhere.
+        let vals = [
+            1,
+            2,
+            40,
+            41,
+            1000,
+            (1 << 31) - 2,
+            (1 << 31) - 1,
+            1 << 31,
+            (1 << 31) + 1,
+            u32::MAX - 2,
+            u32::MAX - 1,
+            NONE,
+        ];
+        let mut seed = 0x2545_f491_u32;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        };
+        for round in 0..6000 {
+            // Small values only half the time (the quick loop's domain).
+            let k = if round % 2 == 0 { 6 } else { vals.len() };
+            let len = next() as usize % 9;
+            let jump = [0, 1, 39, 40, (1 << 31) - 1, 1 << 31, NONE][next() as usize % 7];
+            let mut pick = || vals[next() as usize % k];
+            let line: Vec<u32> = (0..len).map(|_| pick()).collect();
+            let (b0, c0, b1, c1) = (pick(), pick(), pick(), pick());
+            let big = |v: &u32| *v != NONE && *v >= 1 << 31;
+            let quick_holds = !line.iter().chain(&[b0, c0, b1, c1]).any(big) && jump < 1 << 31;
+            for exact in [false, true] {
+                if !exact && !quick_holds {
+                    continue;
+                }
+                // Speckle removal alone: its centre c0 (b0 before it), then the line.
+                let s: Vec<u32> = std::iter::once(c0).chain(line.iter().copied()).collect();
+                let want: Vec<u32> = (0..len)
+                    .map(|i| {
+                        speckle_reference(if i == 0 { b0 } else { s[i - 1] }, s[i], s[i + 1], jump)
+                    })
+                    .collect();
+                let (got, _, _, removed, r) = run::<true, false>(&s, (b0, NONE), jump, exact, NONE);
+                assert_eq!(got, want, "speckle {b0} {s:?} {jump} {exact}");
+                let gone = want
+                    .iter()
+                    .zip(&s)
+                    .filter(|(x, c)| **x == NONE && **c != NONE)
+                    .count();
+                assert_eq!(removed, gone);
+                if len > 0 {
+                    assert_eq!((r[0], r[1]), (s[len - 1], s[len]));
+                }
+                // The median alone: its centre c1 (b1 before it), then the line.
+                let m: Vec<u32> = std::iter::once(c1).chain(line.iter().copied()).collect();
+                let want_m: Vec<u32> = (0..len)
+                    .map(|i| median3_reference(if i == 0 { b1 } else { m[i - 1] }, m[i], m[i + 1]))
+                    .collect();
+                let (got, invalid, changed, _, r) = run::<false, true>(&m, (NONE, b1), 0, exact, 9);
+                let shown: Vec<u32> = want_m
+                    .iter()
+                    .map(|&x| if x == NONE { 9 } else { x })
+                    .collect();
+                assert_eq!(got, shown, "median {b1} {m:?} {exact}");
+                assert_eq!(invalid, want_m.iter().filter(|&&x| x == NONE).count());
+                assert_eq!(changed, want_m.iter().zip(&m).any(|(x, c)| x != c));
+                if len > 0 {
+                    assert_eq!((r[2], r[3]), (m[len - 1], m[len]));
+                }
+                // Both: the median's centre c1 held, then speckle removal's c0 and the
+                // line; the median takes speckle removal's outputs.
+                let m2: Vec<u32> = std::iter::once(c1).chain(want.iter().copied()).collect();
+                let want2: Vec<u32> = (0..len)
+                    .map(|i| {
+                        median3_reference(if i == 0 { b1 } else { m2[i - 1] }, m2[i], m2[i + 1])
+                    })
+                    .collect();
+                let both: Vec<u32> = std::iter::once(c1).chain(s.iter().copied()).collect();
+                let (got, _, _, removed, _) = run::<true, true>(&both, (b0, b1), jump, exact, NONE);
+                assert_eq!(
+                    got, want2,
+                    "both {b0} {c0} {b1} {c1} {line:?} {jump} {exact}"
+                );
+                assert_eq!(removed, gone);
+            }
         }
     }
 }
