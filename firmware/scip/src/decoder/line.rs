@@ -17,11 +17,16 @@ impl Decoder {
         let lf = find_lf(bytes);
         let line = bytes.get(..lf.unwrap_or(bytes.len())).unwrap_or(&[]);
         if !self.overflow {
+            let words = self.on_m4_paths();
             // `self.len <= LINE_CAP` and a slice's length is at most `isize::MAX`: no wrap.
             let end = self.len.wrapping_add(line.len());
             match self.buf.get_mut(self.len..end) {
                 Some(dst) => {
-                    dst.copy_from_slice(line);
+                    if words {
+                        copy_line_words(line, dst);
+                    } else {
+                        dst.copy_from_slice(line);
+                    }
                     self.len = end;
                 }
                 None => self.overflow = true,
@@ -124,6 +129,37 @@ impl Decoder {
             Some([body @ .., s]) => checksum(body) == *s,
             _ => false,
         }
+    }
+}
+
+/// Copies `src` into `dst` (of the same length, at most [`LINE_CAP`] bytes; nothing
+/// copied otherwise) four bytes at a time, the last four overlapping the ones before,
+/// or one at a time when there are fewer than four: on 32-bit targets the library's
+/// copy takes several instructions a byte for a line's few dozen unaligned bytes. The
+/// loop has a constant bound and an exit on the length, so it is not turned into a
+/// call of that copy.
+#[inline(always)]
+pub(super) fn copy_line_words(src: &[u8], dst: &mut [u8]) {
+    if src.len() != dst.len() || src.len() > LINE_CAP {
+        return;
+    }
+    let (Some(last), Some(last_dst)) = (src.last_chunk::<4>(), dst.last_chunk_mut::<4>()) else {
+        for (d, &c) in dst.iter_mut().zip(src) {
+            *d = c;
+        }
+        return;
+    };
+    *last_dst = *last;
+    for i in 0..LINE_CAP / 4 {
+        // Below LINE_CAP + 4: no wrap.
+        let at = i.wrapping_mul(4);
+        let (Some(s), Some(d)) = (
+            src.get(at..).and_then(|r| r.first_chunk::<4>()),
+            dst.get_mut(at..).and_then(|r| r.first_chunk_mut::<4>()),
+        ) else {
+            break;
+        };
+        *d = *s;
     }
 }
 
