@@ -133,33 +133,38 @@ impl Decoder {
 }
 
 /// Copies `src` into `dst` (of the same length, at most [`LINE_CAP`] bytes; nothing
-/// copied otherwise) four bytes at a time, the last four overlapping the ones before,
-/// or one at a time when there are fewer than four: on 32-bit targets the library's
+/// copied otherwise) four bytes at a time, the last four overlapping the ones before
+/// (fewer than four: one at a time): on 32-bit targets the library's
 /// copy takes several instructions a byte for a line's few dozen unaligned bytes. The
-/// loop has a constant bound and an exit on the length, so it is not turned into a
-/// call of that copy.
-#[inline(always)]
+/// loop ends on the length found wanting, so it is not turned into a call of that
+/// copy, nor unrolled (a loop of 24 rounds at most, with a constant bound, was: 364
+/// bytes of flash). Out of line: [`Decoder::feed`], where it is used, is inlined into
+/// callers built for size (inlined, it cost 150 B more and one instruction per UART
+/// byte of field lines more).
+#[inline(never)]
 pub(super) fn copy_line_words(src: &[u8], dst: &mut [u8]) {
     if src.len() != dst.len() || src.len() > LINE_CAP {
         return;
     }
     let (Some(last), Some(last_dst)) = (src.last_chunk::<4>(), dst.last_chunk_mut::<4>()) else {
-        for (d, &c) in dst.iter_mut().zip(src) {
-            *d = c;
+        // One to three bytes: the first, the middle and the last cover them (a byte
+        // loop here would be turned into a call of the library's copy).
+        for i in [0, src.len() / 2, src.len().wrapping_sub(1)] {
+            if let (Some(d), Some(&c)) = (dst.get_mut(i), src.get(i)) {
+                *d = c;
+            }
         }
         return;
     };
     *last_dst = *last;
-    for i in 0..LINE_CAP / 4 {
-        // Below LINE_CAP + 4: no wrap.
-        let at = i.wrapping_mul(4);
-        let (Some(s), Some(d)) = (
-            src.get(at..).and_then(|r| r.first_chunk::<4>()),
-            dst.get_mut(at..).and_then(|r| r.first_chunk_mut::<4>()),
-        ) else {
-            break;
-        };
+    let mut at: usize = 0;
+    while let (Some(s), Some(d)) = (
+        src.get(at..).and_then(|r| r.first_chunk::<4>()),
+        dst.get_mut(at..).and_then(|r| r.first_chunk_mut::<4>()),
+    ) {
         *d = *s;
+        // Below LINE_CAP + 4: no wrap.
+        at = at.wrapping_add(4);
     }
 }
 
