@@ -116,7 +116,7 @@ pub const SCAN_RPM_RANGE: core::ops::RangeInclusive<u32> = 60..=6000;
 fn whole_number(value: &[u8]) -> Option<u32> {
     let digits = value
         .windows(2)
-        .position(|w| w == b"<-")
+        .position(|w| matches!(w, [b'<', b'-']))
         .map_or(value, |i| value.get(..i).unwrap_or(&[]));
     if digits.is_empty() || digits.len() > 9 || !digits.iter().all(u8::is_ascii_digit) {
         return None;

@@ -17,11 +17,16 @@ impl Decoder {
         let lf = find_lf(bytes);
         let line = bytes.get(..lf.unwrap_or(bytes.len())).unwrap_or(&[]);
         if !self.overflow {
+            let words = self.on_m4_paths();
             // `self.len <= LINE_CAP` and a slice's length is at most `isize::MAX`: no wrap.
             let end = self.len.wrapping_add(line.len());
             match self.buf.get_mut(self.len..end) {
                 Some(dst) => {
-                    dst.copy_from_slice(line);
+                    if words {
+                        copy_line_words(line, dst);
+                    } else {
+                        dst.copy_from_slice(line);
+                    }
                     self.len = end;
                 }
                 None => self.overflow = true,
@@ -124,6 +129,42 @@ impl Decoder {
             Some([body @ .., s]) => checksum(body) == *s,
             _ => false,
         }
+    }
+}
+
+/// Copies `src` into `dst` (of the same length, at most [`LINE_CAP`] bytes; nothing
+/// copied otherwise) four bytes at a time, the last four overlapping the ones before
+/// (fewer than four: one at a time): on 32-bit targets the library's
+/// copy takes several instructions a byte for a line's few dozen unaligned bytes. The
+/// loop ends on the length found wanting, so it is not turned into a call of that
+/// copy, nor unrolled (a loop of 24 rounds at most, with a constant bound, was: 364
+/// bytes of flash). Out of line: [`Decoder::feed`], where it is used, is inlined into
+/// callers built for size (inlined, it cost 156 B more and one instruction more per
+/// UART byte of the URG-04LX capture, a third of it VV/PP/II answers).
+#[inline(never)]
+pub(super) fn copy_line_words(src: &[u8], dst: &mut [u8]) {
+    if src.len() != dst.len() || src.len() > LINE_CAP {
+        return;
+    }
+    let (Some(last), Some(last_dst)) = (src.last_chunk::<4>(), dst.last_chunk_mut::<4>()) else {
+        // One to three bytes: the first, the middle and the last cover them (a byte
+        // loop here would be turned into a call of the library's copy).
+        for i in [0, src.len() / 2, src.len().wrapping_sub(1)] {
+            if let (Some(d), Some(&c)) = (dst.get_mut(i), src.get(i)) {
+                *d = c;
+            }
+        }
+        return;
+    };
+    *last_dst = *last;
+    let mut at: usize = 0;
+    while let (Some(s), Some(d)) = (
+        src.get(at..).and_then(|r| r.first_chunk::<4>()),
+        dst.get_mut(at..).and_then(|r| r.first_chunk_mut::<4>()),
+    ) {
+        *d = *s;
+        // Below LINE_CAP + 4: no wrap.
+        at = at.wrapping_add(4);
     }
 }
 

@@ -150,6 +150,29 @@ fn value_words_copied_agree_with_bytes() {
     assert!(!copy_check_words(b"p12345", &mut dst).1);
 }
 
+/// The word copy of the general line path on 32-bit targets against the library's:
+/// every length up to past the line buffer's (those and unequal lengths copy nothing).
+#[test]
+fn line_word_copy_agrees_with_copy_from_slice() {
+    for len in 0..=LINE_CAP + 5 {
+        let src: Vec<u8> = (0..len).map(|i| (i * 37 + 11) as u8).collect();
+        let mut dst = vec![0xAAu8; len];
+        copy_line_words(&src, &mut dst);
+        if len <= LINE_CAP {
+            assert_eq!(dst, src, "{len} bytes");
+        } else {
+            assert!(dst.iter().all(|&b| b == 0xAA), "{len} bytes");
+        }
+        let mut longer = vec![0xAAu8; len + 1];
+        copy_line_words(&src, &mut longer);
+        assert!(
+            longer.iter().all(|&b| b == 0xAA),
+            "{len} bytes into {}",
+            len + 1
+        );
+    }
+}
+
 /// The word copies of split data lines (64-bit hosts) against a byte-by-byte copy and
 /// check: every length up to past the line buffer's, one arbitrary byte anywhere (the
 /// first, a middle and the last, overlapping word alike), lengths that differ.
