@@ -7,7 +7,6 @@ use super::{FrameSink, RangeRule, Run, RunStop, ScanEncoder, BLOCK};
 use crate::crc::ScanCrc;
 use crate::data::{data_frame_len, DATA_HEADER_LEN};
 use crate::frame::Frame;
-use crate::id::Kind;
 use crate::Error;
 
 impl ScanEncoder {
@@ -39,7 +38,7 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        let id = self.ids.id(Kind::Data);
+        let id = self.data_id;
         let codes_buf = &mut self.codes;
         let s = self.open.fixed_mut().ok_or(Error::NoScan)?;
         let mut run = Run::default();
