@@ -7,7 +7,6 @@ use super::{FrameSink, RangeRule, Run, RunStop, ScanEncoder, BLOCK};
 use crate::crc::ScanCrc;
 use crate::data::{data_frame_len, DATA_HEADER_LEN};
 use crate::frame::Frame;
-use crate::id::Kind;
 use crate::Error;
 
 impl ScanEncoder {
@@ -39,7 +38,7 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        let id = self.ids.id(Kind::Data);
+        let id = self.data_id;
         let codes_buf = &mut self.codes;
         let s = self.open.fixed_mut().ok_or(Error::NoScan)?;
         let mut run = Run::default();
@@ -300,4 +299,90 @@ fn whole_points(db: u32, ib: u32, codes: &[u32], n: usize, crc: &mut ScanCrc) ->
         _ => return None,
     };
     Some(word)
+}
+
+#[cfg(test)]
+mod data_id_tests {
+    use super::*;
+    use crate::encoding::{DistanceEncoding, Encoding, IntensityEncoding};
+    use crate::header::{Grouping, ScanHeader};
+    use crate::id::IdWindow;
+    use crate::{Distance, FrameFormat};
+    use embedded_can::{ExtendedId, Id, StandardId};
+    use std::vec::Vec;
+
+    /// The data frames of runs (the fixed-width loops, classic and CAN FD, the
+    /// D16 loop compiled for its width and the shared one) and of single points carry
+    /// the node's data identifier, written here by hand: the window's base plus the
+    /// node, plus 0x10 times the data kind (5). Standard and extended windows, nodes
+    /// at both ends.
+    #[test]
+    fn the_data_frames_carry_the_nodes_data_id() {
+        let cases = [
+            (
+                IdWindow::DEFAULT,
+                2u8,
+                Id::Standard(StandardId::new(0x152).unwrap()),
+            ),
+            (
+                IdWindow::standard(0x780).unwrap(),
+                0,
+                Id::Standard(StandardId::new(0x7D0).unwrap()),
+            ),
+            (
+                IdWindow::extended(0x1ABC_0000).unwrap(),
+                15,
+                Id::Extended(ExtendedId::new(0x1ABC_005F).unwrap()),
+            ),
+        ];
+        let encodings = [DistanceEncoding::D16, DistanceEncoding::D12];
+        let formats = [FrameFormat::Classic, FrameFormat::FD64];
+        for (window, node, data_id) in cases {
+            let ids = window.node(node).unwrap();
+            for distance in encodings {
+                for format in formats {
+                    let encoding = Encoding {
+                        distance,
+                        intensity: IntensityEncoding::None,
+                        unit_exp: 0,
+                    };
+                    let header = ScanHeader {
+                        seq: 3,
+                        timestamp_ms: 0,
+                        point_count: 40,
+                        encoding,
+                        time_synced: false,
+                        time_estimated: false,
+                        time_master: false,
+                        grouping: Grouping::Single,
+                        step_increment: 1,
+                        first_step: 0,
+                        ares: 1024,
+                    };
+                    let mut e = ScanEncoder::new(ids, format).unwrap();
+                    e.begin(&header).unwrap();
+                    let mut frames: Vec<Frame> = Vec::new();
+                    // Two runs (the second goes on from codes the first left pending),
+                    // then the last points one by one.
+                    let points: Vec<u32> = (0..38).map(|i| 20 + 7 * i).collect();
+                    for line in points.chunks(19) {
+                        let rule = RangeRule::at_least(20);
+                        let run = e.push_run(line, rule, |&d: &u32| (d, 0), &mut frames);
+                        assert_eq!(run.unwrap().points, 19);
+                    }
+                    for d in [Distance::Mm(1000), Distance::Invalid] {
+                        e.push_point_to(d, 0, &mut frames).unwrap();
+                    }
+                    assert!(!frames.is_empty());
+                    for f in &frames {
+                        assert_eq!(
+                            f.id(),
+                            data_id,
+                            "{window:?} node {node} {distance:?} {format:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

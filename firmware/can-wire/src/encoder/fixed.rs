@@ -7,7 +7,6 @@ use crate::data::{data_frame_len, DataHeader, DATA_HEADER_LEN};
 use crate::encoding::Distance;
 use crate::frame::Frame;
 use crate::header::put;
-use crate::id::Kind;
 use crate::Error;
 
 impl ScanEncoder {
@@ -53,7 +52,7 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        let id = self.ids.id(Kind::Data);
+        let id = self.data_id;
         let fd = self.format.is_fd();
         let codes_buf = &mut self.codes;
         let s = self.open.fixed_mut().ok_or(Error::NoScan)?;

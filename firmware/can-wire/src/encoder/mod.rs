@@ -299,6 +299,9 @@ pub struct Run {
 #[derive(Debug, Clone)]
 pub struct ScanEncoder {
     ids: NodeIds,
+    /// The data frames' CAN identifier, `ids.id(Kind::Data)`: the ids are fixed at
+    /// [`ScanEncoder::new`], so it is worked out there, not at every run.
+    data_id: embedded_can::Id,
     format: FrameFormat,
     /// The scan in progress: its fixed-width or lossless state share their room.
     open: Open,
@@ -315,6 +318,7 @@ impl ScanEncoder {
         format.validate()?;
         Ok(ScanEncoder {
             ids,
+            data_id: ids.id(Kind::Data),
             format,
             open: Open::None,
             codes: [0; CODES],
