@@ -8,10 +8,11 @@
 //! [`Decimator::flush`]). A loop per mode, the group's state in registers: `First`
 //! copies every `factor`-th point (from the first group that begins in the line);
 //! `Min` keeps a running minimum (the first of equals), counting each group's points
-//! down. `Mean` of points without intensities (the common case) completes the group
-//! the line before left open the same way, then takes the whole groups in a loop of
-//! their own that writes each output through a zip with the cells behind it (no check
-//! per output): pairs by the rounded mean of two without a division (`(a | b) -
+//! down; pairs, after the open group's rest, take a loop of their own that writes each
+//! output through a zip with the cells behind it (no check per output). `Mean` of
+//! points without intensities (the common case) completes the group the line before
+//! left open the same way, then takes the whole groups in a loop of their own that
+//! writes its outputs the same way: pairs by the rounded mean of two without a division (`(a | b) -
 //! ((a ^ b) >> 1)`), other factors a sum and a count with one division per group;
 //! with intensities every group counts down. The points are read and written through
 //! a slice of [`Cell`]s, each output over a cell already read.
@@ -134,6 +135,39 @@ fn value(cell: &Cell<Reading>) -> (u32, u32) {
 
 /// No range, no intensity: an empty group's minimum.
 const EMPTY: (u32, u32) = (NONE, 0);
+
+/// `Min` over the line (see [`reduce_line`]): the open group's `have` points (below
+/// `k`) and their minimum `best` in, the same of the group left open out. Pairs take a
+/// loop of their own after the open group's rest.
+#[inline(always)]
+fn min_line(
+    cells: &[Cell<Reading>],
+    k: usize,
+    open: (usize, (u32, u32)),
+    o: &mut Written<'_>,
+) -> (usize, (u32, u32)) {
+    if k != 2 {
+        return min_count(cells, k, open, o);
+    }
+    // The open group's rest first (its one missing point when `have` is 1).
+    let (head, rest) = cells.split_at(open.0.min(cells.len()));
+    let open = min_count(head, k, open, o);
+    // The pairs, then the point left over into a new group (when the line ended in the
+    // open group, `rest` is empty and the group stays open).
+    let left = min_pairs(rest, o);
+    min_count(left, k, open, o)
+}
+
+/// The pairs of `cells` (a pair beginning at the first): their `Min` (the first of
+/// equals), in one loop writing the output points behind them. Returns the point left
+/// over, if any.
+#[inline(never)]
+fn min_pairs<'c>(cells: &'c [Cell<Reading>], o: &mut Written<'_>) -> &'c [Cell<Reading>] {
+    o.groups(cells, 2, |g| match g {
+        [a, b] => min1(value(b), min1(value(a), EMPTY)),
+        _ => EMPTY,
+    })
+}
 
 /// `Min` over the line (see [`reduce_line`]), counting each group's points down: the
 /// open group's `have` points (below `k`) and their minimum `best` in, the same of the
@@ -347,7 +381,7 @@ pub(super) fn reduce_line(
                 Some((r, i)) => (r, i.unwrap_or(0)),
                 None => EMPTY,
             };
-            let (have, best) = min_count(cells, k, (have, open), &mut o);
+            let (have, best) = min_line(cells, k, (have, open), &mut o);
             dec.best = (best.0 != NONE).then_some((best.0, intensity.then_some(best.1)));
             have
         }
@@ -551,5 +585,90 @@ mod tests {
         // The scan as one line: the same.
         let all: Vec<u32> = lines.concat();
         assert_eq!(run(3, &[&all]).0, run(3, &lines).0);
+    }
+    /// Min of 2 by hand through lines of odd lengths (pairs across lines), with and
+    /// without intensities: error codes, a pair without a range, ranges near 2^31 and
+    /// the top, ties (the first point and its intensity stay) and a short last group.
+    #[test]
+    fn min_of_two_across_lines_by_hand() {
+        const BIG: u32 = u32::MAX - 10;
+        const HALF: u32 = 1 << 31;
+        let run = |intensity: bool, lines: &[&[u32]]| {
+            let config = PipelineConfig {
+                decimation: Some(Decimation {
+                    factor: 2,
+                    mode: DecimationMode::Min,
+                }),
+                ..PipelineConfig::default()
+            };
+            let mut p = Pipeline::new(config).unwrap();
+            let n: usize = lines.iter().map(|l| l.len()).sum();
+            let info = ScanInfo {
+                seq: 0,
+                timestamp_ms: 0,
+                first_step: 0,
+                last_step: n as u16 - 1,
+                cluster: 1,
+            };
+            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
+            let rule = can_wire::RangeRule::at_least(1);
+            let none = 7_777_777;
+            let mut out = Vec::new();
+            let mut step = 0u16;
+            for line in lines {
+                // Intensities: the point's position in the scan plus 1.
+                let input: Vec<_> = line
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &d)| reading(d, u32::from(step) + i as u32 + 1))
+                    .collect();
+                let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
+                let k = p.filter_line(step, &input, &mut cells, rule, intensity, none);
+                let k = k.unwrap();
+                out.extend(
+                    cells[..k]
+                        .iter()
+                        .map(|c| ((c.distance != none).then_some(c.distance), c.aux)),
+                );
+                step += line.len() as u16;
+            }
+            p.end_scan(true, &mut |x: Point| {
+                out.push((x.range_mm, x.intensity.unwrap_or(0)))
+            });
+            (out, p.stats().points_out_invalid)
+        };
+        // Points 0..=16 (intensity = position + 1), pairs:
+        // [500 300] [0 0] [BIG HALF] [HALF HALF+1] [7 0] [0 2] [2 2] [9 4] [11]
+        // -> 300 (2), none, HALF (6), HALF (7), 7 (9), 2 (12), 2 (13, the first of the
+        // equals), 4 (16), 11 (17, the short last group).
+        let lines: [&[u32]; 3] = [
+            &[500, 300, 0],
+            &[0, BIG, HALF, HALF],
+            &[HALF + 1, 7, 0, 0, 2, 2, 2, 9, 4, 11],
+        ];
+        let want = [
+            (Some(300), 2),
+            (None, 0),
+            (Some(HALF), 6),
+            (Some(HALF), 7),
+            (Some(7), 9),
+            (Some(2), 12),
+            (Some(2), 13),
+            (Some(4), 16),
+            (Some(11), 17),
+        ];
+        assert_eq!(run(true, &lines), (want.to_vec(), 1));
+        // Without intensities the cells' `aux` is not looked at (the encoder has no
+        // intensity to write): the ranges only.
+        let ranges = |(out, invalid): (Vec<(Option<u32>, u32)>, u32)| {
+            (out.iter().map(|&(d, _)| d).collect::<Vec<_>>(), invalid)
+        };
+        let want_ranges = ranges((want.to_vec(), 1));
+        assert_eq!(ranges(run(false, &lines)), want_ranges);
+        // The scan as one line, and lines of one point: the same.
+        let all: Vec<u32> = lines.concat();
+        assert_eq!(run(true, &[&all]), (want.to_vec(), 1));
+        let ones: Vec<&[u32]> = all.chunks(1).collect();
+        assert_eq!(ranges(run(false, &ones)), want_ranges);
     }
 }
