@@ -295,6 +295,18 @@ fn whole_groups<'c>(
             let b = if b == NONE { a } else { b };
             (mean2(a, b), 0)
         }
+        [a, b, c] => {
+            // Threes unrolled: the ranges (0 for none) and their count, the sum in 64
+            // bits (three u32s: no wrap).
+            let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
+            let valid = u32::from(a != NONE) + u32::from(b != NONE) + u32::from(c != NONE);
+            let r = |d: u32| u64::from(if d == NONE { 0 } else { d });
+            if valid == 0 {
+                EMPTY
+            } else {
+                (mean(r(a) + r(b) + r(c), valid), 0)
+            }
+        }
         g => {
             let (mut sum, mut valid) = (0u64, 0u32);
             for c in g {
@@ -670,5 +682,123 @@ mod tests {
         assert_eq!(run(true, &[&all]), (want.to_vec(), 1));
         let ones: Vec<&[u32]> = all.chunks(1).collect();
         assert_eq!(ranges(run(false, &ones)), want_ranges);
+    }
+    /// Mean of 3 (the unrolled threes) against the 64-bit rounded mean computed here:
+    /// groups by hand (none valid, one, two, three; ranges near 2^31 and the top, sums
+    /// past 2^32), then random triples through lines of every length 1 to 7.
+    #[test]
+    fn mean_of_three_against_the_64_bit_mean() {
+        const NO: u32 = 0; // an error code (the rule's minimum is 1)
+        let run = |lines: &[&[u32]]| {
+            let config = PipelineConfig {
+                decimation: Some(Decimation {
+                    factor: 3,
+                    mode: DecimationMode::Mean,
+                }),
+                ..PipelineConfig::default()
+            };
+            let mut p = Pipeline::new(config).unwrap();
+            let n: usize = lines.iter().map(|l| l.len()).sum();
+            let info = ScanInfo {
+                seq: 0,
+                timestamp_ms: 0,
+                first_step: 0,
+                last_step: n as u16 - 1,
+                cluster: 1,
+            };
+            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
+            let rule = can_wire::RangeRule::at_least(1);
+            let none = 7_777_777;
+            let mut out = Vec::new();
+            let mut step = 0u16;
+            for line in lines {
+                let input: Vec<_> = line.iter().map(|&d| reading(d, 0)).collect();
+                let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
+                let k = p.filter_line(step, &input, &mut cells, rule, false, none);
+                out.extend(
+                    cells[..k.unwrap()]
+                        .iter()
+                        .map(|c| (c.distance != none).then_some(c.distance)),
+                );
+                step += line.len() as u16;
+            }
+            p.end_scan(true, &mut |x: Point| out.push(x.range_mm));
+            out
+        };
+        // The reference: the valid ranges' sum in 64 bits, (sum + n / 2) / n.
+        let want = |all: &[u32]| -> Vec<Option<u32>> {
+            all.chunks(3)
+                .map(|g| {
+                    let v: Vec<u64> = g.iter().filter(|&&d| d != NO).map(|&d| d.into()).collect();
+                    let n = v.len() as u64;
+                    (n > 0).then(|| ((v.iter().sum::<u64>() + n / 2) / n) as u32)
+                })
+                .collect()
+        };
+        const HALF: u32 = 1 << 31;
+        const TOP: u32 = u32::MAX - 1;
+        let all = [
+            NO,
+            NO,
+            NO, // none valid
+            NO,
+            5,
+            NO, // one
+            4,
+            NO,
+            7, // two: 5.5 up
+            HALF,
+            HALF + 1,
+            HALF + 1, // near 2^31, sum past 2^32
+            TOP,
+            TOP,
+            TOP - 1, // the top: (3 * 2^32 - 7 + 1) / 3
+            1,
+            1,
+            2, // 4 / 3 down
+            1,
+            2,
+            2, // 5 / 3 up
+            9, // the short last group
+        ];
+        let by_hand = [
+            None,
+            Some(5),
+            Some(6),
+            Some(HALF + 1),
+            Some(TOP),
+            Some(1),
+            Some(2),
+            Some(9),
+        ];
+        assert_eq!(want(&all), by_hand);
+        for len in 1..=7 {
+            let lines: Vec<&[u32]> = all.chunks(len).collect();
+            assert_eq!(run(&lines), by_hand, "lines of {len}");
+        }
+        // A fixed-seed xorshift: ranges over the whole u32 range (about one in eight an
+        // error code), lines of 1 to 7 points.
+        let mut r = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = || {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            r
+        };
+        for _ in 0..200 {
+            let all: Vec<u32> = (0..60)
+                .map(|_| {
+                    let x = next();
+                    if x % 8 == 0 {
+                        NO
+                    } else {
+                        ((x >> 8) as u32).max(1)
+                    }
+                })
+                .collect();
+            let len = (next() % 7 + 1) as usize;
+            let lines: Vec<&[u32]> = all.chunks(len).collect();
+            assert_eq!(run(&lines), want(&all));
+        }
     }
 }
