@@ -278,23 +278,29 @@ fn mean_line(
 }
 
 /// The whole groups of `k` of `cells` (a group beginning at the first), the points
-/// without intensities: their `Mean`, in one loop writing the output points behind them
-/// (of pairs without a division). Returns the points left over.
+/// without intensities: their `Mean`, in a loop writing the output points behind them
+/// (pairs in one of their own, without a division; threes unrolled). Returns the points
+/// left over.
 #[inline(never)]
 fn whole_groups<'c>(
     cells: &'c [Cell<Reading>],
     k: usize,
     o: &mut Written<'_>,
 ) -> &'c [Cell<Reading>] {
+    if k == 2 {
+        return o.groups(cells, 2, |g| match g {
+            [a, b] => {
+                let (a, b) = (a.get().distance, b.get().distance);
+                // A point without a range takes the other's: the mean of the valid
+                // ones, no range when neither is (the mean of two ranges is a range).
+                let a = if a == NONE { b } else { a };
+                let b = if b == NONE { a } else { b };
+                (mean2(a, b), 0)
+            }
+            _ => EMPTY,
+        });
+    }
     o.groups(cells, k, |g| match g {
-        [a, b] => {
-            let (a, b) = (a.get().distance, b.get().distance);
-            // A point without a range takes the other's: the mean of the valid ones,
-            // no range when neither is (the mean of two ranges is a range).
-            let a = if a == NONE { b } else { a };
-            let b = if b == NONE { a } else { b };
-            (mean2(a, b), 0)
-        }
         [a, b, c] => {
             // Threes unrolled: the ranges (0 for none) and their count, the sum in 64
             // bits (three u32s: no wrap).
