@@ -29,7 +29,7 @@ use super::NONE;
 /// the sum fits (one instruction on the Cortex-M4). Once per group: out of line (code
 /// size, and the group loop's registers).
 #[inline(never)]
-fn mean(sum: u64, n: u32) -> u32 {
+pub(super) fn mean(sum: u64, n: u32) -> u32 {
     let half = n >> 1;
     match u32::try_from(sum).ok().and_then(|s| s.checked_add(half)) {
         Some(s) => s.checked_div(n).unwrap_or(NONE),
