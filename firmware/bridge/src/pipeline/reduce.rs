@@ -305,12 +305,14 @@ fn whole_groups<'c>(
             // Threes unrolled: the ranges (0 for none) and their count, the sum in 64
             // bits (three u32s: no wrap).
             let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
-            let valid = u32::from(a != NONE) + u32::from(b != NONE) + u32::from(c != NONE);
+            let valid = u32::from(a != NONE)
+                .wrapping_add(u32::from(b != NONE))
+                .wrapping_add(u32::from(c != NONE));
             let r = |d: u32| u64::from(if d == NONE { 0 } else { d });
             if valid == 0 {
                 EMPTY
             } else {
-                (mean(r(a) + r(b) + r(c), valid), 0)
+                (mean(r(a).wrapping_add(r(b)).wrapping_add(r(c)), valid), 0)
             }
         }
         g => {
