@@ -42,7 +42,8 @@ pub use config::Bridge;
 pub use shared::Shared;
 
 /// The value of a start-up step that the board's fixed settings never make fail
-/// (the bridge's settings, the UART's, spawning a task), or a panic naming the step.
+/// (the bridge's settings, the UART's, the CAN bit timings, spawning a task), or a panic
+/// naming the step.
 ///
 /// Unlike `defmt::unwrap!`, the error itself is not logged: that linked the error
 /// type's `defmt::Format` code (the derived formatting of nested error enums, several
