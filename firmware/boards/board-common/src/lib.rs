@@ -40,3 +40,18 @@ pub mod tdc;
 
 pub use config::Bridge;
 pub use shared::Shared;
+
+/// The value of a start-up step that the board's fixed settings never make fail
+/// (the bridge's settings, the UART's, the CAN bit timings, spawning a task), or a panic
+/// naming the step.
+///
+/// Unlike `defmt::unwrap!`, the error itself is not logged: that linked the error
+/// type's `defmt::Format` code (the derived formatting of nested error enums, several
+/// hundred bytes of flash per board) for an error these settings never give.
+#[cfg(target_os = "none")]
+pub fn started<T, E>(step: Result<T, E>, what: &str) -> T {
+    match step {
+        Ok(value) => value,
+        Err(_) => defmt::panic!("start-up failed: {=str}", what),
+    }
+}

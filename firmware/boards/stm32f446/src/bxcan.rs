@@ -62,12 +62,13 @@ pub fn configure(
     let entries = ids.map(ListEntry32::data_frames_with_id);
     can.modify_filters().enable_bank(0, Fifo::Fifo0, entries);
     // The bit timing as embassy's `set_bitrate` works it out, but a rate the clock cannot
-    // make is logged through defmt: its `unwrap` linked `core::fmt`'s `Debug` machinery
-    // (about 1.5 KB of flash) for the message.
-    let timing = defmt::unwrap!(calc_can_timings(
-        embassy_stm32::rcc::frequency::<CAN1>(),
-        bus.rates.nominal
-    ));
+    // make is a panic naming the step (`board_common::started`): `unwrap` linked
+    // `core::fmt`'s `Debug` machinery (about 1.5 KB of flash) for the message, and
+    // `defmt::unwrap!` the error's `defmt::Format`.
+    let timing = board_common::started(
+        calc_can_timings(embassy_stm32::rcc::frequency::<CAN1>(), bus.rates.nominal),
+        "CAN bit timing",
+    );
     // Dropping the configuration proxy leaves initialisation mode (into sleep).
     can.modify_config()
         .set_bit_timing(timing)

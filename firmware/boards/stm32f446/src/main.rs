@@ -128,7 +128,12 @@ struct Setup {
 /// then never on the stack together with `setup`'s peripherals.
 #[inline(never)]
 fn shared_bridge() -> &'static Shared {
-    SHARED.init_with(|| Shared::new(defmt::unwrap!(config::bridge(BUS))))
+    SHARED.init_with(|| {
+        Shared::new(board_common::started(
+            config::bridge(BUS),
+            "bridge settings",
+        ))
+    })
 }
 
 /// Initialises the chip and the peripherals. A plain function outside the async main
@@ -145,15 +150,18 @@ fn setup(shared: &'static Shared) -> Setup {
     // (channel 4).
     let mut uart_config = usart::Config::default();
     uart_config.baudrate = config::SENSOR_POWER_UP_BIT_RATE;
-    let uart = defmt::unwrap!(Uart::new(
-        p.USART1,
-        p.PA10,
-        p.PA9,
-        p.DMA2_CH7,
-        p.DMA2_CH2,
-        Irqs,
-        uart_config,
-    ));
+    let uart = board_common::started(
+        Uart::new(
+            p.USART1,
+            p.PA10,
+            p.PA9,
+            p.DMA2_CH7,
+            p.DMA2_CH2,
+            Irqs,
+            uart_config,
+        ),
+        "sensor UART",
+    );
     let (tx, rx) = uart.split();
     let rx = rx.into_ring_buffered(UART_RING.init([0; config::UART_RING]));
 
@@ -191,7 +199,13 @@ async fn main(spawner: Spawner) {
     // reset the controller) and enables it, so that a bus that never goes idle holds
     // up only the CAN side, not the sensor loop and its watchdog.
     let (can_tx, can_rx): (CanTx<'static>, CanRx<'static>) = can.split();
-    spawner.spawn(defmt::unwrap!(bxcan::rx_task(shared, can_rx)));
-    spawner.spawn(defmt::unwrap!(bxcan::tx_task(shared, can, can_tx)));
+    spawner.spawn(board_common::started(
+        bxcan::rx_task(shared, can_rx),
+        "CAN rx task",
+    ));
+    spawner.spawn(board_common::started(
+        bxcan::tx_task(shared, can, can_tx),
+        "CAN tx task",
+    ));
     sensor::run(shared, &mut board).await
 }

@@ -76,10 +76,15 @@ pub fn start(
 ) -> (CanTx<'static>, CanRx<'static>, Supervisor) {
     let mut can = CanConfigurator::new(peri, rx, tx, irqs);
     // The bit timings as embassy's `set_bitrate` and `set_fd_data_bitrate` work them out,
-    // but a rate the kernel clock cannot make is logged through defmt: their `unwrap`
-    // linked `core::fmt`'s `Debug` machinery (about 1.5 KB of flash) for the message.
+    // but a rate the kernel clock cannot make is a panic naming the step
+    // (`board_common::started`): their `unwrap` linked `core::fmt`'s `Debug` machinery
+    // (about 1.5 KB of flash) for the message, and `defmt::unwrap!` the error's
+    // `defmt::Format`.
     let clock = embassy_stm32::rcc::frequency::<FDCAN1>();
-    let nominal = defmt::unwrap!(calc_can_timings(clock, bus.rates.nominal));
+    let nominal = board_common::started(
+        calc_can_timings(clock, bus.rates.nominal),
+        "CAN nominal bit timing",
+    );
     let mut config = can.config().set_nominal_bit_timing(NominalBitTiming {
         sync_jump_width: nominal.sync_jump_width,
         prescaler: nominal.prescaler,
@@ -87,7 +92,10 @@ pub fn start(
         seg2: nominal.seg2,
     });
     if bus.fd_capable {
-        let data = defmt::unwrap!(calc_can_timings(clock, bus.rates.data));
+        let data = board_common::started(
+            calc_can_timings(clock, bus.rates.data),
+            "CAN data bit timing",
+        );
         // The delay compensation flag is not written by embassy (below).
         config = config
             .set_data_bit_timing(can_config::DataBitTiming {

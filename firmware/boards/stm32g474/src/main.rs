@@ -124,7 +124,12 @@ struct Setup {
 /// then never on the stack together with `setup`'s peripherals.
 #[inline(never)]
 fn shared_bridge() -> &'static Shared {
-    SHARED.init_with(|| Shared::new(defmt::unwrap!(config::bridge(BUS))))
+    SHARED.init_with(|| {
+        Shared::new(board_common::started(
+            config::bridge(BUS),
+            "bridge settings",
+        ))
+    })
 }
 
 /// Initialises the chip and the peripherals. A plain function outside the async main
@@ -140,15 +145,18 @@ fn setup(shared: &'static Shared) -> Setup {
     // Sensor: USART1, TX PC4, RX PC5 (morpho CN10 pins 34 and 6), 8N1.
     let mut uart_config = usart::Config::default();
     uart_config.baudrate = config::SENSOR_POWER_UP_BIT_RATE;
-    let uart = defmt::unwrap!(Uart::new(
-        p.USART1,
-        p.PC5,
-        p.PC4,
-        p.DMA1_CH2,
-        p.DMA1_CH1,
-        Irqs,
-        uart_config,
-    ));
+    let uart = board_common::started(
+        Uart::new(
+            p.USART1,
+            p.PC5,
+            p.PC4,
+            p.DMA1_CH2,
+            p.DMA1_CH1,
+            Irqs,
+            uart_config,
+        ),
+        "sensor UART",
+    );
     let (tx, rx) = uart.split();
     let rx = rx.into_ring_buffered(UART_RING.init([0; config::UART_RING]));
 
@@ -184,7 +192,13 @@ async fn main(spawner: Spawner) {
         can_tx,
         can_rx,
     } = setup(shared);
-    spawner.spawn(defmt::unwrap!(fdcan::tx_task(shared, can_tx)));
-    spawner.spawn(defmt::unwrap!(fdcan::rx_task(shared, can_rx)));
+    spawner.spawn(board_common::started(
+        fdcan::tx_task(shared, can_tx),
+        "CAN tx task",
+    ));
+    spawner.spawn(board_common::started(
+        fdcan::rx_task(shared, can_rx),
+        "CAN rx task",
+    ));
     sensor::run(shared, &mut board).await
 }

@@ -180,7 +180,12 @@ struct Setup {
 /// the bridge's temporaries are then never on the stack together with `setup`'s.
 #[inline(never)]
 fn shared_bridge() -> &'static Shared {
-    SHARED.init_with(|| Shared::new(defmt::unwrap!(config::ethernet_bridge(BUS))))
+    SHARED.init_with(|| {
+        Shared::new(board_common::started(
+            config::ethernet_bridge(BUS),
+            "bridge settings",
+        ))
+    })
 }
 
 /// A locally administered MAC address from the chip's unique ID (stable per board).
@@ -275,8 +280,14 @@ async fn main(spawner: Spawner) {
         can_tx,
         can_rx,
     } = setup(shared);
-    spawner.spawn(defmt::unwrap!(net_task(runner)));
-    spawner.spawn(defmt::unwrap!(fdcan::tx_task(shared, can_tx)));
-    spawner.spawn(defmt::unwrap!(fdcan::rx_task(shared, can_rx)));
+    spawner.spawn(board_common::started(net_task(runner), "network task"));
+    spawner.spawn(board_common::started(
+        fdcan::tx_task(shared, can_tx),
+        "CAN tx task",
+    ));
+    spawner.spawn(board_common::started(
+        fdcan::rx_task(shared, can_rx),
+        "CAN rx task",
+    ));
     sensor::run(shared, &mut board).await
 }

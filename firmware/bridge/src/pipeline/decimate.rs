@@ -25,12 +25,10 @@ pub(crate) struct Decimator {
     pub(super) intensities: u32,
 }
 
-/// Rounded mean (halves up) of `sum / n`, or `None` when `n` is 0.
+/// Rounded mean (halves up) of `sum / n`, or `None` when `n` is 0: the line loops' out
+/// of line mean (its 32-bit division when the sum fits), shared for code size.
 fn rounded_mean(sum: u64, n: u32) -> Option<u32> {
-    let n = u64::from(n);
-    let half = n / 2;
-    let mean = sum.checked_add(half)?.checked_div(n)?;
-    u32::try_from(mean).ok()
+    (n != 0).then(|| super::reduce::mean(sum, n))
 }
 
 impl Decimator {

@@ -8,10 +8,11 @@
 //! [`Decimator::flush`]). A loop per mode, the group's state in registers: `First`
 //! copies every `factor`-th point (from the first group that begins in the line);
 //! `Min` keeps a running minimum (the first of equals), counting each group's points
-//! down. `Mean` of points without intensities (the common case) completes the group
-//! the line before left open the same way, then takes the whole groups in a loop of
-//! their own that writes each output through a zip with the cells behind it (no check
-//! per output): pairs by the rounded mean of two without a division (`(a | b) -
+//! down; pairs, after the open group's rest, take a loop of their own that writes each
+//! output through a zip with the cells behind it (no check per output). `Mean` of
+//! points without intensities (the common case) completes the group the line before
+//! left open the same way, then takes the whole groups in a loop of their own that
+//! writes its outputs the same way: pairs by the rounded mean of two without a division (`(a | b) -
 //! ((a ^ b) >> 1)`), other factors a sum and a count with one division per group;
 //! with intensities every group counts down. The points are read and written through
 //! a slice of [`Cell`]s, each output over a cell already read.
@@ -28,7 +29,7 @@ use super::NONE;
 /// the sum fits (one instruction on the Cortex-M4). Once per group: out of line (code
 /// size, and the group loop's registers).
 #[inline(never)]
-fn mean(sum: u64, n: u32) -> u32 {
+pub(super) fn mean(sum: u64, n: u32) -> u32 {
     let half = n >> 1;
     match u32::try_from(sum).ok().and_then(|s| s.checked_add(half)) {
         Some(s) => s.checked_div(n).unwrap_or(NONE),
@@ -134,6 +135,39 @@ fn value(cell: &Cell<Reading>) -> (u32, u32) {
 
 /// No range, no intensity: an empty group's minimum.
 const EMPTY: (u32, u32) = (NONE, 0);
+
+/// `Min` over the line (see [`reduce_line`]): the open group's `have` points (below
+/// `k`) and their minimum `best` in, the same of the group left open out. Pairs take a
+/// loop of their own after the open group's rest.
+#[inline(always)]
+fn min_line(
+    cells: &[Cell<Reading>],
+    k: usize,
+    open: (usize, (u32, u32)),
+    o: &mut Written<'_>,
+) -> (usize, (u32, u32)) {
+    if k != 2 {
+        return min_count(cells, k, open, o);
+    }
+    // The open group's rest first (its one missing point when `have` is 1).
+    let (head, rest) = cells.split_at(open.0.min(cells.len()));
+    let open = min_count(head, k, open, o);
+    // The pairs, then the point left over into a new group (when the line ended in the
+    // open group, `rest` is empty and the group stays open).
+    let left = min_pairs(rest, o);
+    min_count(left, k, open, o)
+}
+
+/// The pairs of `cells` (a pair beginning at the first): their `Min` (the first of
+/// equals), in one loop writing the output points behind them. Returns the point left
+/// over, if any.
+#[inline(never)]
+fn min_pairs<'c>(cells: &'c [Cell<Reading>], o: &mut Written<'_>) -> &'c [Cell<Reading>] {
+    o.groups(cells, 2, |g| match g {
+        [a, b] => min1(value(b), min1(value(a), EMPTY)),
+        _ => EMPTY,
+    })
+}
 
 /// `Min` over the line (see [`reduce_line`]), counting each group's points down: the
 /// open group's `have` points (below `k`) and their minimum `best` in, the same of the
@@ -244,22 +278,42 @@ fn mean_line(
 }
 
 /// The whole groups of `k` of `cells` (a group beginning at the first), the points
-/// without intensities: their `Mean`, in one loop writing the output points behind them
-/// (of pairs without a division). Returns the points left over.
+/// without intensities: their `Mean`, in a loop writing the output points behind them
+/// (pairs in one of their own, without a division; threes unrolled). Returns the points
+/// left over.
 #[inline(never)]
 fn whole_groups<'c>(
     cells: &'c [Cell<Reading>],
     k: usize,
     o: &mut Written<'_>,
 ) -> &'c [Cell<Reading>] {
+    if k == 2 {
+        return o.groups(cells, 2, |g| match g {
+            [a, b] => {
+                let (a, b) = (a.get().distance, b.get().distance);
+                // A point without a range takes the other's: the mean of the valid
+                // ones, no range when neither is (the mean of two ranges is a range).
+                let a = if a == NONE { b } else { a };
+                let b = if b == NONE { a } else { b };
+                (mean2(a, b), 0)
+            }
+            _ => EMPTY,
+        });
+    }
     o.groups(cells, k, |g| match g {
-        [a, b] => {
-            let (a, b) = (a.get().distance, b.get().distance);
-            // A point without a range takes the other's: the mean of the valid ones,
-            // no range when neither is (the mean of two ranges is a range).
-            let a = if a == NONE { b } else { a };
-            let b = if b == NONE { a } else { b };
-            (mean2(a, b), 0)
+        [a, b, c] => {
+            // Threes unrolled: the ranges (0 for none) and their count, the sum in 64
+            // bits (three u32s: no wrap).
+            let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
+            let valid = u32::from(a != NONE)
+                .wrapping_add(u32::from(b != NONE))
+                .wrapping_add(u32::from(c != NONE));
+            let r = |d: u32| u64::from(if d == NONE { 0 } else { d });
+            if valid == 0 {
+                EMPTY
+            } else {
+                (mean(r(a).wrapping_add(r(b)).wrapping_add(r(c)), valid), 0)
+            }
         }
         g => {
             let (mut sum, mut valid) = (0u64, 0u32);
@@ -347,7 +401,7 @@ pub(super) fn reduce_line(
                 Some((r, i)) => (r, i.unwrap_or(0)),
                 None => EMPTY,
             };
-            let (have, best) = min_count(cells, k, (have, open), &mut o);
+            let (have, best) = min_line(cells, k, (have, open), &mut o);
             dec.best = (best.0 != NONE).then_some((best.0, intensity.then_some(best.1)));
             have
         }
@@ -551,5 +605,208 @@ mod tests {
         // The scan as one line: the same.
         let all: Vec<u32> = lines.concat();
         assert_eq!(run(3, &[&all]).0, run(3, &lines).0);
+    }
+    /// Min of 2 by hand through lines of odd lengths (pairs across lines), with and
+    /// without intensities: error codes, a pair without a range, ranges near 2^31 and
+    /// the top, ties (the first point and its intensity stay) and a short last group.
+    #[test]
+    fn min_of_two_across_lines_by_hand() {
+        const BIG: u32 = u32::MAX - 10;
+        const HALF: u32 = 1 << 31;
+        let run = |intensity: bool, lines: &[&[u32]]| {
+            let config = PipelineConfig {
+                decimation: Some(Decimation {
+                    factor: 2,
+                    mode: DecimationMode::Min,
+                }),
+                ..PipelineConfig::default()
+            };
+            let mut p = Pipeline::new(config).unwrap();
+            let n: usize = lines.iter().map(|l| l.len()).sum();
+            let info = ScanInfo {
+                seq: 0,
+                timestamp_ms: 0,
+                first_step: 0,
+                last_step: n as u16 - 1,
+                cluster: 1,
+            };
+            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
+            let rule = can_wire::RangeRule::at_least(1);
+            let none = 7_777_777;
+            let mut out = Vec::new();
+            let mut step = 0u16;
+            for line in lines {
+                // Intensities: the point's position in the scan plus 1.
+                let input: Vec<_> = line
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &d)| reading(d, u32::from(step) + i as u32 + 1))
+                    .collect();
+                let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
+                let k = p.filter_line(step, &input, &mut cells, rule, intensity, none);
+                let k = k.unwrap();
+                out.extend(
+                    cells[..k]
+                        .iter()
+                        .map(|c| ((c.distance != none).then_some(c.distance), c.aux)),
+                );
+                step += line.len() as u16;
+            }
+            p.end_scan(true, &mut |x: Point| {
+                out.push((x.range_mm, x.intensity.unwrap_or(0)))
+            });
+            (out, p.stats().points_out_invalid)
+        };
+        // Points 0..=16 (intensity = position + 1), pairs:
+        // [500 300] [0 0] [BIG HALF] [HALF HALF+1] [7 0] [0 2] [2 2] [9 4] [11]
+        // -> 300 (2), none, HALF (6), HALF (7), 7 (9), 2 (12), 2 (13, the first of the
+        // equals), 4 (16), 11 (17, the short last group).
+        let lines: [&[u32]; 3] = [
+            &[500, 300, 0],
+            &[0, BIG, HALF, HALF],
+            &[HALF + 1, 7, 0, 0, 2, 2, 2, 9, 4, 11],
+        ];
+        let want = [
+            (Some(300), 2),
+            (None, 0),
+            (Some(HALF), 6),
+            (Some(HALF), 7),
+            (Some(7), 9),
+            (Some(2), 12),
+            (Some(2), 13),
+            (Some(4), 16),
+            (Some(11), 17),
+        ];
+        assert_eq!(run(true, &lines), (want.to_vec(), 1));
+        // Without intensities the cells' `aux` is not looked at (the encoder has no
+        // intensity to write): the ranges only.
+        let ranges = |(out, invalid): (Vec<(Option<u32>, u32)>, u32)| {
+            (out.iter().map(|&(d, _)| d).collect::<Vec<_>>(), invalid)
+        };
+        let want_ranges = ranges((want.to_vec(), 1));
+        assert_eq!(ranges(run(false, &lines)), want_ranges);
+        // The scan as one line, and lines of one point: the same.
+        let all: Vec<u32> = lines.concat();
+        assert_eq!(run(true, &[&all]), (want.to_vec(), 1));
+        let ones: Vec<&[u32]> = all.chunks(1).collect();
+        assert_eq!(ranges(run(false, &ones)), want_ranges);
+    }
+    /// Mean of 3 (the unrolled threes) against the 64-bit rounded mean computed here:
+    /// groups by hand (none valid, one, two, three; ranges near 2^31 and the top, sums
+    /// past 2^32), then random triples through lines of every length 1 to 7.
+    #[test]
+    fn mean_of_three_against_the_64_bit_mean() {
+        const NO: u32 = 0; // an error code (the rule's minimum is 1)
+        let run = |lines: &[&[u32]]| {
+            let config = PipelineConfig {
+                decimation: Some(Decimation {
+                    factor: 3,
+                    mode: DecimationMode::Mean,
+                }),
+                ..PipelineConfig::default()
+            };
+            let mut p = Pipeline::new(config).unwrap();
+            let n: usize = lines.iter().map(|l| l.len()).sum();
+            let info = ScanInfo {
+                seq: 0,
+                timestamp_ms: 0,
+                first_step: 0,
+                last_step: n as u16 - 1,
+                cluster: 1,
+            };
+            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
+            let rule = can_wire::RangeRule::at_least(1);
+            let none = 7_777_777;
+            let mut out = Vec::new();
+            let mut step = 0u16;
+            for line in lines {
+                let input: Vec<_> = line.iter().map(|&d| reading(d, 0)).collect();
+                let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
+                let k = p.filter_line(step, &input, &mut cells, rule, false, none);
+                out.extend(
+                    cells[..k.unwrap()]
+                        .iter()
+                        .map(|c| (c.distance != none).then_some(c.distance)),
+                );
+                step += line.len() as u16;
+            }
+            p.end_scan(true, &mut |x: Point| out.push(x.range_mm));
+            out
+        };
+        // The reference: the valid ranges' sum in 64 bits, (sum + n / 2) / n.
+        let want = |all: &[u32]| -> Vec<Option<u32>> {
+            all.chunks(3)
+                .map(|g| {
+                    let v: Vec<u64> = g.iter().filter(|&&d| d != NO).map(|&d| d.into()).collect();
+                    let n = v.len() as u64;
+                    (n > 0).then(|| ((v.iter().sum::<u64>() + n / 2) / n) as u32)
+                })
+                .collect()
+        };
+        const HALF: u32 = 1 << 31;
+        const TOP: u32 = u32::MAX - 1;
+        let all = [
+            NO,
+            NO,
+            NO, // none valid
+            NO,
+            5,
+            NO, // one
+            4,
+            NO,
+            7, // two: 5.5 up
+            HALF,
+            HALF + 1,
+            HALF + 1, // near 2^31, sum past 2^32
+            TOP,
+            TOP,
+            TOP - 1, // the top: (3 * 2^32 - 7 + 1) / 3
+            1,
+            1,
+            2, // 4 / 3 down
+            1,
+            2,
+            2, // 5 / 3 up
+            9, // the short last group
+        ];
+        let by_hand = [
+            None,
+            Some(5),
+            Some(6),
+            Some(HALF + 1),
+            Some(TOP),
+            Some(1),
+            Some(2),
+            Some(9),
+        ];
+        assert_eq!(want(&all), by_hand);
+        for len in 1..=7 {
+            let lines: Vec<&[u32]> = all.chunks(len).collect();
+            assert_eq!(run(&lines), by_hand, "lines of {len}");
+        }
+        // A fixed-seed xorshift: ranges over the whole u32 range (about one in eight an
+        // error code), lines of 1 to 7 points.
+        let mut r = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = || {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            r
+        };
+        for _ in 0..200 {
+            let all: Vec<u32> = (0..60)
+                .map(|_| {
+                    let x = next();
+                    if x % 8 == 0 {
+                        NO
+                    } else {
+                        ((x >> 8) as u32).max(1)
+                    }
+                })
+                .collect();
+            let len = (next() % 7 + 1) as usize;
+            let lines: Vec<&[u32]> = all.chunks(len).collect();
+            assert_eq!(run(&lines), want(&all));
+        }
     }
 }
