@@ -104,6 +104,7 @@ def fd():
 CHECKS = [
     ("D16, classic CAN (issue 5)", "d16", None, 40.0),
     ("D16, CAN FD 64-byte frames", "d16", "frame=64", 40.0),
+    ("DL, the lossless coding, classic CAN (issue 9)", "dl", None, 45.0),
     ("window, region of interest, intensity threshold (issue 13)", "d16",
      "roi=100:900,window=100:30000,intensity=500", 40.0),
 ]
