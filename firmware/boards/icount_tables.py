@@ -107,6 +107,10 @@ CHECKS = [
     ("DL, the lossless coding, classic CAN (issue 9)", "dl", None, 45.0),
     ("window, region of interest, intensity threshold (issue 13)", "d16",
      "roi=100:900,window=100:30000,intensity=500", 40.0),
+    ("decimation by 2, first (issue 13)", "d16", "decimate=2:first", 40.0),
+    ("decimation by 2, min (issue 13)", "d16", "decimate=2:min", 40.0),
+    ("decimation by 2, mean (issue 13)", "d16", "decimate=2:mean", 40.0),
+    ("decimation by 3, mean (issue 13)", "d16", "decimate=3:mean", 40.0),
 ]
 
 
