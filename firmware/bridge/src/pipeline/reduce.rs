@@ -445,6 +445,60 @@ mod tests {
         }
     }
 
+    /// The scan of `lines` (distances; each reading's aux is its position in the scan
+    /// plus 1) through `filter_line` line by line, decimated by `factor` in `mode`, then
+    /// `end_scan`: each output point's range (`None` for none) and intensity (0 for
+    /// none), and the count of outputs without a range.
+    fn decimate_lines(
+        factor: u16,
+        mode: DecimationMode,
+        intensity: bool,
+        lines: &[&[u32]],
+    ) -> (Vec<(Option<u32>, u32)>, u32) {
+        let config = PipelineConfig {
+            decimation: Some(Decimation { factor, mode }),
+            ..PipelineConfig::default()
+        };
+        let mut p = Pipeline::new(config).unwrap();
+        let n: usize = lines.iter().map(|l| l.len()).sum();
+        let info = ScanInfo {
+            seq: 0,
+            timestamp_ms: 0,
+            first_step: 0,
+            last_step: n as u16 - 1,
+            cluster: 1,
+        };
+        assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
+        let rule = can_wire::RangeRule::at_least(1);
+        let none = 7_777_777;
+        let mut out = Vec::new();
+        let mut step = 0u16;
+        for line in lines {
+            let input: Vec<_> = line
+                .iter()
+                .enumerate()
+                .map(|(i, &d)| reading(d, u32::from(step) + i as u32 + 1))
+                .collect();
+            let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
+            let k = p.filter_line(step, &input, &mut cells, rule, intensity, none);
+            out.extend(
+                cells[..k.unwrap()]
+                    .iter()
+                    .map(|c| ((c.distance != none).then_some(c.distance), c.aux)),
+            );
+            step += line.len() as u16;
+        }
+        p.end_scan(true, &mut |x: Point| {
+            out.push((x.range_mm, x.intensity.unwrap_or(0)))
+        });
+        (out, p.stats().points_out_invalid)
+    }
+
+    /// The ranges of [`decimate_lines`]' outputs, and its count.
+    fn ranges((out, invalid): (Vec<(Option<u32>, u32)>, u32)) -> (Vec<Option<u32>>, u32) {
+        (out.iter().map(|&(d, _)| d).collect(), invalid)
+    }
+
     /// Min of 3 by hand, with intensities, a group across two lines and a short last
     /// group: ties keep the first point and its own intensity (DecimationMode::Min).
     #[test]
@@ -534,41 +588,7 @@ mod tests {
         const BIG: u32 = u32::MAX - 10;
         const HALF: u32 = 1 << 31;
         let run = |factor: u16, lines: &[&[u32]]| {
-            let config = PipelineConfig {
-                decimation: Some(Decimation {
-                    factor,
-                    mode: DecimationMode::Mean,
-                }),
-                ..PipelineConfig::default()
-            };
-            let mut p = Pipeline::new(config).unwrap();
-            let n: usize = lines.iter().map(|l| l.len()).sum();
-            let info = ScanInfo {
-                seq: 0,
-                timestamp_ms: 0,
-                first_step: 0,
-                last_step: n as u16 - 1,
-                cluster: 1,
-            };
-            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
-            let rule = can_wire::RangeRule::at_least(1);
-            let none = 7_777_777;
-            let mut out = Vec::new();
-            let mut step = 0u16;
-            for line in lines {
-                let input: Vec<_> = line.iter().map(|&d| reading(d, 0)).collect();
-                let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
-                let k = p.filter_line(step, &input, &mut cells, rule, false, none);
-                let k = k.unwrap();
-                out.extend(
-                    cells[..k]
-                        .iter()
-                        .map(|c| (c.distance != none).then_some(c.distance)),
-                );
-                step += line.len() as u16;
-            }
-            p.end_scan(true, &mut |x: Point| out.push(x.range_mm));
-            (out, p.stats().points_out_invalid)
+            ranges(decimate_lines(factor, DecimationMode::Mean, false, lines))
         };
         // Pairs: [1000 1001] [0 0] [BIG BIG] [HALF HALF+1] [5 0] [0 7] [3]
         // -> 1001 (1000.5 up), none, BIG, HALF+1, 5, 7, 3 (the short last group).
@@ -614,48 +634,7 @@ mod tests {
         const BIG: u32 = u32::MAX - 10;
         const HALF: u32 = 1 << 31;
         let run = |intensity: bool, lines: &[&[u32]]| {
-            let config = PipelineConfig {
-                decimation: Some(Decimation {
-                    factor: 2,
-                    mode: DecimationMode::Min,
-                }),
-                ..PipelineConfig::default()
-            };
-            let mut p = Pipeline::new(config).unwrap();
-            let n: usize = lines.iter().map(|l| l.len()).sum();
-            let info = ScanInfo {
-                seq: 0,
-                timestamp_ms: 0,
-                first_step: 0,
-                last_step: n as u16 - 1,
-                cluster: 1,
-            };
-            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
-            let rule = can_wire::RangeRule::at_least(1);
-            let none = 7_777_777;
-            let mut out = Vec::new();
-            let mut step = 0u16;
-            for line in lines {
-                // Intensities: the point's position in the scan plus 1.
-                let input: Vec<_> = line
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &d)| reading(d, u32::from(step) + i as u32 + 1))
-                    .collect();
-                let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
-                let k = p.filter_line(step, &input, &mut cells, rule, intensity, none);
-                let k = k.unwrap();
-                out.extend(
-                    cells[..k]
-                        .iter()
-                        .map(|c| ((c.distance != none).then_some(c.distance), c.aux)),
-                );
-                step += line.len() as u16;
-            }
-            p.end_scan(true, &mut |x: Point| {
-                out.push((x.range_mm, x.intensity.unwrap_or(0)))
-            });
-            (out, p.stats().points_out_invalid)
+            decimate_lines(2, DecimationMode::Min, intensity, lines)
         };
         // Points 0..=16 (intensity = position + 1), pairs:
         // [500 300] [0 0] [BIG HALF] [HALF HALF+1] [7 0] [0 2] [2 2] [9 4] [11]
@@ -680,9 +659,6 @@ mod tests {
         assert_eq!(run(true, &lines), (want.to_vec(), 1));
         // Without intensities the cells' `aux` is not looked at (the encoder has no
         // intensity to write): the ranges only.
-        let ranges = |(out, invalid): (Vec<(Option<u32>, u32)>, u32)| {
-            (out.iter().map(|&(d, _)| d).collect::<Vec<_>>(), invalid)
-        };
         let want_ranges = ranges((want.to_vec(), 1));
         assert_eq!(ranges(run(false, &lines)), want_ranges);
         // The scan as one line, and lines of one point: the same.
@@ -697,42 +673,8 @@ mod tests {
     #[test]
     fn mean_of_three_against_the_64_bit_mean() {
         const NO: u32 = 0; // an error code (the rule's minimum is 1)
-        let run = |lines: &[&[u32]]| {
-            let config = PipelineConfig {
-                decimation: Some(Decimation {
-                    factor: 3,
-                    mode: DecimationMode::Mean,
-                }),
-                ..PipelineConfig::default()
-            };
-            let mut p = Pipeline::new(config).unwrap();
-            let n: usize = lines.iter().map(|l| l.len()).sum();
-            let info = ScanInfo {
-                seq: 0,
-                timestamp_ms: 0,
-                first_step: 0,
-                last_step: n as u16 - 1,
-                cluster: 1,
-            };
-            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
-            let rule = can_wire::RangeRule::at_least(1);
-            let none = 7_777_777;
-            let mut out = Vec::new();
-            let mut step = 0u16;
-            for line in lines {
-                let input: Vec<_> = line.iter().map(|&d| reading(d, 0)).collect();
-                let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
-                let k = p.filter_line(step, &input, &mut cells, rule, false, none);
-                out.extend(
-                    cells[..k.unwrap()]
-                        .iter()
-                        .map(|c| (c.distance != none).then_some(c.distance)),
-                );
-                step += line.len() as u16;
-            }
-            p.end_scan(true, &mut |x: Point| out.push(x.range_mm));
-            out
-        };
+        let run =
+            |lines: &[&[u32]]| ranges(decimate_lines(3, DecimationMode::Mean, false, lines)).0;
         // The reference: the valid ranges' sum in 64 bits, (sum + n / 2) / n.
         let want = |all: &[u32]| -> Vec<Option<u32>> {
             all.chunks(3)
