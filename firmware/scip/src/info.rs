@@ -25,6 +25,18 @@ pub enum ParamName {
 }
 
 impl ParamName {
+    /// Every parameter, in the order a PP answer gives them.
+    pub const ALL: [ParamName; 8] = [
+        ParamName::Modl,
+        ParamName::Dmin,
+        ParamName::Dmax,
+        ParamName::Ares,
+        ParamName::Amin,
+        ParamName::Amax,
+        ParamName::Afrt,
+        ParamName::Scan,
+    ];
+
     /// The name of a PP field, if it is one of the parameters.
     pub fn from_name(name: &[u8]) -> Option<Self> {
         // The four letters as one word: one compare per name, no library call.
@@ -584,16 +596,7 @@ impl SensorParams {
         if let Some(e) = self.fault {
             return Err(e);
         }
-        let all = [
-            ParamName::Modl,
-            ParamName::Dmin,
-            ParamName::Dmax,
-            ParamName::Ares,
-            ParamName::Amin,
-            ParamName::Amax,
-            ParamName::Afrt,
-            ParamName::Scan,
-        ];
+        let all = ParamName::ALL;
         let mut v = [0u32; 8];
         for (slot, name) in v.iter_mut().zip(all) {
             *slot = self.get(name).ok_or(ParamError::Missing(name))?;
@@ -890,16 +893,7 @@ mod tests {
     /// The word lookup of the names against the names spelled out, and near misses.
     #[test]
     fn names_by_word() {
-        let all = [
-            ParamName::Modl,
-            ParamName::Dmin,
-            ParamName::Dmax,
-            ParamName::Ares,
-            ParamName::Amin,
-            ParamName::Amax,
-            ParamName::Afrt,
-            ParamName::Scan,
-        ];
+        let all = ParamName::ALL;
         for n in all {
             assert_eq!(ParamName::from_name(n.as_str().as_bytes()), Some(n));
         }
