@@ -210,12 +210,15 @@ fn the_default_simulator_loses_no_scan_from_the_first() {
 fn the_live_bridge_estimates_scan_times() {
     let frames = bridge_to_log(
         "live-time",
-        &["sim:drift_ppm=100,clock_phase_us=500", "--seconds", "9"],
+        &["sim:drift_ppm=100,clock_phase_us=500", "--seconds", "12"],
     );
     let scans = decoded(&frames);
     let estimated = scans.iter().filter(|(h, _)| h.time_estimated).count();
     let scans = scans.len();
-    // 40 scans a second; estimated from about 6.5 s on (a scan or two less under load).
-    assert!(scans >= 300, "only {scans} scans in 9 s");
+    // 40 scans a second; estimated from about 6.5 s on on an idle host. A host loaded
+    // by other builds and tests delays the calibration's TM readings: one run of 9 s
+    // under such load estimated none of its 347 scans (and passed alone), so the run
+    // lasts 12 s, and 40 estimated scans still ask for a first estimate by about 11 s.
+    assert!(scans >= 400, "only {scans} scans in 12 s");
     assert!(estimated >= 40, "{estimated} of {scans} scans estimated");
 }
