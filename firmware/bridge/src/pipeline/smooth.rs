@@ -507,6 +507,16 @@ mod tests {
             .collect()
     }
 
+    /// A fixed sequence of pseudo-random words (xorshift32) from `seed` (not 0).
+    fn xorshift(mut seed: u32) -> impl FnMut() -> u32 {
+        move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed
+        }
+    }
+
     fn dist(c: &[Reading]) -> Vec<u32> {
         c.iter().map(|r| r.distance).collect()
     }
@@ -614,13 +624,7 @@ mod tests {
         // Lines over edge values (no range, 0, ranges near 2^31 and NONE, ties), with
         // the two distances before them: every output against the rule.
         let vals = [0, 1, 7, 7, 1000, (1 << 31) - 1, 1 << 31, u32::MAX - 1, NONE];
-        let mut seed = 0x9e37_79b9_u32;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            seed
-        };
+        let mut next = xorshift(0x9e37_79b9_u32);
         for _ in 0..20000 {
             let len = next() as usize % 10;
             let mut pick = || vals[next() as usize % vals.len()];
@@ -801,13 +805,7 @@ mod tests {
             u32::MAX - 1,
             NONE,
         ];
-        let mut seed = 0x2545_f491_u32;
-        let mut next = || {
-            seed ^= seed << 13;
-            seed ^= seed >> 17;
-            seed ^= seed << 5;
-            seed
-        };
+        let mut next = xorshift(0x2545_f491_u32);
         for round in 0..6000 {
             // Small values only half the time (the quick loop's domain).
             let k = if round % 2 == 0 { 6 } else { vals.len() };
