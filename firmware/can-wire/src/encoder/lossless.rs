@@ -21,9 +21,6 @@ pub(super) struct Lossless {
     pub(super) stream: ScanStream,
     /// What a run needs of the scan's encoding, worked out once per scan.
     units: Units,
-    /// The data frames' identifier, worked out at the scan's first run (the bridge's
-    /// identifiers never change).
-    data_id: Option<embedded_can::Id>,
 }
 
 /// The per-point constants of a run that follow from the scan's encoding alone: the
@@ -73,7 +70,6 @@ impl Lossless {
             units: Units::of(&header.encoding),
             header,
             stream,
-            data_id: None,
         }
     }
 }
@@ -121,9 +117,8 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        let ids = self.ids;
+        let id = self.data_id;
         let l = self.open.lossless_mut().ok_or(Error::NoScan)?;
-        let id = *l.data_id.get_or_insert_with(|| ids.id(Kind::Data));
         let mut out = Out::new(sink, id, self.format.is_fd());
         // The per-point work with every constant worked out once: those of the encoding
         // once per scan, the rule's here.

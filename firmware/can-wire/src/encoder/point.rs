@@ -5,7 +5,6 @@ use super::fixed::flush;
 use super::{FrameSink, Open, Run, RunStop, ScanEncoder};
 use crate::encoding::Distance;
 use crate::frame::Frame;
-use crate::id::Kind;
 use crate::lossless::bits::Out;
 use crate::lossless::code;
 use crate::Error;
@@ -93,7 +92,7 @@ impl ScanEncoder {
     /// Turn the buffered points into a data frame (written into `out`).
     #[inline(never)]
     pub(super) fn flush_into(&mut self, out: &mut Frame) -> Result<(), Error> {
-        let id = self.ids.id(Kind::Data);
+        let id = self.data_id;
         let fd = self.format.is_fd();
         let s = self.open.fixed_mut().ok_or(Error::NoScan)?;
         flush(s, id, fd, out)
@@ -110,7 +109,7 @@ impl ScanEncoder {
     ) -> Result<Run, Error> {
         if let Some(l) = self.open.lossless_mut() {
             let enc = l.header.encoding;
-            let mut out = Out::new(sink, self.ids.id(Kind::Data), self.format.is_fd());
+            let mut out = Out::new(sink, self.data_id, self.format.is_fd());
             let d = code::distance_code(distance, enc.unit_exp);
             let i = enc.intensity.encode(intensity);
             l.stream.push(d, i, &mut out)?;

@@ -512,3 +512,62 @@ fn lossless_runs_code_every_distance_as_the_code_table_says() {
         }
     }
 }
+
+/// The data frames of runs (the fixed-width loops, classic and CAN FD, the D16 loop
+/// compiled for its width and the shared one; the lossless coding's) and of single
+/// points carry the node's data identifier, written here by hand: the window's base
+/// plus the node, plus 0x10 times the data kind (5). Standard and extended windows,
+/// nodes at both ends.
+#[test]
+fn the_data_frames_carry_the_nodes_data_id() {
+    use embedded_can::ExtendedId;
+    let cases = [
+        (IdWindow::DEFAULT, 2u8, sid(0x152)),
+        (IdWindow::standard(0x780).unwrap(), 0, sid(0x7D0)),
+        (
+            IdWindow::extended(0x1ABC_0000).unwrap(),
+            15,
+            Id::Extended(ExtendedId::new(0x1ABC_005F).unwrap()),
+        ),
+    ];
+    let encodings = [
+        DistanceEncoding::D16,
+        DistanceEncoding::D12,
+        DistanceEncoding::Lossless,
+    ];
+    let formats = [FrameFormat::Classic, FrameFormat::FD64];
+    for (window, node, data_id) in cases {
+        let ids = window.node(node).unwrap();
+        for distance in encodings {
+            for format in formats {
+                let encoding = Encoding {
+                    distance,
+                    intensity: IntensityEncoding::None,
+                    unit_exp: 0,
+                };
+                let mut e = ScanEncoder::new(ids, format).unwrap();
+                e.begin(&header(40, encoding)).unwrap();
+                let mut frames: Vec<Frame> = Vec::new();
+                // Two runs (the second goes on from codes the first left pending),
+                // then the last points one by one.
+                let points: Vec<u32> = (0..38).map(|i| 20 + 7 * i).collect();
+                for line in points.chunks(19) {
+                    let rule = RangeRule::at_least(20);
+                    let run = e.push_run(line, rule, |&d: &u32| (d, 0), &mut frames);
+                    assert_eq!(run.unwrap().points, 19);
+                }
+                for d in [Distance::Mm(1000), Distance::Invalid] {
+                    e.push_point_to(d, 0, &mut frames).unwrap();
+                }
+                assert!(!frames.is_empty());
+                for f in &frames {
+                    assert_eq!(
+                        f.id(),
+                        data_id,
+                        "{window:?} node {node} {distance:?} {format:?}"
+                    );
+                }
+            }
+        }
+    }
+}
