@@ -550,11 +550,9 @@ impl Pipeline {
         let mut t = Tally::default();
         // The settings' part is kept from when they were set: the line's part only.
         let line = &mut self.line;
-        let [wmin, wmax] = line.rule.window;
-        line.rule = can_wire::RangeRule {
-            window: [wmin, wmax],
-            ..sensor
-        };
+        if !line.is_sensor(&sensor) {
+            line.set_sensor(sensor);
+        }
         line.min_intensity = if intensity { self.min_intensity } else { 0 };
         line.out_none = out_none;
         let line = &self.line;
@@ -836,6 +834,13 @@ const NONE: u32 = u32::MAX;
 struct LineConsts {
     /// The sensor's range test with the range window.
     rule: can_wire::RangeRule,
+    /// The first distance of the classification's common span of `rule` (see
+    /// [`smooth::span`]).
+    low: u32,
+    /// The length of that span.
+    span: u32,
+    /// Whether no range of 0 can pass `rule`.
+    zero_free: bool,
     /// The intensity threshold (0: none, or no intensities).
     min_intensity: u32,
     /// Speckle removal's threshold, when on.
@@ -855,17 +860,40 @@ impl LineConsts {
         let window = config
             .range_window
             .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
-        LineConsts {
+        let mut k = LineConsts {
             rule: can_wire::RangeRule {
                 window,
                 ..can_wire::RangeRule::at_least(0)
             },
+            low: 0,
+            span: 0,
+            zero_free: false,
             min_intensity: 0,
             jump: config.speckle.map(|f| f.max_jump_mm),
             median: config.median,
             decimate: config.decimation_factor() > 1,
             out_none: 0,
-        }
+        };
+        k.set_sensor(can_wire::RangeRule::at_least(0));
+        k
+    }
+
+    /// Whether `rule` holds the sensor's `sensor` (its window aside): one compare a line.
+    #[inline(always)]
+    fn is_sensor(&self, sensor: &can_wire::RangeRule) -> bool {
+        let r = &self.rule;
+        r.min == sensor.min && r.except == sensor.except && r.band == sensor.band
+    }
+
+    /// The sensor's rule `sensor` (its window aside: the settings' stays), and what the
+    /// classification works out of it (when the sensor's rule changes, rare).
+    #[inline(never)]
+    fn set_sensor(&mut self, sensor: can_wire::RangeRule) {
+        self.rule = can_wire::RangeRule {
+            window: self.rule.window,
+            ..sensor
+        };
+        (self.low, self.span, self.zero_free) = smooth::span(&self.rule);
     }
 }
 
@@ -1923,6 +1951,164 @@ mod tests {
         k[5] = v.len();
         k[6] = v.iter().filter(|p| p.range_mm.is_none()).count();
         (v, k, filtered)
+    }
+
+    /// The sensor's rule may change from one line to the next (what the classification
+    /// works out of a rule is kept until it does): each line's readings classified by
+    /// its own rule, written plainly here, with a range window, the windows,
+    /// decimation, an intensity threshold or none of them after. Distances at every
+    /// rule's edges, ranges of 0 allowed by one rule and not the next, ranges near 2^31
+    /// and no range; points, counters and `filtered` as the whole-scan reference.
+    #[test]
+    fn filter_line_takes_each_lines_sensor_rule() {
+        let rules = [
+            can_wire::RangeRule {
+                min: 20,
+                except: [65533, u32::MAX],
+                band: Some(40),
+                window: [0, u32::MAX],
+            },
+            can_wire::RangeRule::at_least(1),
+            can_wire::RangeRule::at_least(0),
+            can_wire::RangeRule {
+                min: 100,
+                except: [500, 30001],
+                band: None,
+                window: [0, u32::MAX],
+            },
+        ];
+        // The sensor's rule as filter_line's docs say (u32::MAX never a range).
+        let plain = |r: &can_wire::RangeRule, d: u32| {
+            d != u32::MAX
+                && d >= r.min
+                && d != r.except[0]
+                && d != r.except[1]
+                && r.band.is_none_or(|b| d < b || d > b + 2)
+        };
+        let edges = [
+            0,
+            1,
+            19,
+            20,
+            21,
+            39,
+            40,
+            41,
+            42,
+            43,
+            99,
+            100,
+            101,
+            499,
+            500,
+            501,
+            29999,
+            30000,
+            30001,
+            65533,
+            65534,
+            (1 << 31) - 1,
+            1 << 31,
+            u32::MAX - 1,
+            u32::MAX,
+        ];
+        // Edges among smooth ranges, a jump now and then.
+        let distances: Vec<u32> = (0..150u32)
+            .map(|i| match i % 3 {
+                0 => edges[(i as usize / 3) % edges.len()],
+                1 => 1000 + i * 7,
+                _ => 1000 + i * 7 + (i % 5) * 400,
+            })
+            .collect();
+        let lengths = [7usize, 1, 13, 21, 5, 2, 21, 9, 30, 4, 17, 20];
+        let which = [0usize, 0, 1, 2, 2, 3, 1, 0, 3, 2, 1, 0];
+        let window = Some(RangeWindow {
+            min_mm: 100,
+            max_mm: 30000,
+        });
+        let configs = [
+            PipelineConfig {
+                range_window: window,
+                speckle: Some(SpeckleFilter { max_jump_mm: 50 }),
+                median: Some(MedianWidth::Three),
+                ..PipelineConfig::default()
+            },
+            PipelineConfig {
+                median: Some(MedianWidth::Five),
+                min_intensity: Some(30),
+                ..PipelineConfig::default()
+            },
+            PipelineConfig {
+                speckle: Some(SpeckleFilter { max_jump_mm: 300 }),
+                ..PipelineConfig::default()
+            },
+            PipelineConfig {
+                decimation: Some(Decimation {
+                    factor: 2,
+                    mode: DecimationMode::Mean,
+                }),
+                ..PipelineConfig::default()
+            },
+            PipelineConfig {
+                range_window: window,
+                min_intensity: Some(30),
+                ..PipelineConfig::default()
+            },
+        ];
+        for config in configs {
+            // Each point valid by its line's rule.
+            let mut points = Vec::new();
+            let mut line_of = Vec::new();
+            let (mut at, mut l) = (0usize, 0usize);
+            while at < distances.len() {
+                let len = lengths[l % lengths.len()].min(distances.len() - at);
+                let rule = &rules[which[l % which.len()]];
+                for (j, &d) in distances[at..at + len].iter().enumerate() {
+                    let step = (at + j) as u16;
+                    points.push(RawPoint {
+                        step,
+                        distance: d,
+                        intensity: Some(u32::from(step) * 13 % 60),
+                        valid: plain(rule, d),
+                    });
+                }
+                line_of.push((at, len, *rule));
+                at += len;
+                l += 1;
+            }
+            let (mut want, want_k, want_filtered) = reference(&config, &points);
+            let mut p = Pipeline::new(config).unwrap();
+            let info = scan(0, distances.len() as u16 - 1);
+            assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
+            let none = 7_777_777;
+            let mut out = Vec::new();
+            for (at, len, rule) in line_of {
+                let input: Vec<scip::Reading> = points[at..at + len]
+                    .iter()
+                    .map(|r| scip::Reading {
+                        distance: r.distance,
+                        aux: r.intensity.unwrap_or(0),
+                        ..scip::Reading::default()
+                    })
+                    .collect();
+                let mut cells = std::vec![scip::Reading::default(); len + LINE_HEADROOM];
+                let k = p
+                    .filter_line(at as u16, &input, &mut cells, rule, true, none)
+                    .unwrap();
+                out.extend(cells[..k].iter().map(|c| (c.distance != none).then_some(c.distance)));
+            }
+            let mut tail = Vec::new();
+            let end = p.end_scan(true, &mut |x: Point| tail.push(x.range_mm));
+            out.extend(tail);
+            assert_eq!(end, ScanEnd::Complete { points: want.len() });
+            let norm = |p: &mut Point| p.range_mm = p.range_mm.map(|r| r.max(1));
+            want.iter_mut().for_each(norm);
+            let want: Vec<Option<u32>> = want.iter().map(|p| p.range_mm).collect();
+            let out: Vec<Option<u32>> = out.into_iter().map(|r| r.map(|r| r.max(1))).collect();
+            assert_eq!(out, want, "{config:?}");
+            assert_eq!(counters(p.stats()), want_k, "{config:?}");
+            assert_eq!(p.filtered(), want_filtered, "{config:?}");
+        }
     }
 
     fn counters(s: &Stats) -> [usize; 7] {

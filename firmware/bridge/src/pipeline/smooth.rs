@@ -69,11 +69,11 @@ pub(super) fn line(
             at = at.wrapping_add(1);
         }
     }
-    let (big, zero_free) = classify(input, all.get_mut(head..).unwrap_or_default(), k, c);
+    let big = classify(input, all.get_mut(head..).unwrap_or_default(), k, c);
 
     // Without decimation after and with no range of 0 possible, the last stage gives
     // its outputs in the encoder's form; otherwise no range stays NONE.
-    let last = !k.decimate && zero_free;
+    let last = !k.decimate && k.zero_free;
     let none = if last { k.out_none } else { NONE };
     // The loops' quick tests hold when every range is below SMALL (else every point
     // takes the exact rule).
@@ -328,21 +328,14 @@ fn stages_exact(
     (out, invalid, diff, removed)
 }
 
-/// Error codes, the range window and the intensity threshold: `input` into `out` (as
-/// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
-/// [`SMALL`] passed, and whether no range of 0 can (in this line or, the rule being
-/// the scan's, any line of the scan).
-pub(super) fn classify(
-    input: &[Reading],
-    out: &mut [Reading],
-    k: &LineConsts,
-    c: &mut Tally,
-) -> (bool, bool) {
-    let rule = &k.rule;
+/// What [`classify`] works out of a rule, once per rule ([`LineConsts`] keeps it): the
+/// distances from `low` up to (not including) `low + span` are ranges inside the
+/// window, found by one test (the others take the full one), and whether no range of
+/// 0 can pass. Returns `(low, span, zero_free)`.
+pub(super) fn span(rule: &can_wire::RangeRule) -> (u32, u32, bool) {
     let [wmin, wmax] = rule.window;
-    // The distances from `low` up to (not including) `low + span` are ranges inside
-    // the window, found by one test; the others take the full one. The sensor's error
-    // codes at or above its minimum end the span, and so does SMALL.
+    // The sensor's error codes at or above its minimum end the span, and so does
+    // SMALL.
     let [a, b] = rule.except;
     let first = a
         .min(b)
@@ -350,19 +343,31 @@ pub(super) fn classify(
         .min(wmax.saturating_add(1))
         .min(SMALL);
     let low = rule.min.max(wmin);
-    let span = first.saturating_sub(low);
+    let zero_free = !rule.is_sensor_range(0) || !rule.is_range(0);
+    (low, first.saturating_sub(low), zero_free)
+}
+
+/// Error codes, the range window and the intensity threshold: `input` into `out` (as
+/// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
+/// [`SMALL`] passed (whether no range of 0 can is [`LineConsts`]' `zero_free`).
+pub(super) fn classify(
+    input: &[Reading],
+    out: &mut [Reading],
+    k: &LineConsts,
+    c: &mut Tally,
+) -> bool {
     let mut n = [0usize; 3];
     let mut big = false;
     if k.min_intensity > 0 {
-        classify_loop::<true>(input, out, (low, span), k, &mut n, &mut big);
+        classify_loop::<true>(input, out, k, &mut n, &mut big);
     } else {
-        classify_loop::<false>(input, out, (low, span), k, &mut n, &mut big);
+        classify_loop::<false>(input, out, k, &mut n, &mut big);
     }
     let [error_code, out_of_range, low_intensity] = n;
     c.error_code = c.error_code.wrapping_add(error_code);
     c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
     c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
-    (big, !rule.is_sensor_range(0) || !rule.is_range(0))
+    big
 }
 
 /// The loop of [`classify`], with or without an intensity threshold.
@@ -370,13 +375,12 @@ pub(super) fn classify(
 fn classify_loop<const THRESHOLD: bool>(
     input: &[Reading],
     out: &mut [Reading],
-    (low, span): (u32, u32),
     k: &LineConsts,
     n: &mut [usize; 3],
     big: &mut bool,
 ) {
     let (mut low_intensity, mut below) = (0usize, 0usize);
-    let min = k.rule.min;
+    let (min, low, span) = (k.rule.min, k.low, k.span);
     for (cell, r) in out.iter_mut().zip(input) {
         let (mut d, aux) = (r.distance, r.aux);
         if d.wrapping_sub(low) >= span {
@@ -705,14 +709,10 @@ mod tests {
                         ..Reading::default()
                     })
                     .collect();
-                let k = LineConsts {
-                    rule,
-                    min_intensity,
-                    jump: None,
-                    median: None,
-                    decimate: false,
-                    out_none: 0,
-                };
+                let mut k = LineConsts::of(&crate::pipeline::PipelineConfig::default());
+                k.rule.window = rule.window;
+                k.set_sensor(rule);
+                k.min_intensity = min_intensity;
                 let mut out = cells(&std::vec![7; ds.len()]);
                 let mut t = Tally::default();
                 classify(&input, &mut out, &k, &mut t);
