@@ -855,15 +855,19 @@ struct LineConsts {
 
 impl LineConsts {
     /// The constants of `config`'s lines, the line's own parts (the sensor's rule but
-    /// the window, the intensity threshold, the value for no range) left to fill in.
+    /// the window, the intensity threshold, the value for no range) left to fill in
+    /// ([`LineConsts::set_sensor`] for the rule).
     fn of(config: &PipelineConfig) -> LineConsts {
         let window = config
             .range_window
             .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
-        let mut k = LineConsts {
+        LineConsts {
+            // No sensor's rule (none has no range at all): the first line sets its own.
+            // Until then an empty span and `zero_free` false, right for any rule (every
+            // distance takes the full test, every output the encoder's form after).
             rule: can_wire::RangeRule {
                 window,
-                ..can_wire::RangeRule::at_least(0)
+                ..can_wire::RangeRule::at_least(u32::MAX)
             },
             low: 0,
             span: 0,
@@ -873,9 +877,7 @@ impl LineConsts {
             median: config.median,
             decimate: config.decimation_factor() > 1,
             out_none: 0,
-        };
-        k.set_sensor(can_wire::RangeRule::at_least(0));
-        k
+        }
     }
 
     /// Whether `rule` holds the sensor's `sensor` (its window aside): one compare a line.
@@ -2095,7 +2097,11 @@ mod tests {
                 let k = p
                     .filter_line(at as u16, &input, &mut cells, rule, true, none)
                     .unwrap();
-                out.extend(cells[..k].iter().map(|c| (c.distance != none).then_some(c.distance)));
+                out.extend(
+                    cells[..k]
+                        .iter()
+                        .map(|c| (c.distance != none).then_some(c.distance)),
+                );
             }
             let mut tail = Vec::new();
             let end = p.end_scan(true, &mut |x: Point| tail.push(x.range_mm));

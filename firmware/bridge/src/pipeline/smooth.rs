@@ -343,7 +343,8 @@ pub(super) fn span(rule: &can_wire::RangeRule) -> (u32, u32, bool) {
         .min(wmax.saturating_add(1))
         .min(SMALL);
     let low = rule.min.max(wmin);
-    let zero_free = !rule.is_sensor_range(0) || !rule.is_range(0);
+    // (A range inside the window is a range to the sensor.)
+    let zero_free = !rule.is_range(0);
     (low, first.saturating_sub(low), zero_free)
 }
 
