@@ -57,18 +57,20 @@ pub(super) fn line(
     let np2 = md.np.min(half2);
     let head = np2.wrapping_add(np1);
     let m = input.len();
+    // The held points into the headroom without a test each: the median's two into the
+    // first cells, speckle removal's after the median's held ones. A cell written that
+    // a window does not hold is the line's (the classification writes it after) or
+    // past the line's end (not a cell of the stages, nor of the output).
+    if let Some([c0, c1]) = cells.get_mut(..2) {
+        (c0.distance, c0.aux) = md.p0;
+        (c1.distance, c1.aux) = md.p1;
+    }
+    if let Some(cell) = cells.get_mut(np2) {
+        (cell.distance, cell.aux) = sp.p0;
+    }
     let Some(all) = cells.get_mut(..head.wrapping_add(m)) else {
         return (0, 0, false);
     };
-    let held = [md.p0, md.p1, sp.p0];
-    let slots = [(0, np2 > 0), (1, np2 > 1), (2, np1 > 0)];
-    let mut at = 0usize;
-    for (i, on) in slots {
-        if let (true, Some(cell), Some(p)) = (on, all.get_mut(at), held.get(i)) {
-            (cell.distance, cell.aux) = *p;
-            at = at.wrapping_add(1);
-        }
-    }
     let big = classify(input, all.get_mut(head..).unwrap_or_default(), k, c);
 
     // Without decimation after and with no range of 0 possible, the last stage gives
