@@ -582,14 +582,13 @@ impl Pipeline {
         let (sp, md) = (&mut h.speckle, &mut h.median);
         // The output is converted after decimation, or in the loops.
         let (w, mut invalid, changed) = smooth::line(input, buf, line, sp, md, &mut t);
-        let decimate = line.decimate;
-        // Points held back by the windows (steps count back from `last_step`).
-        let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
-        let lag = held(line.jump.is_some(), sp).saturating_add(held(line.median.is_some(), md));
-        let lag = u32::try_from(lag).unwrap_or(0);
         (h.live, h.last_step, h.cluster, h.intensity) = (true, last_step, cluster, intensity);
         let mut m = w;
-        if decimate {
+        if line.decimate {
+            // Points held back by the windows (steps count back from `last_step`).
+            let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
+            let lag = held(line.jump.is_some(), sp).saturating_add(held(line.median.is_some(), md));
+            let lag = u32::try_from(lag).unwrap_or(0);
             let part = buf.get_mut(..m).unwrap_or_default();
             // Step of the first point the decimator gets.
             let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
