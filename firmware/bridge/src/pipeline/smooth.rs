@@ -359,17 +359,12 @@ pub(super) fn classify(
     k: &LineConsts,
     c: &mut Tally,
 ) -> bool {
-    let mut n = [0usize; 3];
     let mut big = false;
     if k.min_intensity > 0 {
-        classify_loop::<true>(input, out, k, &mut n, &mut big);
+        classify_loop::<true>(input, out, k, c, &mut big);
     } else {
-        classify_loop::<false>(input, out, k, &mut n, &mut big);
+        classify_loop::<false>(input, out, k, c, &mut big);
     }
-    let [error_code, out_of_range, low_intensity] = n;
-    c.error_code = c.error_code.wrapping_add(error_code);
-    c.out_of_range = c.out_of_range.wrapping_add(out_of_range);
-    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
     big
 }
 
@@ -379,7 +374,7 @@ fn classify_loop<const THRESHOLD: bool>(
     input: &[Reading],
     out: &mut [Reading],
     k: &LineConsts,
-    n: &mut [usize; 3],
+    c: &mut Tally,
     big: &mut bool,
 ) {
     let (mut low_intensity, mut below) = (0usize, 0usize);
@@ -393,7 +388,7 @@ fn classify_loop<const THRESHOLD: bool>(
                 below = below.wrapping_add(1);
                 d = NONE;
             } else {
-                d = classify_rare(&k.rule, d, n, big);
+                d = classify_rare(&k.rule, d, c, big);
             }
         }
         if THRESHOLD && d != NONE && aux < k.min_intensity {
@@ -404,11 +399,12 @@ fn classify_loop<const THRESHOLD: bool>(
         // Both words at once (adjacent in the cell).
         (cell.distance, cell.aux) = (d, aux);
     }
-    n[0] = n[0].wrapping_add(below);
-    n[2] = n[2].wrapping_add(low_intensity);
+    // Each at most the line's points: no wrap.
+    c.error_code = c.error_code.wrapping_add(below);
+    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
 }
 
-/// A distance outside the common span: the distance or [`NONE`], counted in `n`
+/// A distance outside the common span: the distance or [`NONE`], counted in `c`
 /// (error codes, ranges outside the window); `big` set for a range at or above
 /// [`SMALL`].
 #[cold]
@@ -416,15 +412,15 @@ fn classify_loop<const THRESHOLD: bool>(
 pub(super) fn classify_rare(
     rule: &can_wire::RangeRule,
     d: u32,
-    n: &mut [usize; 3],
+    c: &mut Tally,
     big: &mut bool,
 ) -> u32 {
     // Counts of at most the line's points: no wrap.
     if d == NONE || !rule.is_sensor_range(d) {
-        n[0] = n[0].wrapping_add(1);
+        c.error_code = c.error_code.wrapping_add(1);
         NONE
     } else if !rule.is_range(d) {
-        n[1] = n[1].wrapping_add(1);
+        c.out_of_range = c.out_of_range.wrapping_add(1);
         NONE
     } else {
         *big |= d >= SMALL;
