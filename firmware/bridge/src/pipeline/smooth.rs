@@ -61,9 +61,11 @@ pub(super) fn line(
     // first cells, speckle removal's after the median's held ones. A cell written that
     // a window does not hold is the line's (the classification writes it after) or
     // past the line's end (not a cell of the stages, nor of the output).
-    if let Some([c0, c1]) = cells.get_mut(..2) {
-        (c0.distance, c0.aux) = md.p0;
-        (c1.distance, c1.aux) = md.p1;
+    if let Some(cell) = cells.get_mut(0) {
+        (cell.distance, cell.aux) = md.p0;
+    }
+    if let Some(cell) = cells.get_mut(1) {
+        (cell.distance, cell.aux) = md.p1;
     }
     if let Some(cell) = cells.get_mut(np2) {
         (cell.distance, cell.aux) = sp.p0;
