@@ -8,9 +8,10 @@
 //! output written over the cell of its centre; speckle removal alone and the median
 //! alone are the same loop with the other stage compiled out). Each stage first tries a
 //! quick test: a centre within the threshold of the point before it stays, a centre
-//! between its neighbours is their median. The median of 5 runs a loop of its own
-//! (a selection network when all five are ranges, the general rule otherwise), after
-//! speckle removal's loop.
+//! between its neighbours is their median. The median of 5 runs a loop of its own,
+//! two centres at a time (one sorted pair of new distances per two outputs when all
+//! six are ranges below 2^31, the general rule otherwise), after speckle removal's
+//! loop.
 
 use scip::Reading;
 
@@ -442,40 +443,85 @@ fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
 /// distances before the first (nearest first; updated likewise). No range is written
 /// as `out_none` ([`NONE`] to leave it). Returns the OR of every changed range with its
 /// new value (0: none changed) and the number of outputs without a range.
+///
+/// Two centres at a time: the centres `k` and `k + 1` share the four distances
+/// `v(k - 1) ..= v(k + 2)`. With `P` and `Q` those as two sorted pairs, the middle two
+/// of the four are `u = max(P.lo, Q.lo)` and `w = min(P.hi, Q.hi)` (the smallest is
+/// the smaller low, the largest the larger high); with `s2 <= s3` those two, the
+/// median of the four and a fifth value `e` is `max(s2, min(s3, e))`: for centre `k`
+/// with `e = v(k - 2)`, for `k + 1` with `v(k + 3)`. The next two centres' `P` is this
+/// `Q`. The quick rule holds when the six distances are ranges below [`SMALL`] (no
+/// range, [`NONE`], is then the only value with the top bit set: one test of the OR of
+/// the pairs' highs and the two ends); otherwise [`median5_exact`] by the general
+/// rule. The quick rule's outputs are ranges: only the exact one counts no range.
 #[inline(never)]
 fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
-    let dist = |i: usize| s.get(i).map_or(NONE, |r| r.distance);
-    let (mut x2, mut x1, mut c, mut a1) = (b[1], b[0], dist(0), dist(1));
-    let (mut diff, mut invalid) = (0u32, 0usize);
-    for j in 2..s.len() {
-        let Some(a2) = s.get(j).map(|r| r.distance) else {
-            break;
-        };
-        // Each pair sorted (no range, the largest value, sorts last in its pair).
-        let (pl, ph) = (x2.min(x1), x2.max(x1));
-        let (ql, qh) = (a1.min(a2), a1.max(a2));
-        let x = if ph != NONE && qh != NONE && c != NONE {
-            // Five ranges: the median of the two pairs' inner values and the centre.
-            let (lo, hi) = (pl.max(ql), ph.min(qh));
-            c.min(lo).max(c.max(lo).min(hi))
-        } else {
-            median5_exact(c, [x2, x1, a1, a2])
-        };
-        diff |= x ^ c;
-        if let Some(o) = s.get_mut(j.wrapping_sub(2)) {
-            o.distance = out(x, out_none, &mut invalid);
-        }
-        (x2, x1, c, a1) = (x1, c, a1, a2);
+    let dist = |s: &[Reading], i: usize| s.get(i).map_or(NONE, |r| r.distance);
+    let n = s.len();
+    if n < 3 {
+        return (0, 0);
     }
-    *b = [x1, x2];
-    (diff, invalid)
+    // Written by the exact rule only (out of the loop's registers).
+    let mut slow = (0usize, out_none);
+    // v(k - 2), v(k), P = v(k - 1) and v(k) sorted, v(k + 1): the first centre's.
+    let (mut e, mut c, mut v1) = (b[1], dist(s, 0), dist(s, 1));
+    let (mut pl, mut ph) = (b[0].min(c), b[0].max(c));
+    let mut diff = 0u32;
+    let mut k = 0usize;
+    while let Some([o0, o1, r2, r3]) = s.get_mut(k..k.wrapping_add(4)) {
+        let (v2, v3) = (r2.distance, r3.distance);
+        let (ql, qh) = (v1.min(v2), v1.max(v2));
+        if (ph | qh | e | v3) < SMALL {
+            let (u, w) = (pl.max(ql), ph.min(qh));
+            let (s2, s3) = (u.min(w), u.max(w));
+            let (x0, x1) = (s3.min(e).max(s2), s3.min(v3).max(s2));
+            diff |= (x0 ^ c) | (x1 ^ v1);
+            (o0.distance, o1.distance) = (x0, x1);
+        } else {
+            // v(k - 1): P's other value.
+            let v = [e, pl ^ ph ^ c, c, v1, v2, v3];
+            diff |= median5_exact(v, [Some(o0), Some(o1)], &mut slow);
+        }
+        (e, c, v1, pl, ph) = (c, v2, v3, ql, qh);
+        // At most the line's length: no wrap.
+        k = k.wrapping_add(2);
+    }
+    // The line's centres: all but its last two.
+    let mut b_next = [pl ^ ph ^ c, e];
+    if let Some([o0, _, r2]) = s.get_mut(k..k.wrapping_add(3)) {
+        // An odd last centre, alone.
+        let v2 = r2.distance;
+        let (ql, qh) = (v1.min(v2), v1.max(v2));
+        if (ph | qh | e) < SMALL {
+            let (u, w) = (pl.max(ql), ph.min(qh));
+            let x0 = u.max(w).min(e).max(u.min(w));
+            diff |= x0 ^ c;
+            o0.distance = x0;
+        } else {
+            let v = [e, pl ^ ph ^ c, c, v1, v2, NONE];
+            diff |= median5_exact(v, [Some(o0), None], &mut slow);
+        }
+        b_next = [c, b_next[0]];
+    }
+    *b = b_next;
+    (diff, slow.0)
 }
 
-/// The median of 5 by the general rule (any window with no range in it), for
-/// [`median5`]: out of its loop.
+/// The median of 5 by the general rule (any window, no range in it or ranges at or
+/// above [`SMALL`]) for [`median5`], out of its loop: the centres `v[2]` and `v[3]`
+/// (windows `v[0..5]` and `v[1..6]`) into the cells `o` (when there), no range as
+/// `slow.1`, counted in `slow.0`. Returns the OR of each centre with its new value.
 #[inline(never)]
-fn median5_exact(c: u32, nb: [u32; 4]) -> u32 {
-    median_line(c, nb, NONE)
+fn median5_exact(v: [u32; 6], o: [Option<&mut Reading>; 2], slow: &mut (usize, u32)) -> u32 {
+    let mut diff = 0u32;
+    for (i, cell) in o.into_iter().enumerate() {
+        if let (Some(cell), Some(&[x2, x1, c, a1, a2])) = (cell, v.get(i..i.wrapping_add(5))) {
+            let x = median_line(c, [x2, x1, a1, a2], NONE);
+            diff |= x ^ c;
+            cell.distance = out(x, slow.1, &mut slow.0);
+        }
+    }
+    diff
 }
 
 /// The output points into the encoder's form: no range as `out_none`, a range of 0 as
@@ -650,6 +696,98 @@ mod tests {
             // The cells after the outputs stay; the two before the next centre move on.
             assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
             assert_eq!(b, [stream[outs + 1], stream[outs]]);
+        }
+    }
+
+    #[test]
+    fn median5_in_lines_follows_the_general_rule() {
+        // A stream cut into lines of 0 to 6 points (now and then longer), the median's
+        // state held across them as `line` holds it (the distances before the next
+        // centre in `b`, the last two cells of a line kept for the next): every output
+        // against the general rule (`median_line`, and the rule written plainly), with
+        // no range anywhere, ranges near and above 2^31, ties; in half the rounds only
+        // ranges below 2^31 (the quick rule's domain) with a few no ranges.
+        const OUT_NONE: u32 = 0xdead_beef;
+        let edges = [
+            0,
+            1,
+            7,
+            (1 << 31) - 2,
+            (1 << 31) - 1,
+            1 << 31,
+            (1 << 31) + 1,
+            u32::MAX - 1,
+            NONE,
+        ];
+        let mut next = xorshift(0x1234_5679_u32);
+        for round in 0..3000 {
+            let quick = round % 2 == 0;
+            let pick = |next: &mut dyn FnMut() -> u32| {
+                let r = next();
+                match (quick, r % 16) {
+                    (true, 0) => NONE,
+                    (true, 1) => (1 << 31) - 1 - next() % 3,
+                    (true, _) => 1000 + next() % 50,
+                    (false, 0..=5) => edges[next() as usize % edges.len()],
+                    (false, _) => 1000 + next() % 50,
+                }
+            };
+            let before = [pick(&mut next), pick(&mut next)];
+            let lines: Vec<Vec<u32>> = (0..next() % 8)
+                .map(|_| {
+                    let len = if next() % 8 == 0 {
+                        next() % 40
+                    } else {
+                        next() % 7
+                    };
+                    (0..len).map(|_| pick(&mut next)).collect()
+                })
+                .collect();
+            // v(-2), v(-1), then the stream.
+            let v: Vec<u32> = before
+                .iter()
+                .chain(lines.iter().flatten())
+                .copied()
+                .collect();
+            // `b` nearest first, as `line` keeps it.
+            let mut b = [before[1], before[0]];
+            let mut held: Vec<u32> = Vec::new();
+            let mut outs: Vec<u32> = Vec::new();
+            for line in &lines {
+                let region: Vec<u32> = held.iter().chain(line).copied().collect();
+                let mut s = cells(&region);
+                let out = region.len().saturating_sub(2);
+                let (diff, invalid) = if out > 0 {
+                    median5(&mut s, &mut b, OUT_NONE)
+                } else {
+                    (0, 0)
+                };
+                // This line's outputs against the rule: centres outs.len()..
+                let first = outs.len();
+                let want: Vec<u32> = (first..first + out)
+                    .map(|k| {
+                        let w = &v[k..k + 5];
+                        let x = median_line(w[2], [w[0], w[1], w[3], w[4]], NONE);
+                        assert_eq!(x, median_reference(w, 2), "{w:?}");
+                        x
+                    })
+                    .collect();
+                let shown: Vec<u32> = want
+                    .iter()
+                    .map(|&x| if x == NONE { OUT_NONE } else { x })
+                    .collect();
+                assert_eq!(dist(&s[..out]), shown, "{before:?} {lines:?}");
+                assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
+                let centres = &v[first + 2..first + 2 + out];
+                assert_eq!(diff != 0, want.iter().zip(centres).any(|(x, c)| x != c));
+                // The cells after the outputs stay as they came.
+                assert_eq!(dist(&s[out..]), region[out..]);
+                outs.extend(&shown);
+                held = region[out..].to_vec();
+                // The two distances before the next centre.
+                let k = outs.len();
+                assert_eq!(b, [v[k + 1], v[k]], "{before:?} {lines:?}");
+            }
         }
     }
 
