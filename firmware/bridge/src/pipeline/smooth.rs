@@ -109,21 +109,7 @@ pub(super) fn line(
             (out, invalid, diff, _) = stages::<false, true>(region, 0, exact, sp, md, none);
         } else {
             out = l2.saturating_sub(half2);
-            (diff, invalid) = if out > 0 {
-                let mut b = [md.b1, md.b2];
-                let r = median5(region, &mut b, none);
-                [md.b1, md.b2] = b;
-                r
-            } else {
-                (0, 0)
-            };
-            md.np = l2.wrapping_sub(out);
-            if let Some(cell) = region.get(out) {
-                md.p0 = (cell.distance, cell.aux);
-            }
-            if let Some(cell) = region.get(out.wrapping_add(1)) {
-                md.p1 = (cell.distance, cell.aux);
-            }
+            (diff, invalid) = median5(region, md, none);
         }
     }
     if k.decimate {
@@ -439,10 +425,12 @@ fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
     }
 }
 
-/// The median of 5 over `s`: every cell but the last two is a centre, `b` the
-/// distances before the first (nearest first; updated likewise). No range is written
-/// as `out_none` ([`NONE`] to leave it). Returns the OR of every changed range with its
-/// new value (0: none changed) and the number of outputs without a range.
+/// The median of 5 over `s` (the points `md` held, then the line): every cell but the
+/// last two is a centre, `md.b1` and `md.b2` the distances before the first (nearest
+/// first). No range is written as `out_none` ([`NONE`] to leave it). Leaves in `md`
+/// the cells after the centres (held for the next line) and the two distances before
+/// them. Returns the OR of every changed range with its new value (0: none changed)
+/// and the number of outputs without a range.
 ///
 /// Two centres at a time: the centres `k` and `k + 1` share the four distances
 /// `v(k - 1) ..= v(k + 2)`. With `P` and `Q` those as two sorted pairs, the middle two
@@ -452,76 +440,77 @@ fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
 /// with `e = v(k - 2)`, for `k + 1` with `v(k + 3)`. The next two centres' `P` is this
 /// `Q`. The quick rule holds when the six distances are ranges below [`SMALL`] (no
 /// range, [`NONE`], is then the only value with the top bit set: one test of the OR of
-/// the pairs' highs and the two ends); otherwise [`median5_exact`] by the general
-/// rule. The quick rule's outputs are ranges: only the exact one counts no range.
+/// the pairs' highs and the two ends); otherwise, and for an odd last centre, one
+/// centre at a time by [`median5_exact`]. The quick rule's outputs are ranges: only
+/// [`median5_exact`] counts no range.
 #[inline(never)]
-fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
-    let dist = |s: &[Reading], i: usize| s.get(i).map_or(NONE, |r| r.distance);
-    let n = s.len();
-    if n < 3 {
-        return (0, 0);
-    }
-    // Written by the exact rule only (out of the loop's registers).
+fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
+    // Written by the single centres' rule only (out of the loop's registers).
     let mut slow = (0usize, out_none);
-    // v(k - 2), v(k), P = v(k - 1) and v(k) sorted, v(k + 1): the first centre's.
-    let (mut e, mut c, mut v1) = (b[1], dist(s, 0), dist(s, 1));
-    let (mut pl, mut ph) = (b[0].min(c), b[0].max(c));
+    // v(k - 2) and P = v(k - 1) and v(k) sorted (v(k) and v(k + 1) still in their
+    // cells, from centre k on: `rest`).
+    let mut rest = s;
+    let c = rest.first().map_or(NONE, |r| r.distance);
+    let mut e = md.b2;
+    let (mut pl, mut ph) = (md.b1.min(c), md.b1.max(c));
     let mut diff = 0u32;
-    let mut k = 0usize;
-    while let Some([o0, o1, r2, r3]) = s.get_mut(k..k.wrapping_add(4)) {
-        let (v2, v3) = (r2.distance, r3.distance);
-        let (ql, qh) = (v1.min(v2), v1.max(v2));
-        if (ph | qh | e | v3) < SMALL {
-            let (u, w) = (pl.max(ql), ph.min(qh));
-            let (s2, s3) = (u.min(w), u.max(w));
-            let (x0, x1) = (s3.min(e).max(s2), s3.min(v3).max(s2));
-            diff |= (x0 ^ c) | (x1 ^ v1);
-            (o0.distance, o1.distance) = (x0, x1);
-        } else {
-            // v(k - 1): P's other value.
-            let v = [e, pl ^ ph ^ c, c, v1, v2, v3];
-            diff |= median5_exact(v, [Some(o0), Some(o1)], &mut slow);
+    loop {
+        if let [o0, o1, r2, r3, ..] = rest {
+            let (c, v1, v2, v3) = (o0.distance, o1.distance, r2.distance, r3.distance);
+            let (ql, qh) = (v1.min(v2), v1.max(v2));
+            if (ph | qh | e | v3) < SMALL {
+                let (u, w) = (pl.max(ql), ph.min(qh));
+                let (s2, s3) = (u.min(w), u.max(w));
+                let (x0, x1) = (s3.min(e).max(s2), s3.min(v3).max(s2));
+                diff |= (x0 ^ c) | (x1 ^ v1);
+                (o0.distance, o1.distance) = (x0, x1);
+                (e, pl, ph) = (c, ql, qh);
+                rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
+                continue;
+            }
         }
-        (e, c, v1, pl, ph) = (c, v2, v3, ql, qh);
-        // At most the line's length: no wrap.
-        k = k.wrapping_add(2);
+        // One centre alone: a window the quick rule does not cover, or an odd last
+        // centre.
+        let [o0, o1, r2, ..] = rest else {
+            break;
+        };
+        let (c, v1, x1) = (o0.distance, o1.distance, pl ^ ph ^ o0.distance);
+        diff |= median5_exact(o0, [e, x1, v1, r2.distance], &mut slow);
+        (e, pl, ph) = (x1, c.min(v1), c.max(v1));
+        rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
     }
-    // The line's centres: all but its last two.
-    let mut b_next = [pl ^ ph ^ c, e];
-    if let Some([o0, _, r2]) = s.get_mut(k..k.wrapping_add(3)) {
-        // An odd last centre, alone.
-        let v2 = r2.distance;
-        let (ql, qh) = (v1.min(v2), v1.max(v2));
-        if (ph | qh | e) < SMALL {
-            let (u, w) = (pl.max(ql), ph.min(qh));
-            let x0 = u.max(w).min(e).max(u.min(w));
-            diff |= x0 ^ c;
-            o0.distance = x0;
-        } else {
-            let v = [e, pl ^ ph ^ c, c, v1, v2, NONE];
-            diff |= median5_exact(v, [Some(o0), None], &mut slow);
-        }
-        b_next = [c, b_next[0]];
+    // The cells after the centres held for the next line, and v(k - 1) and v(k - 2).
+    md.np = rest.len();
+    let mut c = NONE;
+    if let Some(cell) = rest.first() {
+        c = cell.distance;
+        md.p0 = (c, cell.aux);
     }
-    *b = b_next;
+    if let Some(cell) = rest.get(1) {
+        md.p1 = (cell.distance, cell.aux);
+    }
+    (md.b1, md.b2) = (pl ^ ph ^ c, e);
     (diff, slow.0)
 }
 
-/// The median of 5 by the general rule (any window, no range in it or ranges at or
-/// above [`SMALL`]) for [`median5`], out of its loop: the centres `v[2]` and `v[3]`
-/// (windows `v[0..5]` and `v[1..6]`) into the cells `o` (when there), no range as
-/// `slow.1`, counted in `slow.0`. Returns the OR of each centre with its new value.
+/// The median of 5 for one centre of [`median5`], out of its loop (a window with no
+/// range in it or a range at or above [`SMALL`], or an odd last centre): the centre
+/// `o` (its distance before) between the neighbours `nb` becomes its output, no range
+/// as `slow.1`, counted in `slow.0`. A window of ranges below [`SMALL`] by the quick
+/// rule (the median of the middle two of `nb[1]`, `o`, `nb[2]`, `nb[3]` and `nb[0]`),
+/// any other by the general rule. Returns the OR of the centre with its new value.
 #[inline(never)]
-fn median5_exact(v: [u32; 6], o: [Option<&mut Reading>; 2], slow: &mut (usize, u32)) -> u32 {
-    let mut diff = 0u32;
-    for (i, cell) in o.into_iter().enumerate() {
-        if let (Some(cell), Some(&[x2, x1, c, a1, a2])) = (cell, v.get(i..i.wrapping_add(5))) {
-            let x = median_line(c, [x2, x1, a1, a2], NONE);
-            diff |= x ^ c;
-            cell.distance = out(x, slow.1, &mut slow.0);
-        }
-    }
-    diff
+fn median5_exact(o: &mut Reading, nb: [u32; 4], slow: &mut (usize, u32)) -> u32 {
+    let c = o.distance;
+    let [x2, x1, a1, a2] = nb;
+    let x = if (x2 | x1 | c | a1 | a2) < SMALL {
+        let (u, w) = (x1.min(c).max(a1.min(a2)), x1.max(c).min(a1.max(a2)));
+        u.max(w).min(x2).max(u.min(w))
+    } else {
+        median_line(c, nb, NONE)
+    };
+    o.distance = out(x, slow.1, &mut slow.0);
+    x ^ c
 }
 
 /// The output points into the encoder's form: no range as `out_none`, a range of 0 as
@@ -567,6 +556,19 @@ mod tests {
         c.iter().map(|r| r.distance).collect()
     }
 
+    /// `median5` with the two distances before the first centre `b` (nearest first;
+    /// updated likewise) as its only state.
+    fn median5_b(s: &mut [Reading], b: &mut [u32; 2], none: u32) -> (u32, usize) {
+        let mut md = Regs {
+            b1: b[0],
+            b2: b[1],
+            ..Regs::default()
+        };
+        let r = median5(s, &mut md, none);
+        *b = [md.b1, md.b2];
+        r
+    }
+
     /// The median of 5 by sorting (every one of the five a range).
     fn sorted_median(v: [u32; 5]) -> u32 {
         let mut s = v;
@@ -581,7 +583,7 @@ mod tests {
             let v: [u32; 5] = core::array::from_fn(|i| t / 5u32.pow(i as u32) % 5 * 100);
             let mut s = cells(&v[2..]);
             let mut b = [v[1], v[0]];
-            median5(&mut s, &mut b, NONE);
+            median5_b(&mut s, &mut b, NONE);
             assert_eq!(s[0].distance, sorted_median(v), "{v:?}");
             assert_eq!(b, [v[2], v[1]]);
         }
@@ -678,7 +680,7 @@ mod tests {
             // stream[0] is the older of the two distances before the line.
             let mut s = cells(&stream[2..]);
             let mut b = [stream[1], stream[0]];
-            let (diff, invalid) = median5(&mut s, &mut b, 9);
+            let (diff, invalid) = median5_b(&mut s, &mut b, 9);
             let outs = len.saturating_sub(2);
             let want: Vec<u32> = (0..outs)
                 .map(|i| median_reference(&stream[i..i + 5], 2))
@@ -750,18 +752,18 @@ mod tests {
                 .copied()
                 .collect();
             // `b` nearest first, as `line` keeps it.
-            let mut b = [before[1], before[0]];
+            let mut md = Regs {
+                b1: before[1],
+                b2: before[0],
+                ..Regs::default()
+            };
             let mut held: Vec<u32> = Vec::new();
             let mut outs: Vec<u32> = Vec::new();
             for line in &lines {
                 let region: Vec<u32> = held.iter().chain(line).copied().collect();
                 let mut s = cells(&region);
                 let out = region.len().saturating_sub(2);
-                let (diff, invalid) = if out > 0 {
-                    median5(&mut s, &mut b, OUT_NONE)
-                } else {
-                    (0, 0)
-                };
+                let (diff, invalid) = median5(&mut s, &mut md, OUT_NONE);
                 // This line's outputs against the rule: centres outs.len()..
                 let first = outs.len();
                 let want: Vec<u32> = (first..first + out)
@@ -784,9 +786,17 @@ mod tests {
                 assert_eq!(dist(&s[out..]), region[out..]);
                 outs.extend(&shown);
                 held = region[out..].to_vec();
-                // The two distances before the next centre.
+                // The cells held (as `line` copies them in front of the next line) and
+                // the two distances before the next centre.
+                assert_eq!(md.np, held.len());
+                if let Some(&d) = held.first() {
+                    assert_eq!(md.p0.0, d);
+                }
+                if let Some(&d) = held.get(1) {
+                    assert_eq!(md.p1.0, d);
+                }
                 let k = outs.len();
-                assert_eq!(b, [v[k + 1], v[k]], "{before:?} {lines:?}");
+                assert_eq!([md.b1, md.b2], [v[k + 1], v[k]], "{before:?} {lines:?}");
             }
         }
     }
