@@ -455,19 +455,19 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
     let (mut pl, mut ph) = (md.b1.min(c), md.b1.max(c));
     let mut diff = 0u32;
     loop {
-        if let [o0, o1, r2, r3, ..] = rest {
+        while let [o0, o1, r2, r3, ..] = rest {
             let (c, v1, v2, v3) = (o0.distance, o1.distance, r2.distance, r3.distance);
             let (ql, qh) = (v1.min(v2), v1.max(v2));
-            if (ph | qh | e | v3) < SMALL {
-                let (u, w) = (pl.max(ql), ph.min(qh));
-                let (s2, s3) = (u.min(w), u.max(w));
-                let (x0, x1) = (s3.min(e).max(s2), s3.min(v3).max(s2));
-                diff |= (x0 ^ c) | (x1 ^ v1);
-                (o0.distance, o1.distance) = (x0, x1);
-                (e, pl, ph) = (c, ql, qh);
-                rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
-                continue;
+            if (ph | qh | e | v3) >= SMALL {
+                break;
             }
+            let (u, w) = (pl.max(ql), ph.min(qh));
+            let (s2, s3) = (u.min(w), u.max(w));
+            let (x0, x1) = (s3.min(e).max(s2), s3.min(v3).max(s2));
+            diff |= (x0 ^ c) | (x1 ^ v1);
+            (o0.distance, o1.distance) = (x0, x1);
+            (e, pl, ph) = (c, ql, qh);
+            rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
         }
         // One centre alone: a window the quick rule does not cover, or an odd last
         // centre.
