@@ -8,9 +8,10 @@
 //! output written over the cell of its centre; speckle removal alone and the median
 //! alone are the same loop with the other stage compiled out). Each stage first tries a
 //! quick test: a centre within the threshold of the point before it stays, a centre
-//! between its neighbours is their median. The median of 5 runs a loop of its own
-//! (a selection network when all five are ranges, the general rule otherwise), after
-//! speckle removal's loop.
+//! between its neighbours is their median. The median of 5 runs a loop of its own,
+//! two centres at a time (one sorted pair of new distances per two outputs when all
+//! six are ranges below 2^31, the general rule otherwise), after speckle removal's
+//! loop.
 
 use scip::Reading;
 
@@ -112,21 +113,7 @@ pub(super) fn line(
             (out, invalid, diff, _) = stages::<false, true>(region, 0, exact, sp, md, none);
         } else {
             out = l2.saturating_sub(half2);
-            (diff, invalid) = if out > 0 {
-                let mut b = [md.b1, md.b2];
-                let r = median5(region, &mut b, none);
-                [md.b1, md.b2] = b;
-                r
-            } else {
-                (0, 0)
-            };
-            md.np = l2.wrapping_sub(out);
-            if let Some(cell) = region.get(out) {
-                md.p0 = (cell.distance, cell.aux);
-            }
-            if let Some(cell) = region.get(out.wrapping_add(1)) {
-                md.p1 = (cell.distance, cell.aux);
-            }
+            (diff, invalid) = median5(region, md, none);
         }
     }
     if k.decimate {
@@ -443,44 +430,92 @@ fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
     }
 }
 
-/// The median of 5 over `s`: every cell but the last two is a centre, `b` the
-/// distances before the first (nearest first; updated likewise). No range is written
-/// as `out_none` ([`NONE`] to leave it). Returns the OR of every changed range with its
-/// new value (0: none changed) and the number of outputs without a range.
+/// The median of 5 over `s` (the points `md` held, then the line): every cell but the
+/// last two is a centre, `md.b1` and `md.b2` the distances before the first (nearest
+/// first). No range is written as `out_none` ([`NONE`] to leave it). Leaves in `md`
+/// the cells after the centres (held for the next line) and the two distances before
+/// them. Returns the OR of every changed range with its new value (0: none changed)
+/// and the number of outputs without a range.
+///
+/// Two centres at a time: the centres `k` and `k + 1` share the four distances
+/// `v(k - 1) ..= v(k + 2)`. With `P` and `Q` those as two sorted pairs, the middle two
+/// of the four are `u = max(P.lo, Q.lo)` and `w = min(P.hi, Q.hi)` (the smallest is
+/// the smaller low, the largest the larger high); with `s2 <= s3` those two, the
+/// median of the four and a fifth value `e` is `max(s2, min(s3, e))`: for centre `k`
+/// with `e = v(k - 2)`, for `k + 1` with `v(k + 3)`. The next two centres' `P` is this
+/// `Q`. The quick rule holds when the six distances are ranges below [`SMALL`] (no
+/// range, [`NONE`], is then the only value with the top bit set: one test of the OR of
+/// the pairs' highs and the two ends); otherwise, and for an odd last centre, one
+/// centre at a time by [`median5_exact`]. The quick rule's outputs are ranges: only
+/// [`median5_exact`] counts no range.
 #[inline(never)]
-fn median5(s: &mut [Reading], b: &mut [u32; 2], out_none: u32) -> (u32, usize) {
-    let dist = |i: usize| s.get(i).map_or(NONE, |r| r.distance);
-    let (mut x2, mut x1, mut c, mut a1) = (b[1], b[0], dist(0), dist(1));
-    let (mut diff, mut invalid) = (0u32, 0usize);
-    for j in 2..s.len() {
-        let Some(a2) = s.get(j).map(|r| r.distance) else {
+fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
+    // Written by the single centres' rule only (out of the loop's registers).
+    let mut slow = (0usize, out_none);
+    // v(k - 2) and P = v(k - 1) and v(k) sorted (v(k) and v(k + 1) still in their
+    // cells, from centre k on: `rest`).
+    let mut rest = s;
+    let c = rest.first().map_or(NONE, |r| r.distance);
+    let mut e = md.b2;
+    let (mut pl, mut ph) = (md.b1.min(c), md.b1.max(c));
+    let mut diff = 0u32;
+    loop {
+        while let [o0, o1, r2, r3, ..] = rest {
+            let (c, v1, v2, v3) = (o0.distance, o1.distance, r2.distance, r3.distance);
+            let (ql, qh) = (v1.min(v2), v1.max(v2));
+            if (ph | qh | e | v3) >= SMALL {
+                break;
+            }
+            let (u, w) = (pl.max(ql), ph.min(qh));
+            let (s2, s3) = (u.min(w), u.max(w));
+            let (x0, x1) = (s3.min(e).max(s2), s3.min(v3).max(s2));
+            diff |= (x0 ^ c) | (x1 ^ v1);
+            (o0.distance, o1.distance) = (x0, x1);
+            (e, pl, ph) = (c, ql, qh);
+            rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
+        }
+        // One centre alone: a window the quick rule does not cover, or an odd last
+        // centre.
+        let [o0, o1, r2, ..] = rest else {
             break;
         };
-        // Each pair sorted (no range, the largest value, sorts last in its pair).
-        let (pl, ph) = (x2.min(x1), x2.max(x1));
-        let (ql, qh) = (a1.min(a2), a1.max(a2));
-        let x = if ph != NONE && qh != NONE && c != NONE {
-            // Five ranges: the median of the two pairs' inner values and the centre.
-            let (lo, hi) = (pl.max(ql), ph.min(qh));
-            c.min(lo).max(c.max(lo).min(hi))
-        } else {
-            median5_exact(c, [x2, x1, a1, a2])
-        };
-        diff |= x ^ c;
-        if let Some(o) = s.get_mut(j.wrapping_sub(2)) {
-            o.distance = out(x, out_none, &mut invalid);
-        }
-        (x2, x1, c, a1) = (x1, c, a1, a2);
+        let (c, v1, x1) = (o0.distance, o1.distance, pl ^ ph ^ o0.distance);
+        diff |= median5_exact(o0, [e, x1, v1, r2.distance], &mut slow);
+        (e, pl, ph) = (x1, c.min(v1), c.max(v1));
+        rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
     }
-    *b = [x1, x2];
-    (diff, invalid)
+    // The cells after the centres held for the next line, and v(k - 1) and v(k - 2).
+    md.np = rest.len();
+    let mut c = NONE;
+    if let Some(cell) = rest.first() {
+        c = cell.distance;
+        md.p0 = (c, cell.aux);
+    }
+    if let Some(cell) = rest.get(1) {
+        md.p1 = (cell.distance, cell.aux);
+    }
+    (md.b1, md.b2) = (pl ^ ph ^ c, e);
+    (diff, slow.0)
 }
 
-/// The median of 5 by the general rule (any window with no range in it), for
-/// [`median5`]: out of its loop.
+/// The median of 5 for one centre of [`median5`], out of its loop (a window with no
+/// range in it or a range at or above [`SMALL`], or an odd last centre): the centre
+/// `o` (its distance before) between the neighbours `nb` becomes its output, no range
+/// as `slow.1`, counted in `slow.0`. A window of ranges below [`SMALL`] by the quick
+/// rule (the median of the middle two of `nb[1]`, `o`, `nb[2]`, `nb[3]` and `nb[0]`),
+/// any other by the general rule. Returns the OR of the centre with its new value.
 #[inline(never)]
-fn median5_exact(c: u32, nb: [u32; 4]) -> u32 {
-    median_line(c, nb, NONE)
+fn median5_exact(o: &mut Reading, nb: [u32; 4], slow: &mut (usize, u32)) -> u32 {
+    let c = o.distance;
+    let [x2, x1, a1, a2] = nb;
+    let x = if (x2 | x1 | c | a1 | a2) < SMALL {
+        let (u, w) = (x1.min(c).max(a1.min(a2)), x1.max(c).min(a1.max(a2)));
+        u.max(w).min(x2).max(u.min(w))
+    } else {
+        median_line(c, nb, NONE)
+    };
+    o.distance = out(x, slow.1, &mut slow.0);
+    x ^ c
 }
 
 /// The output points into the encoder's form: no range as `out_none`, a range of 0 as
@@ -526,6 +561,19 @@ mod tests {
         c.iter().map(|r| r.distance).collect()
     }
 
+    /// `median5` with the two distances before the first centre `b` (nearest first;
+    /// updated likewise) as its only state.
+    fn median5_b(s: &mut [Reading], b: &mut [u32; 2], none: u32) -> (u32, usize) {
+        let mut md = Regs {
+            b1: b[0],
+            b2: b[1],
+            ..Regs::default()
+        };
+        let r = median5(s, &mut md, none);
+        *b = [md.b1, md.b2];
+        r
+    }
+
     /// The median of 5 by sorting (every one of the five a range).
     fn sorted_median(v: [u32; 5]) -> u32 {
         let mut s = v;
@@ -540,7 +588,7 @@ mod tests {
             let v: [u32; 5] = core::array::from_fn(|i| t / 5u32.pow(i as u32) % 5 * 100);
             let mut s = cells(&v[2..]);
             let mut b = [v[1], v[0]];
-            median5(&mut s, &mut b, NONE);
+            median5_b(&mut s, &mut b, NONE);
             assert_eq!(s[0].distance, sorted_median(v), "{v:?}");
             assert_eq!(b, [v[2], v[1]]);
         }
@@ -637,7 +685,7 @@ mod tests {
             // stream[0] is the older of the two distances before the line.
             let mut s = cells(&stream[2..]);
             let mut b = [stream[1], stream[0]];
-            let (diff, invalid) = median5(&mut s, &mut b, 9);
+            let (diff, invalid) = median5_b(&mut s, &mut b, 9);
             let outs = len.saturating_sub(2);
             let want: Vec<u32> = (0..outs)
                 .map(|i| median_reference(&stream[i..i + 5], 2))
@@ -655,6 +703,106 @@ mod tests {
             // The cells after the outputs stay; the two before the next centre move on.
             assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
             assert_eq!(b, [stream[outs + 1], stream[outs]]);
+        }
+    }
+
+    #[test]
+    fn median5_in_lines_follows_the_general_rule() {
+        // A stream cut into lines of 0 to 6 points (now and then longer), the median's
+        // state held across them as `line` holds it (the distances before the next
+        // centre in `b`, the last two cells of a line kept for the next): every output
+        // against the general rule (`median_line`, and the rule written plainly), with
+        // no range anywhere, ranges near and above 2^31, ties; in half the rounds only
+        // ranges below 2^31 (the quick rule's domain) with a few no ranges.
+        const OUT_NONE: u32 = 0xdead_beef;
+        let edges = [
+            0,
+            1,
+            7,
+            (1 << 31) - 2,
+            (1 << 31) - 1,
+            1 << 31,
+            (1 << 31) + 1,
+            u32::MAX - 1,
+            NONE,
+        ];
+        let mut next = xorshift(0x1234_5679_u32);
+        for round in 0..3000 {
+            let quick = round % 2 == 0;
+            let pick = |next: &mut dyn FnMut() -> u32| {
+                let r = next();
+                match (quick, r % 16) {
+                    (true, 0) => NONE,
+                    (true, 1) => (1 << 31) - 1 - next() % 3,
+                    (true, _) => 1000 + next() % 50,
+                    (false, 0..=5) => edges[next() as usize % edges.len()],
+                    (false, _) => 1000 + next() % 50,
+                }
+            };
+            let before = [pick(&mut next), pick(&mut next)];
+            let lines: Vec<Vec<u32>> = (0..next() % 8)
+                .map(|_| {
+                    let len = if next() % 8 == 0 {
+                        next() % 40
+                    } else {
+                        next() % 7
+                    };
+                    (0..len).map(|_| pick(&mut next)).collect()
+                })
+                .collect();
+            // v(-2), v(-1), then the stream.
+            let v: Vec<u32> = before
+                .iter()
+                .chain(lines.iter().flatten())
+                .copied()
+                .collect();
+            // `b` nearest first, as `line` keeps it.
+            let mut md = Regs {
+                b1: before[1],
+                b2: before[0],
+                ..Regs::default()
+            };
+            let mut held: Vec<u32> = Vec::new();
+            let mut outs: Vec<u32> = Vec::new();
+            for line in &lines {
+                let region: Vec<u32> = held.iter().chain(line).copied().collect();
+                let mut s = cells(&region);
+                let out = region.len().saturating_sub(2);
+                let (diff, invalid) = median5(&mut s, &mut md, OUT_NONE);
+                // This line's outputs against the rule: centres outs.len()..
+                let first = outs.len();
+                let want: Vec<u32> = (first..first + out)
+                    .map(|k| {
+                        let w = &v[k..k + 5];
+                        let x = median_line(w[2], [w[0], w[1], w[3], w[4]], NONE);
+                        assert_eq!(x, median_reference(w, 2), "{w:?}");
+                        x
+                    })
+                    .collect();
+                let shown: Vec<u32> = want
+                    .iter()
+                    .map(|&x| if x == NONE { OUT_NONE } else { x })
+                    .collect();
+                assert_eq!(dist(&s[..out]), shown, "{before:?} {lines:?}");
+                assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
+                let centres = &v[first + 2..first + 2 + out];
+                assert_eq!(diff != 0, want.iter().zip(centres).any(|(x, c)| x != c));
+                // The cells after the outputs stay as they came.
+                assert_eq!(dist(&s[out..]), region[out..]);
+                outs.extend(&shown);
+                held = region[out..].to_vec();
+                // The cells held (as `line` copies them in front of the next line) and
+                // the two distances before the next centre.
+                assert_eq!(md.np, held.len());
+                if let Some(&d) = held.first() {
+                    assert_eq!(md.p0.0, d);
+                }
+                if let Some(&d) = held.get(1) {
+                    assert_eq!(md.p1.0, d);
+                }
+                let k = outs.len();
+                assert_eq!([md.b1, md.b2], [v[k + 1], v[k]], "{before:?} {lines:?}");
+            }
         }
     }
 
