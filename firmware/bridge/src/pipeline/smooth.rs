@@ -251,6 +251,14 @@ fn stages<const SP: bool, const MD: bool>(
             // threshold), so that no quick output needs the no-range test.
             let guard = if MD { 0 } else { ((cs as i32) >> 31) as u32 };
             bs = cs;
+            // Alone, its output is written first (the centre), the slow branch
+            // writes over it.
+            let out = |d: &mut [Reading], x: u32| {
+                if let (false, Some(o)) = (MD, d.get_mut(j.wrapping_sub(lag))) {
+                    o.distance = x;
+                }
+            };
+            out(d, cs);
             if b.abs_diff(cs) | guard > quick_jump {
                 let (x, gone) = speckle_exact(cs, b, dist(d, j), jump);
                 // At most the line's points: no wrap.
@@ -260,6 +268,7 @@ fn stages<const SP: bool, const MD: bool>(
                 } else {
                     x
                 };
+                out(d, cs);
             }
         }
         let s = if SP { cs } else { dist(d, j) };
@@ -275,7 +284,7 @@ fn stages<const SP: bool, const MD: bool>(
                 }
             }
             (bm, cm) = (c, s);
-        } else if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
+        } else if let (false, Some(o)) = (SP, d.get_mut(j.wrapping_sub(lag))) {
             o.distance = s;
         }
         if SP {
