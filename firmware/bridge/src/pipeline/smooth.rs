@@ -177,11 +177,14 @@ fn median3_exact(b: u32, c: u32, s: u32) -> u32 {
 }
 
 /// Speckle removal's rule (any ranges and threshold) for the centre `c` between `b` and
-/// `a`: its new distance and whether it was removed. Out of [`stages`]' loops (rare, and
-/// one copy for all).
+/// `a`: its new distance, a removal counted in `removed` (at most the line's points: no
+/// wrap; in memory, so that the loops keep their registers for the common paths). Out
+/// of [`stages`]' loops (rare, and one copy for all).
 #[inline(never)]
-fn speckle_exact(c: u32, b: u32, a: u32, jump: u32) -> (u32, bool) {
-    speckle3_line(c, b, a, NONE, jump)
+fn speckle_exact(c: u32, b: u32, a: u32, jump: u32, removed: &mut usize) -> u32 {
+    let (x, gone) = speckle3_line(c, b, a, NONE, jump);
+    *removed = removed.wrapping_add(usize::from(gone));
+    x
 }
 
 /// Counts one output without a range (at most the line's points: no wrap); returns the
@@ -260,9 +263,7 @@ fn stages<const SP: bool, const MD: bool>(
             };
             out(d, cs);
             if b.abs_diff(cs) | guard > quick_jump {
-                let (x, gone) = speckle_exact(cs, b, dist(d, j), jump);
-                // At most the line's points: no wrap.
-                removed = removed.wrapping_add(usize::from(gone));
+                let x = speckle_exact(cs, b, dist(d, j), jump, &mut removed);
                 cs = if !MD && x == NONE {
                     no_range(&mut invalid, none)
                 } else {
@@ -327,9 +328,7 @@ fn stages_exact(
     let (mut bm, mut cm) = (md.b1, dist(d, 0));
     for j in 2..n {
         let a = dist(d, j);
-        let (s, gone) = speckle_exact(cs, bs, a, jump);
-        // At most the line's points: no wrap.
-        removed = removed.wrapping_add(usize::from(gone));
+        let s = speckle_exact(cs, bs, a, jump, &mut removed);
         (bs, cs) = (cs, a);
         let x = median3_exact(bm, cm, s);
         diff |= x ^ cm;
