@@ -852,8 +852,14 @@ mod tests {
                         speckle_reference(if i == 0 { b0 } else { s[i - 1] }, s[i], s[i + 1], jump)
                     })
                     .collect();
-                let (got, _, _, removed, r) = run::<true, false>(&s, (b0, NONE), jump, exact, NONE);
-                assert_eq!(got, want, "speckle {b0} {s:?} {jump} {exact}");
+                // As the last stage: no range as the encoder's value 9, counted.
+                let as_out = |w: &[u32]| -> Vec<u32> {
+                    w.iter().map(|&x| if x == NONE { 9 } else { x }).collect()
+                };
+                let (got, invalid, _, removed, r) =
+                    run::<true, false>(&s, (b0, NONE), jump, exact, 9);
+                assert_eq!(got, as_out(&want), "speckle {b0} {s:?} {jump} {exact}");
+                assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
                 let gone = want
                     .iter()
                     .zip(&s)
@@ -892,11 +898,14 @@ mod tests {
                     })
                     .collect();
                 let both: Vec<u32> = std::iter::once(c1).chain(s.iter().copied()).collect();
-                let (got, _, _, removed, r) = run::<true, true>(&both, (b0, b1), jump, exact, NONE);
+                let (got, invalid, _, removed, r) =
+                    run::<true, true>(&both, (b0, b1), jump, exact, 9);
                 assert_eq!(
-                    got, want2,
+                    got,
+                    as_out(&want2),
                     "both {b0} {c0} {b1} {c1} {line:?} {jump} {exact}"
                 );
+                assert_eq!(invalid, want2.iter().filter(|&&x| x == NONE).count());
                 assert_eq!(removed, gone);
                 // Speckle removal's registers: the inputs it last saw (b0 and c0
                 // with an empty line).
