@@ -125,16 +125,25 @@ pub(super) fn line(
     (out, invalid, diff != 0)
 }
 
-/// The median of 3 of a centre `c` that [`stages`]' sign test did not find between
-/// its neighbours `b` and `s`: `c` when one of the three is no range (a missing centre
-/// stays missing, a missing neighbour leaves the centre), else the median. `exact`
-/// (`SMALL` when a range may be at or above it, else 0) takes the general rule; without
-/// it every range is below [`SMALL`] (no range the only value with the top bit set)
-/// and `c` not between its neighbours: the median is the neighbour nearest `c`. Sets
-/// `diff` when it changes the centre.
+/// The median of 3 of a centre `c` that [`stages`]' test did not pass: a missing
+/// centre stays missing (its output is `none`, counted in `invalid`), else `c` when a
+/// neighbour is no range, else the median. `exact` (`SMALL` when a range may be at or
+/// above it, else 0) takes the general rule; without it every range is below
+/// [`SMALL`] (no range the only value with the top bit set) and a range `c` not
+/// between its neighbours: the median is the neighbour nearest `c`. Sets `diff` when
+/// it changes the centre.
 #[inline(always)]
-fn median3_off(b: u32, c: u32, s: u32, exact: u32, diff: &mut u32) -> u32 {
-    let x = if (b | c | s | exact) >= SMALL {
+fn median3_off(
+    (b, c, s): (u32, u32, u32),
+    exact: u32,
+    diff: &mut u32,
+    invalid: &mut usize,
+    none: u32,
+) -> u32 {
+    if c == NONE {
+        return no_range(invalid, none);
+    }
+    let x = if (b | s | exact) >= SMALL {
         median3_exact(b, c, s)
     } else if c >= b {
         // `c - b` at least 0: `c` is at least `b` and above `s`.
@@ -159,11 +168,14 @@ fn median3_exact(b: u32, c: u32, s: u32) -> u32 {
 }
 
 /// Speckle removal's rule (any ranges and threshold) for the centre `c` between `b` and
-/// `a`: its new distance and whether it was removed. Out of [`stages`]' loops (rare, and
-/// one copy for all).
+/// `a`: its new distance, a removal counted in `removed` (at most the line's points: no
+/// wrap; in memory, so that the loops keep their registers for the common paths). Out
+/// of [`stages`]' loops (rare, and one copy for all).
 #[inline(never)]
-fn speckle_exact(c: u32, b: u32, a: u32, jump: u32) -> (u32, bool) {
-    speckle3_line(c, b, a, NONE, jump)
+fn speckle_exact(c: u32, b: u32, a: u32, jump: u32, removed: &mut usize) -> u32 {
+    let (x, gone) = speckle3_line(c, b, a, NONE, jump);
+    *removed = removed.wrapping_add(usize::from(gone));
+    x
 }
 
 /// Counts one output without a range (at most the line's points: no wrap); returns the
@@ -178,7 +190,8 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
 /// Speckle removal (`SP`, threshold `jump`) then the median of 3 (`MD`) in one loop
 /// over `d`, in place: the held points and the classified line in stream order (the
 /// median's held point first when both are on: the caller has checked that it holds
-/// one). The windows' state is carried in registers from `sp` and `md` and stored
+/// one, and it is speckle removal's output for the point before speckle removal's
+/// held centre, `sp.b1` or no range). The windows' state is carried in registers from `sp` and `md` and stored
 /// back after; the outputs go to the front of `d`, no range as `none`. Returns the
 /// number of outputs, how many of them have no range, the OR of every range the median
 /// changed with its new value, and the number of ranges speckle removal took.
@@ -188,8 +201,9 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
 /// stages on, in [`stages_exact`]). Speckle removal: a centre within `jump` of the
 /// point before it stays. The median: a centre between its neighbours is the median,
 /// found by one sign test, (c - b) and (s - c) of the same sign in 32-bit two's
-/// complement (exact for ranges below 2^31; with a neighbour or the centre missing
-/// the test can only pass when the answer is the centre too).
+/// complement and `c` a range (its top bit clear), exact for ranges below 2^31 (with
+/// a neighbour missing the test can only pass when the answer is the centre too), so
+/// that no quick output is no range.
 #[inline(never)]
 fn stages<const SP: bool, const MD: bool>(
     d: &mut [Reading],
@@ -210,60 +224,73 @@ fn stages<const SP: bool, const MD: bool>(
     // The quick tests made to fail when `exact`.
     let quick_jump = if exact && !MD { 0 } else { jump };
     let exact = if exact && !SP { SMALL } else { 0 };
-    // Speckle removal's output for the centre `cs` (`bs` before it, `a` after).
-    let speckle = |bs: u32, cs: u32, a: u32, removed: &mut usize| {
-        if bs.abs_diff(cs) <= quick_jump {
-            return cs;
-        }
-        let (x, gone) = speckle_exact(cs, bs, a, jump);
-        // At most the line's points: no wrap.
-        *removed = removed.wrapping_add(usize::from(gone));
-        x
-    };
     let n = d.len();
-    // Each stage's centre (as input) and the input before it. Speckle removal's first
-    // centre is the point after the median's held one; the median's, its held point
-    // or else the first point.
-    let (mut bs, mut cs) = (sp.b1, dist(d, usize::from(MD && SP)));
+    // Each stage's centre (as input) and the distance before it. Speckle removal's
+    // first centre is the point after the median's held one; the median's, its held
+    // point or else the first point. With both stages on, the distance before speckle
+    // removal's centre is the median's centre (speckle removal's output for that
+    // point, not its input): they differ only where speckle removal took a range, and
+    // a range taken had no support from the centre after it (support is symmetric), so
+    // it gives that centre none either way.
     let (mut bm, mut cm) = (md.b1, dist(d, 0));
+    let (mut bs, mut cs) = (sp.b1, dist(d, usize::from(MD && SP)));
     // Outputs lag the look-ahead by one point per stage.
     let lag = usize::from(SP).wrapping_add(usize::from(MD));
     for j in lag..n {
-        let Some(a) = d.get(j).map(|r| r.distance) else {
-            break;
-        };
-        let s = if SP {
-            let s = speckle(bs, cs, a, &mut removed);
-            (bs, cs) = (cs, a);
-            s
-        } else {
-            a
-        };
-        let x = if MD {
+        // Speckle removal's output replaces its centre `cs`.
+        if SP {
+            let b = if MD { cm } else { bs };
+            // Alone, speckle removal gives the last outputs: its quick test fails for
+            // no range (the sign of `cs` as i32 makes the difference above any
+            // threshold), so that no quick output needs the no-range test.
+            let guard = if MD { 0 } else { ((cs as i32) >> 31) as u32 };
+            bs = cs;
+            // Alone, its output is written first (the centre), the slow branch
+            // writes over it.
+            let out = |d: &mut [Reading], x: u32| {
+                if let (false, Some(o)) = (MD, d.get_mut(j.wrapping_sub(lag))) {
+                    o.distance = x;
+                }
+            };
+            out(d, cs);
+            if b.abs_diff(cs) | guard > quick_jump {
+                let x = speckle_exact(cs, b, dist(d, j), jump, &mut removed);
+                cs = if !MD && x == NONE {
+                    no_range(&mut invalid, none)
+                } else {
+                    x
+                };
+                out(d, cs);
+            }
+        }
+        let s = if SP { cs } else { dist(d, j) };
+        if MD {
+            // The centre stays (written first, the other cases write over it) when
+            // the test passes: only for a range `c` (its top bit clear) between its
+            // neighbours.
             let c = cm;
-            let between = ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | exact) < SMALL;
-            let x = if between {
-                c
-            } else {
-                median3_off(bm, c, s, exact, &mut diff)
-            };
+            if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
+                o.distance = c;
+                if ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | c | exact) >= SMALL {
+                    o.distance = median3_off((bm, c, s), exact, &mut diff, &mut invalid, none);
+                }
+            }
             (bm, cm) = (c, s);
-            x
-        } else {
-            s
-        };
-        if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
-            o.distance = if x == NONE {
-                no_range(&mut invalid, none)
-            } else {
-                x
-            };
+        } else if let (false, Some(o)) = (SP, d.get_mut(j.wrapping_sub(lag))) {
+            o.distance = s;
+        }
+        if SP {
+            cs = dist(d, j);
         }
     }
     let out = n.saturating_sub(lag);
     if SP {
         sp.np = n.min(1);
-        sp.b1 = bs;
+        // The last centre's input before it (with the median on, still in place: the
+        // outputs end two points before the last).
+        if !MD || n > lag {
+            sp.b1 = if MD { dist(d, n.wrapping_sub(2)) } else { bs };
+        }
         sp.p0 = (cs, aux(d, n.wrapping_sub(1)));
     }
     if MD && n > 0 {
@@ -292,9 +319,7 @@ fn stages_exact(
     let (mut bm, mut cm) = (md.b1, dist(d, 0));
     for j in 2..n {
         let a = dist(d, j);
-        let (s, gone) = speckle_exact(cs, bs, a, jump);
-        // At most the line's points: no wrap.
-        removed = removed.wrapping_add(usize::from(gone));
+        let s = speckle_exact(cs, bs, a, jump, &mut removed);
         (bs, cs) = (cs, a);
         let x = median3_exact(bm, cm, s);
         diff |= x ^ cm;
@@ -976,8 +1001,14 @@ mod tests {
                         speckle_reference(if i == 0 { b0 } else { s[i - 1] }, s[i], s[i + 1], jump)
                     })
                     .collect();
-                let (got, _, _, removed, r) = run::<true, false>(&s, (b0, NONE), jump, exact, NONE);
-                assert_eq!(got, want, "speckle {b0} {s:?} {jump} {exact}");
+                // As the last stage: no range as the encoder's value 9, counted.
+                let as_out = |w: &[u32]| -> Vec<u32> {
+                    w.iter().map(|&x| if x == NONE { 9 } else { x }).collect()
+                };
+                let (got, invalid, _, removed, r) =
+                    run::<true, false>(&s, (b0, NONE), jump, exact, 9);
+                assert_eq!(got, as_out(&want), "speckle {b0} {s:?} {jump} {exact}");
+                assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
                 let gone = want
                     .iter()
                     .zip(&s)
@@ -1003,8 +1034,12 @@ mod tests {
                 if len > 0 {
                     assert_eq!((r[2], r[3]), (m[len - 1], m[len]));
                 }
-                // Both: the median's centre c1 held, then speckle removal's c0 and the
-                // line; the median takes speckle removal's outputs.
+                // Both: the median's centre held, then speckle removal's c0 and the
+                // line; the median takes speckle removal's outputs. The median's centre
+                // is speckle removal's output for b0: b0, or no range when b0 could
+                // have gone (no support from c0).
+                let unsupported = b0 == NONE || c0 == NONE || c0.abs_diff(b0) > jump;
+                let c1 = if unsupported && c1 % 2 == 0 { NONE } else { b0 };
                 let m2: Vec<u32> = std::iter::once(c1).chain(want.iter().copied()).collect();
                 let want2: Vec<u32> = (0..len)
                     .map(|i| {
@@ -1012,12 +1047,24 @@ mod tests {
                     })
                     .collect();
                 let both: Vec<u32> = std::iter::once(c1).chain(s.iter().copied()).collect();
-                let (got, _, _, removed, _) = run::<true, true>(&both, (b0, b1), jump, exact, NONE);
+                let (got, invalid, _, removed, r) =
+                    run::<true, true>(&both, (b0, b1), jump, exact, 9);
                 assert_eq!(
-                    got, want2,
+                    got,
+                    as_out(&want2),
                     "both {b0} {c0} {b1} {c1} {line:?} {jump} {exact}"
                 );
+                assert_eq!(invalid, want2.iter().filter(|&&x| x == NONE).count());
                 assert_eq!(removed, gone);
+                // Speckle removal's registers: the inputs it last saw (b0 and c0
+                // with an empty line).
+                assert_eq!(
+                    (r[0], r[1]),
+                    (s.get(len.wrapping_sub(1)).copied().unwrap_or(b0), s[len])
+                );
+                if len > 0 {
+                    assert_eq!((r[2], r[3]), (m2[len - 1], m2[len]));
+                }
             }
         }
     }
