@@ -14,6 +14,10 @@ SysTick handler excluded. Each address is resolved with its inlined frames
 its inline stack, "exclusive" for the innermost one only. Functions that are called, not
 inlined, appear as themselves (their callers' inclusive counts do not hold them).
 
+With `ANNOTATE=NAME` in the environment it also prints the disassembly of every
+function whose symbol contains NAME, each instruction with the times it ran (the exact
+counts to judge a loop's shape by: code layout moves `icount` by a few tenths per byte).
+
 The total is the one `scip2can icount` reports (instructions per UART byte times the
 stream's bytes) to within the SysTick handler's share. Traces are about 80 bytes per
 instruction: keep streams to a few scans. Needs qemu-system-arm and llvm-symbolizer.
@@ -99,6 +103,28 @@ def main():
         print(f"--- {title}")
         for f, c in table.most_common(top):
             print(f"{c:>10} {100 * c / max(total, 1):5.1f}%  {f}")
+    if os.environ.get("ANNOTATE"):
+        annotate(elf, os.environ["ANNOTATE"], counts)
+
+
+def annotate(elf, name, counts):
+    """The disassembly of the functions whose symbol holds `name`, with each
+    instruction's count."""
+    dis = subprocess.run(["llvm-objdump", "-d", "--no-show-raw-insn", "-C", elf],
+                         capture_output=True, text=True, check=True).stdout
+    on = False
+    for line in dis.splitlines():
+        if line.endswith(">:"):
+            on = name in line
+            if on:
+                print(f"--- {line}")
+            continue
+        if on and ":" in line:
+            try:
+                a = int(line.split(":")[0].strip(), 16)
+            except ValueError:
+                continue
+            print(f"{counts.get(a, 0):>8} {line.strip()}")
 
 
 if __name__ == "__main__":
