@@ -54,7 +54,9 @@ impl ScanEncoder {
         if usize::from(s.capacity) != cap || s.pending >= cap {
             return Err(Error::FrameTooLong);
         }
-        let seq_bits = u64::from(s.header.seq & 0xF) << 12;
+        // The sequence number's bits of every data header, once per run.
+        let seq = u32::from(s.header.seq & 0xF) << 12;
+        let seq_bits = u64::from(seq);
         let mut crc = s.crc;
         let mut rest = points;
         while !rest.is_empty() {
@@ -123,8 +125,8 @@ impl ScanEncoder {
                 // The data header of the next frame: its first index (below the scan's
                 // point count, at most 4095: 12 bits) and the sequence number above;
                 // each frame's is the one before plus a frame's points.
-                let seq = u32::from(s.header.seq & 0xF) << 12;
-                let mut header = u32::from(s.sent & 0x0FFF) | seq;
+                let first = u32::from(s.sent & 0x0FFF) | seq;
+                let mut header = first;
                 let step = cap as u32;
                 let mut left = whole;
                 while left.len() >= cap {
@@ -155,7 +157,7 @@ impl ScanEncoder {
                     run.frames = run.frames.wrapping_add(given as u32);
                 }
                 // Frames sent (or lost) count points of the block: no wrap.
-                let framed = (header.wrapping_sub(seq) as u16).wrapping_sub(s.sent & 0x0FFF);
+                let framed = header.wrapping_sub(first) as u16;
                 j = j.wrapping_add(usize::from(framed));
                 s.buffered = s.buffered.wrapping_sub(framed);
                 s.sent = s.sent.wrapping_add(framed);
