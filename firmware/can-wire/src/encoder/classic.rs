@@ -48,12 +48,11 @@ impl ScanEncoder {
         // what is given back was counted before. Nothing wraps.
         let bits = db.wrapping_add(ib);
         // Points in a full classic frame: 48 bits after the data header (a point has
-        // at least 12 bits; 0 fails the capacity check below).
+        // at least 12 bits). `begin` made the scan's capacity the same (the classic
+        // frame's 6 payload bytes over the point's bits), and a run leaves fewer codes
+        // than that pending: neither is checked again per run.
         let cap = 48u32.checked_div(bits).unwrap_or(0) as usize;
         let count = s.header.point_count;
-        if usize::from(s.capacity) != cap || s.pending >= cap {
-            return Err(Error::FrameTooLong);
-        }
         // The sequence number's bits of every data header, once per run.
         let seq = u32::from(s.header.seq & 0xF) << 12;
         let seq_bits = u64::from(seq);

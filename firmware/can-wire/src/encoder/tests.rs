@@ -571,3 +571,28 @@ fn the_data_frames_carry_the_nodes_data_id() {
         }
     }
 }
+
+/// A classic run takes a frame's points as 48 bits over the point's bits and checks no
+/// more that the scan's capacity (made by `begin`) is the same: hand-counted for every
+/// fixed-width encoding (6 payload bytes after the 2-byte data header).
+#[test]
+fn classic_capacity_is_the_runs_points_per_frame() {
+    // Points per classic frame, by distance (D16, D14, D12) and intensity (none, I16,
+    // I12, I8): 48 / (16 + 0, 16 + 16, 16 + 12, 16 + 8) and so on.
+    let expected = [[3, 1, 1, 2], [3, 1, 1, 2], [4, 1, 2, 2]];
+    let ids = IdWindow::DEFAULT.node(1).unwrap();
+    for (d, row) in expected.iter().enumerate() {
+        for (i, &points) in row.iter().enumerate() {
+            let enc = Encoding {
+                distance: DistanceEncoding::ALL[d],
+                intensity: IntensityEncoding::ALL[i],
+                unit_exp: 0,
+            };
+            let mut e = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+            e.begin(&header(10, enc)).unwrap();
+            let s = e.open.fixed().unwrap();
+            assert_eq!(s.capacity, points, "{enc:?}");
+            assert_eq!(48 / (s.distance_bits + s.intensity_bits), u32::from(points));
+        }
+    }
+}
