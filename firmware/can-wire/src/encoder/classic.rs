@@ -120,7 +120,15 @@ impl ScanEncoder {
             // Whole frames, into slots the sink hands out a batch at a time.
             if !lost {
                 let whole = codes.get(j..).unwrap_or(&[]);
-                let shape = Frame::classic_shape(s.full_len);
+                // A full frame's length: for widths known at compile time a constant
+                // (the header and the points' bytes, at most 8: the scan's `full_len`),
+                // so the frame loop keeps no register for it.
+                let full_len = if known {
+                    DATA_HEADER_LEN.wrapping_add((cap.wrapping_mul(bits as usize)).div_ceil(8))
+                } else {
+                    s.full_len
+                };
+                let shape = Frame::classic_shape(full_len);
                 // The data header of the next frame: its first index (below the scan's
                 // point count, at most 4095: 12 bits) and the sequence number above;
                 // each frame's is the one before plus a frame's points.
