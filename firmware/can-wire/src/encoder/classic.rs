@@ -72,7 +72,10 @@ impl ScanEncoder {
             // The pending codes, then this block's.
             let p = s.pending;
             let end = p.wrapping_add(block);
-            let fresh = codes_buf.get_mut(p..end).unwrap_or(&mut []);
+            // From the first free place on: the block codes its points' worth of it (at
+            // most `BLOCK` after fewer than 4 pending, within the buffer), and the one
+            // test of `p` is all the slicing costs.
+            let fresh = codes_buf.get_mut(p..).unwrap_or(&mut []);
             let (valid, invalid, rejected) = code_block_any(ib, now, rule, point, s, fresh);
             let codes = codes_buf.get(..end).unwrap_or(&[]);
             // The block is taken; a lost frame gives back what follows it.
