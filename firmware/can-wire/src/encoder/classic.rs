@@ -72,10 +72,7 @@ impl ScanEncoder {
             // The pending codes, then this block's.
             let p = s.pending;
             let end = p.wrapping_add(block);
-            // From the first free place on: the block codes its points' worth of it (at
-            // most `BLOCK` after fewer than 4 pending, within the buffer), and the one
-            // test of `p` is all the slicing costs.
-            let fresh = codes_buf.get_mut(p..).unwrap_or(&mut []);
+            let fresh = codes_buf.get_mut(p..end).unwrap_or(&mut []);
             let (valid, invalid, rejected) = code_block_any(ib, now, rule, point, s, fresh);
             let codes = codes_buf.get(..end).unwrap_or(&[]);
             // The block is taken; a lost frame gives back what follows it.
@@ -237,8 +234,10 @@ impl Begun {
     /// it due; returns the points taken and whether the frame was lost (no slot). Out
     /// of line and cold: a run meets such a frame only where point-by-point pushing
     /// and runs take turns within a scan, and the runs' usual path keeps its registers.
-    #[cold]
-    #[inline(never)]
+    /// With the `compact` feature (one classic run, flash first) it is inlined: its own
+    /// copy, with the code it inlines, took about 240 bytes more than it saved there.
+    #[cfg_attr(not(feature = "compact"), cold, inline(never))]
+    #[cfg_attr(feature = "compact", inline(always))]
     fn go_on<S: FrameSink + ?Sized>(
         self,
         s: &mut InProgress,
