@@ -200,3 +200,31 @@ pub(super) fn push<const Q: usize>(queue: &mut FrameQueue<Q>, f: &Frame, stats: 
         stats.frames = stats.frames.wrapping_add(1);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The data slots the queue hands the encoder, for every fill of a 4-slot queue:
+    /// all the free ones but one (the trailer's), none when one or none is free,
+    /// counted by hand.
+    #[test]
+    fn data_slots_keep_one_free_slot() {
+        // Free slots -> data slots for a request of 3 (at most 3, all but one free).
+        for (free, want) in [(0, 0), (1, 0), (2, 1), (3, 2), (4, 3)] {
+            let mut q = FrameQueue::<4>::new();
+            for _ in 0..4 - free {
+                q.push_back(Frame::default()).unwrap();
+            }
+            assert_eq!(q.free(), free);
+            let got = DataSlots(&mut q).data_slots(3).len();
+            assert_eq!(got, want, "{free} free");
+            // The single-slot path agrees: a slot only when two are free.
+            let mut q = FrameQueue::<4>::new();
+            for _ in 0..4 - free {
+                q.push_back(Frame::default()).unwrap();
+            }
+            assert_eq!(DataSlots(&mut q).data_slot().is_some(), free >= 2);
+        }
+    }
+}

@@ -3,7 +3,7 @@
 //! of a frame not yet full kept pending for the next run.
 
 use super::fixed::{code_block_any, count_rejected, untake};
-use super::{FrameSink, RangeRule, Run, RunStop, ScanEncoder, BLOCK};
+use super::{FrameSink, InProgress, RangeRule, Run, RunStop, ScanEncoder, BLOCK};
 use crate::crc::ScanCrc;
 use crate::data::{data_frame_len, DATA_HEADER_LEN};
 use crate::frame::Frame;
@@ -48,13 +48,14 @@ impl ScanEncoder {
         // what is given back was counted before. Nothing wraps.
         let bits = db.wrapping_add(ib);
         // Points in a full classic frame: 48 bits after the data header (a point has
-        // at least 12 bits; 0 fails the capacity check below).
+        // at least 12 bits). `begin` made the scan's capacity the same (the classic
+        // frame's 6 payload bytes over the point's bits), and a run leaves fewer codes
+        // than that pending: neither is checked again per run.
         let cap = 48u32.checked_div(bits).unwrap_or(0) as usize;
         let count = s.header.point_count;
-        if usize::from(s.capacity) != cap || s.pending >= cap {
-            return Err(Error::FrameTooLong);
-        }
-        let seq_bits = u64::from(s.header.seq & 0xF) << 12;
+        // The sequence number's bits of every data header, once per run.
+        let seq = u32::from(s.header.seq & 0xF) << 12;
+        let seq_bits = u64::from(seq);
         let mut crc = s.crc;
         let mut rest = points;
         while !rest.is_empty() {
@@ -85,46 +86,35 @@ impl ScanEncoder {
             let mut j = 0;
             let mut lost = false;
             if before > 0 {
-                // A frame begun by `push_point`, in the packer (then nothing is pending):
-                // its next points one by one, sent if that makes it due.
-                let k = cap.wrapping_sub(before).min(block);
-                let at = (before as u32).wrapping_mul(bits).wrapping_add(16);
-                let word =
-                    s.packer.word64() & !0xFFFF & (u64::MAX >> 64u32.wrapping_sub(at.min(64)));
-                let taking = codes.get(..k).unwrap_or(&[]);
-                let (mut word, at) = place_points(db, ib, taking, word, at, &mut crc);
-                j = k;
-                let n = before.wrapping_add(k);
-                if n == cap || usize::from(s.sent).wrapping_add(n) == usize::from(count) {
-                    let len = if n == cap {
-                        s.full_len
-                    } else {
-                        data_frame_len(&s.header.encoding, n).ok_or(Error::FrameTooLong)?
-                    };
-                    word |= u64::from(s.sent & 0x0FFF) | seq_bits;
-                    s.packer.reset(DATA_HEADER_LEN);
-                    s.sent = s.sent.wrapping_add(n as u16);
-                    s.buffered = s.buffered.wrapping_sub(n as u16);
-                    match sink.data_slot() {
-                        Some(frame) => {
-                            frame.set_classic(id, word.to_le_bytes(), len);
-                            run.frames = run.frames.wrapping_add(1);
-                        }
-                        None => lost = true,
-                    }
-                } else {
-                    s.packer.set_word64(word, at);
-                }
+                let begun = Begun {
+                    id,
+                    db,
+                    ib,
+                    cap,
+                    before,
+                    block,
+                    count,
+                    seq_bits,
+                };
+                (j, lost) = begun.go_on(s, codes, &mut crc, sink, &mut run.frames)?;
             }
             // Whole frames, into slots the sink hands out a batch at a time.
             if !lost {
                 let whole = codes.get(j..).unwrap_or(&[]);
-                let shape = Frame::classic_shape(s.full_len);
+                // A full frame's length: for widths known at compile time a constant
+                // (the header and the points' bytes, at most 8: the scan's `full_len`),
+                // so the frame loop keeps no register for it.
+                let full_len = if known {
+                    DATA_HEADER_LEN.wrapping_add((cap.wrapping_mul(bits as usize)).div_ceil(8))
+                } else {
+                    s.full_len
+                };
+                let shape = Frame::classic_shape(full_len);
                 // The data header of the next frame: its first index (below the scan's
                 // point count, at most 4095: 12 bits) and the sequence number above;
                 // each frame's is the one before plus a frame's points.
-                let seq = u32::from(s.header.seq & 0xF) << 12;
-                let mut header = u32::from(s.sent & 0x0FFF) | seq;
+                let first = u32::from(s.sent & 0x0FFF) | seq;
+                let mut header = first;
                 let step = cap as u32;
                 let mut left = whole;
                 while left.len() >= cap {
@@ -155,7 +145,7 @@ impl ScanEncoder {
                     run.frames = run.frames.wrapping_add(given as u32);
                 }
                 // Frames sent (or lost) count points of the block: no wrap.
-                let framed = (header.wrapping_sub(seq) as u16).wrapping_sub(s.sent & 0x0FFF);
+                let framed = header.wrapping_sub(first) as u16;
                 j = j.wrapping_add(usize::from(framed));
                 s.buffered = s.buffered.wrapping_sub(framed);
                 s.sent = s.sent.wrapping_add(framed);
@@ -218,6 +208,84 @@ impl ScanEncoder {
         }
         s.crc = crc;
         Ok(run)
+    }
+}
+
+/// A frame begun by `push_point` (its points in the packer) that a classic run goes on
+/// with: what the run knows of it.
+struct Begun {
+    id: embedded_can::Id,
+    db: u32,
+    ib: u32,
+    /// Points in a full frame.
+    cap: usize,
+    /// The frame's points in the packer (at least 1).
+    before: usize,
+    /// The run's block of points (nothing is pending before them).
+    block: usize,
+    /// The scan's point count.
+    count: u16,
+    /// The sequence number's bits of a data header.
+    seq_bits: u64,
+}
+
+impl Begun {
+    /// The frame's next points (from the front of `codes`) one by one, sent if that makes
+    /// it due; returns the points taken and whether the frame was lost (no slot). Out
+    /// of line and cold: a run meets such a frame only where point-by-point pushing
+    /// and runs take turns within a scan, and the runs' usual path keeps its registers.
+    /// With the `compact` feature (one classic run, flash first) it is inlined: its own
+    /// copy, with the code it inlines, took about 240 bytes more than it saved there.
+    #[cfg_attr(not(feature = "compact"), cold, inline(never))]
+    #[cfg_attr(feature = "compact", inline(always))]
+    fn go_on<S: FrameSink + ?Sized>(
+        self,
+        s: &mut InProgress,
+        codes: &[u32],
+        crc: &mut ScanCrc,
+        sink: &mut S,
+        frames: &mut u32,
+    ) -> Result<(usize, bool), Error> {
+        let Begun {
+            id,
+            db,
+            ib,
+            cap,
+            before,
+            block,
+            count,
+            seq_bits,
+        } = self;
+        // Counts of one frame's points (at most 4) and bits (at most 48 + 16): no wrap.
+        let k = cap.wrapping_sub(before).min(block);
+        let at = (before as u32)
+            .wrapping_mul(db.wrapping_add(ib))
+            .wrapping_add(16);
+        let word = s.packer.word64() & !0xFFFF & (u64::MAX >> 64u32.wrapping_sub(at.min(64)));
+        let taking = codes.get(..k).unwrap_or(&[]);
+        let (mut word, at) = place_points(db, ib, taking, word, at, crc);
+        let n = before.wrapping_add(k);
+        if n == cap || usize::from(s.sent).wrapping_add(n) == usize::from(count) {
+            let len = if n == cap {
+                s.full_len
+            } else {
+                data_frame_len(&s.header.encoding, n).ok_or(Error::FrameTooLong)?
+            };
+            word |= u64::from(s.sent & 0x0FFF) | seq_bits;
+            s.packer.reset(DATA_HEADER_LEN);
+            s.sent = s.sent.wrapping_add(n as u16);
+            s.buffered = s.buffered.wrapping_sub(n as u16);
+            match sink.data_slot() {
+                Some(frame) => {
+                    frame.set_classic(id, word.to_le_bytes(), len);
+                    *frames = frames.wrapping_add(1);
+                }
+                None => return Ok((k, true)),
+            }
+        } else {
+            s.packer.set_word64(word, at);
+        }
+        Ok((k, false))
     }
 }
 

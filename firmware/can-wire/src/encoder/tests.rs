@@ -571,3 +571,37 @@ fn the_data_frames_carry_the_nodes_data_id() {
         }
     }
 }
+
+/// A classic run takes a frame's points as 48 bits over the point's bits and checks no
+/// more that the scan's capacity (made by `begin`) is the same, and for widths known at
+/// compile time takes a full frame's length as the header and the points' bytes, not the
+/// scan's `full_len`: both hand-counted for every fixed-width encoding (6 payload bytes
+/// after the 2-byte data header).
+#[test]
+fn classic_capacity_is_the_runs_points_per_frame() {
+    // Points per classic frame, by distance (D16, D14, D12) and intensity (none, I16,
+    // I12, I8): 48 / (16 + 0, 16 + 16, 16 + 12, 16 + 8) and so on.
+    let expected = [[3, 1, 1, 2], [3, 1, 1, 2], [4, 1, 2, 2]];
+    // A full frame's bytes: 2 + the points' bits rounded up to bytes (D16: 48, 32, 28
+    // and 48 bits; D14: 42, 30, 26, 44; D12: 48, 28, 48, 40).
+    let lens = [[8, 6, 6, 8], [8, 6, 6, 8], [8, 6, 8, 7]];
+    let ids = IdWindow::DEFAULT.node(1).unwrap();
+    for (d, row) in expected.iter().enumerate() {
+        for (i, &points) in row.iter().enumerate() {
+            let enc = Encoding {
+                distance: DistanceEncoding::ALL[d],
+                intensity: IntensityEncoding::ALL[i],
+                unit_exp: 0,
+            };
+            let mut e = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+            e.begin(&header(10, enc)).unwrap();
+            let s = e.open.fixed().unwrap();
+            assert_eq!(s.capacity, points, "{enc:?}");
+            let bits = s.distance_bits + s.intensity_bits;
+            assert_eq!(48 / bits, u32::from(points));
+            let len = lens[d][i];
+            assert_eq!(s.full_len, len, "{enc:?}");
+            assert_eq!(2 + (usize::from(points) * bits as usize).div_ceil(8), len);
+        }
+    }
+}
