@@ -73,8 +73,7 @@ impl Decoder {
         }
         self.len = end;
         let used = n.wrapping_add(usize::from(ends));
-        // The stream offset and the byte counter wrap (after 2^64 bytes).
-        self.offset = self.offset.wrapping_add(used as u64);
+        // The byte counter, also the stream offset, wraps (after 2^64 bytes).
         self.stats.bytes = self.stats.bytes.wrapping_add(used as u64);
         Some((used, ends))
     }
@@ -97,8 +96,7 @@ impl Decoder {
             return false;
         }
         self.len = end;
-        // The stream offset and the byte counter wrap (after 2^64 bytes).
-        self.offset = self.offset.wrapping_add(input.len() as u64);
+        // The byte counter, also the stream offset, wraps (after 2^64 bytes).
         self.stats.bytes = self.stats.bytes.wrapping_add(input.len() as u64);
         true
     }
