@@ -91,28 +91,38 @@ impl Decoder {
         let Some(chars) = self.buf.first_chunk::<DATA_CHARS>() else {
             return Ok(());
         };
-        // Chars of the first whole step's value before it: 0, 2 or 1 (the step's rest).
-        let (head, off) = match self.carry_n {
-            0 => (false, 0),
-            1 => (true, 2),
-            _ => (true, 1),
+        // A char's 6 bits (a value char: no wrap, nothing above them).
+        let v = |c: u8| u32::from(c).wrapping_sub(u32::from(CHAR_MIN));
+        let &[c0, c1, ..] = chars;
+        let &[.., c62, c63] = chars;
+        // By the chars carried (0, 1 or 2): the step begun on the previous line
+        // completed by the line's first 0, 2 or 1 chars (`off`), the 21, 20 or 21 whole
+        // steps after them, and the 1, 2 or 0 chars left, carried. Straight-line: the
+        // 0 to 2 chars at either end of the line were taken by two char loops.
+        let (head, off, whole, carry, carry_n): (_, usize, usize, u32, u8) = match self.carry_n {
+            0 => (None, 0, 21, v(c63), 1),
+            1 => (
+                Some((self.carry << 12) | (v(c0) << 6) | v(c1)),
+                2,
+                20,
+                (v(c62) << 6) | v(c63),
+                2,
+            ),
+            _ => (Some((self.carry << 6) | v(c0)), 1, 21, 0, 0),
         };
-        // 21, 20, 21 whole steps; 1, 2, 0 chars left.
-        let whole: usize = if off == 2 { 20 } else { 21 };
-        let total = whole.wrapping_add(usize::from(head));
+        let total: usize = whole.wrapping_add(usize::from(head.is_some()));
         if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
             return Err(self.too_many());
         }
         let mut index = self.values;
-        let (first, slots) = self.readings.split_at_mut(usize::from(head));
-        if let Some(slot) = first.first_mut() {
-            slot.distance = continue_valid(self.carry, chars.get(..off).unwrap_or(&[]));
+        let (first, slots) = self.readings.split_at_mut(usize::from(head.is_some()));
+        if let (Some(slot), Some(distance)) = (first.first_mut(), head) {
+            slot.distance = distance;
             slot.index = index;
             index = index.wrapping_add(1);
         }
         // `off + 3 * 21` is at most 64: within the line.
-        let steps = chars.get(off..).unwrap_or(&[]);
-        let (mid, tail) = steps.split_at(whole.wrapping_mul(D).min(steps.len()));
+        let mid = chars.get(off..).unwrap_or(&[]);
         let slots = slots.get_mut(..whole).unwrap_or(&mut []);
         // The chars' address hidden from the optimiser: known as the line buffer's, the
         // loop indexes chars and slots by one counter (15 instructions a step on a
@@ -125,9 +135,8 @@ impl Decoder {
         self.echo_no = 0;
         self.values = index;
         self.n_readings = total;
-        self.carry = continue_valid(0, tail);
-        // 0, 1 or 2 chars: fits.
-        self.carry_n = tail.len() as u8;
+        self.carry = carry;
+        self.carry_n = carry_n;
         Ok(())
     }
 
