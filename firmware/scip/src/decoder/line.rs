@@ -73,8 +73,7 @@ impl Decoder {
         }
         self.len = end;
         let used = n.wrapping_add(usize::from(ends));
-        // The stream offset and the byte counter wrap (after 2^64 bytes).
-        self.offset = self.offset.wrapping_add(used as u64);
+        // The byte counter, also the stream offset, wraps (after 2^64 bytes).
         self.stats.bytes = self.stats.bytes.wrapping_add(used as u64);
         Some((used, ends))
     }
@@ -97,8 +96,7 @@ impl Decoder {
             return false;
         }
         self.len = end;
-        // The stream offset and the byte counter wrap (after 2^64 bytes).
-        self.offset = self.offset.wrapping_add(input.len() as u64);
+        // The byte counter, also the stream offset, wraps (after 2^64 bytes).
         self.stats.bytes = self.stats.bytes.wrapping_add(input.len() as u64);
         true
     }
@@ -174,9 +172,9 @@ pub(super) fn copy_line_words(src: &[u8], dst: &mut [u8]) {
 /// byte of `w - 0x30303030` has bit 6 or 7 set exactly when every byte is a value char
 /// (a byte below 0x30 flags itself, whatever it borrows), the flags gathered by OR and
 /// tested once at the end; the four values below 0x40 summed by one multiplication (no
-/// partial sum carries). The last one to three bytes are the last word's top bytes,
-/// read again overlapping the word before (those bytes shifted out), or, with fewer
-/// than four bytes in all, one at a time.
+/// partial sum carries). The last one to three bytes, taken first, are the last word's
+/// top bytes, read overlapping the word before (those bytes shifted out), or, with
+/// fewer than four bytes in all, one at a time.
 #[inline(always)]
 pub(super) fn copy_check_words(src: &[u8], dst: &mut [u8]) -> (u32, bool) {
     const FLAGS: u32 = 0xC0C0_C0C0;
@@ -186,6 +184,35 @@ pub(super) fn copy_check_words(src: &[u8], dst: &mut [u8]) -> (u32, bool) {
     }
     let (mut sum, mut flags) = (0u32, 0u32);
     let mut from = src.chunks_exact(4);
+    // The last one to three bytes first: after the word loop, what they need (the
+    // count, the destination) was kept on the stack on a Cortex-M4.
+    let tail = from.remainder().len();
+    if tail != 0 {
+        match (src.last_chunk::<4>(), dst.last_chunk_mut::<4>()) {
+            (Some(last), Some(out)) => {
+                // The word's low `4 - tail` bytes are checked and summed by the word
+                // loop (valid ones borrow nothing from the bytes above them). 1..=3: no
+                // wrap.
+                let v = u32::from_le_bytes(*last).wrapping_sub(CHARS)
+                    >> (32usize.wrapping_sub(tail.wrapping_mul(8)));
+                flags = v;
+                // The `0x30` of each of the `tail` bytes back (a word's four make 0
+                // mod 64).
+                sum = (v.wrapping_mul(0x0101_0101) >> 24)
+                    .wrapping_add((tail as u32).wrapping_mul(0x30));
+                *out = *last;
+            }
+            // Fewer than four bytes: no word above, and no word loop below.
+            _ => {
+                for (d, &c) in dst.iter_mut().zip(src) {
+                    *d = c;
+                    flags |= u32::from(c.wrapping_sub(CHAR_MIN));
+                    sum = sum.wrapping_add(u32::from(c));
+                }
+                return (sum, flags & FLAGS == 0);
+            }
+        }
+    }
     let mut to = dst.chunks_exact_mut(4);
     for (s, d) in (&mut from).zip(&mut to) {
         let Ok(four) = <[u8; 4]>::try_from(s) else {
@@ -196,32 +223,6 @@ pub(super) fn copy_check_words(src: &[u8], dst: &mut [u8]) -> (u32, bool) {
         d.copy_from_slice(&four);
         // The top byte of v·0x01010101 is the sum of v's four bytes.
         sum = sum.wrapping_add(v.wrapping_mul(0x0101_0101) >> 24);
-    }
-    let tail = from.remainder().len();
-    if tail != 0 {
-        match (src.last_chunk::<4>(), dst.last_chunk_mut::<4>()) {
-            (Some(last), Some(out)) => {
-                // The word's low `4 - tail` bytes were checked and summed above (valid
-                // ones borrow nothing from the bytes above them). 1..=3: no wrap.
-                let v = u32::from_le_bytes(*last).wrapping_sub(CHARS)
-                    >> (32usize.wrapping_sub(tail.wrapping_mul(8)));
-                flags |= v;
-                // The `0x30` of each of the `tail` bytes back (a word's four make 0
-                // mod 64).
-                sum = sum
-                    .wrapping_add(v.wrapping_mul(0x0101_0101) >> 24)
-                    .wrapping_add((tail as u32).wrapping_mul(0x30));
-                *out = *last;
-            }
-            // Fewer than four bytes: no word above.
-            _ => {
-                for (d, &c) in dst.iter_mut().zip(src) {
-                    *d = c;
-                    flags |= u32::from(c.wrapping_sub(CHAR_MIN));
-                    sum = sum.wrapping_add(u32::from(c));
-                }
-            }
-        }
     }
     (sum, flags & FLAGS == 0)
 }

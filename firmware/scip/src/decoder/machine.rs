@@ -12,7 +12,7 @@ impl Decoder {
         let empty = self.len == 0 && !self.overflow;
         match self.state {
             State::Idle if empty => {
-                self.line_start = self.offset;
+                self.line_start = self.stats.bytes;
                 false
             }
             State::Skip => {
@@ -26,14 +26,14 @@ impl Decoder {
                 }
                 self.len = 0;
                 self.overflow = false;
-                self.line_start = self.offset;
+                self.line_start = self.stats.bytes;
                 false
             }
             State::Payload(Payload::Ignore) if !empty => {
                 self.len = 0;
                 self.overflow = false;
                 self.line_no = self.line_no.saturating_add(1);
-                self.line_start = self.offset;
+                self.line_start = self.stats.bytes;
                 false
             }
             _ => true,
@@ -75,7 +75,7 @@ impl Decoder {
         self.len = 0;
         self.overflow = false;
         self.current_line = self.line_start;
-        self.line_start = self.offset;
+        self.line_start = self.stats.bytes;
         if overflow {
             return self.fail(ErrorKind::LineTooLong);
         }

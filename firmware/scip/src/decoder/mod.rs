@@ -209,7 +209,8 @@ pub struct Decoder {
     /// (see [`Self::take_line_bytes`]).
     sum: u32,
     bad: u32,
-    offset: u64,
+    /// Where the line being read starts in the stream: the bytes fed before it
+    /// (`stats.bytes` is the stream offset too).
     line_start: u64,
     current_line: u64,
     state: State,
@@ -274,7 +275,6 @@ impl Decoder {
             overflow: false,
             sum: 0,
             bad: 0,
-            offset: 0,
             line_start: 0,
             current_line: 0,
             state: State::Idle,
@@ -455,16 +455,14 @@ impl Decoder {
         let mut consumed: usize = 0;
         let mut rest = input;
         loop {
-            // The stream offset and the byte counter wrap (after 2^64 bytes).
+            // The byte counter, also the stream offset, wraps (after 2^64 bytes).
             let Some(lf) = self.take_line_bytes(rest) else {
-                self.offset = self.offset.wrapping_add(rest.len() as u64);
                 self.stats.bytes = self.stats.bytes.wrapping_add(rest.len() as u64);
                 return (input.len(), None);
             };
             // `lf` indexes `rest`, a tail of `input`: `consumed + lf + 1 <= input.len()`.
             let line = lf.wrapping_add(1);
             consumed = consumed.wrapping_add(line);
-            self.offset = self.offset.wrapping_add(line as u64);
             self.stats.bytes = self.stats.bytes.wrapping_add(line as u64);
             rest = rest.get(line..).unwrap_or(&[]);
             if self.line_has_event() {
@@ -490,7 +488,7 @@ impl Decoder {
         };
         self.state = State::Idle;
         self.current_line = self.line_start;
-        self.line_start = self.offset;
+        self.line_start = self.stats.bytes;
         if in_response {
             Some(self.error(ErrorKind::Truncated, line))
         } else {
