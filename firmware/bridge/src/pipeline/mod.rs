@@ -581,7 +581,9 @@ impl Pipeline {
         }
         let (sp, md) = (&mut h.speckle, &mut h.median);
         // The output is converted after decimation, or in the loops.
-        let (w, mut invalid, changed) = smooth::line(input, buf, line, sp, md, &mut t);
+        // The OR of every range the median changed with its new value (0: none).
+        let mut changed = 0u32;
+        let (w, mut invalid) = smooth::line(input, buf, line, sp, md, &mut t, &mut changed);
         (h.live, h.last_step, h.cluster, h.intensity) = (true, last_step, cluster, intensity);
         let mut m = w;
         if line.decimate {
@@ -600,7 +602,7 @@ impl Pipeline {
                 out_none,
             );
         }
-        Some(self.commit(&t.counts(m, invalid, changed)))
+        Some(self.commit(&t.counts(m, invalid, changed != 0)))
     }
 
     /// The slice of a run of `n` points from `first_step`, `cluster` steps apart, that
@@ -899,7 +901,8 @@ impl LineConsts {
 }
 
 /// What [`Pipeline::filter_line`]'s classification and speckle removal rejected in a
-/// line (each at most the line's points).
+/// line (each at most the line's points). Four words: cleared by four stores (a fifth
+/// made it a call to clear memory).
 #[derive(Default)]
 struct Tally {
     error_code: usize,
