@@ -842,6 +842,11 @@ struct LineConsts {
     span: u32,
     /// Whether no range of 0 can pass `rule`.
     zero_free: bool,
+    /// Whether the window stages' last gives its outputs in the encoder's form: no
+    /// decimation after and `zero_free` (worked out with it).
+    last: bool,
+    /// The points the median holds on each side of its centre (0: off).
+    half2: usize,
     /// The intensity threshold (0: none, or no intensities).
     min_intensity: u32,
     /// Speckle removal's threshold, when on.
@@ -873,6 +878,8 @@ impl LineConsts {
             low: 0,
             span: 0,
             zero_free: false,
+            last: false,
+            half2: config.median.map_or(0, MedianWidth::half),
             min_intensity: 0,
             jump: config.speckle.map(|f| f.max_jump_mm),
             median: config.median,
@@ -897,6 +904,7 @@ impl LineConsts {
             ..sensor
         };
         (self.low, self.span, self.zero_free) = smooth::span(&self.rule);
+        self.last = !self.decimate && self.zero_free;
     }
 }
 

@@ -16,7 +16,7 @@
 use scip::Reading;
 
 use super::window::{median_line, speckle3_line, Regs};
-use super::{LineConsts, MedianWidth, Tally};
+use super::{LineConsts, Tally};
 
 /// No range, inside a line.
 pub(super) const NONE: u32 = u32::MAX;
@@ -30,10 +30,12 @@ pub const LINE_HEADROOM: usize = 3;
 /// by a missing neighbour.
 const SMALL: u32 = 1 << 31;
 
-/// Whether `d` is no range or a range below [`SMALL`].
+/// `d` with its top bit clear exactly when `d` is no range or a range below
+/// [`SMALL`] (so that one test of an OR covers several: `d & (d + 1)`, the `+ 1`
+/// wrapping no range to 0 and a range from 2^31 on staying at or above it).
 #[inline(always)]
-fn small(d: u32) -> bool {
-    d.wrapping_add(1) <= SMALL
+fn small_bit(d: u32) -> u32 {
+    d & d.wrapping_add(1)
 }
 
 /// The window stages of [`super::Pipeline::filter_line`] (speckle removal and/or the
@@ -53,7 +55,7 @@ pub(super) fn line(
     c: &mut Tally,
     changed: &mut u32,
 ) -> (usize, usize) {
-    let half2 = k.median.map_or(0, MedianWidth::half);
+    let half2 = k.half2;
     // The points each window holds, in stream order: the median's, then speckle
     // removal's (the later points), then the line.
     let np1 = if k.jump.is_some() { sp.np.min(1) } else { 0 };
@@ -80,11 +82,11 @@ pub(super) fn line(
 
     // Without decimation after and with no range of 0 possible, the last stage gives
     // its outputs in the encoder's form; otherwise no range stays NONE.
-    let last = !k.decimate && k.zero_free;
-    let none = if last { k.out_none } else { NONE };
+    let none = if k.last { k.out_none } else { NONE };
     // The loops' quick tests hold when every range is below SMALL (else every point
-    // takes the exact rule).
-    let small_held = |r: &Regs| small(r.b1) && small(r.p0.0);
+    // takes the exact rule): `x & (x + 1)` has its top bit clear exactly when `x` is
+    // no range or below SMALL (one OR for the two).
+    let small_held = |r: &Regs| (small_bit(r.b1) | small_bit(r.p0.0)) < SMALL;
     let exact = big || !small_held(md) || k.jump.is_some_and(|j| j >= SMALL || !small_held(sp));
     let jump = k.jump.unwrap_or(0);
 
@@ -116,11 +118,13 @@ pub(super) fn line(
             *changed |= diff;
         }
     }
-    if k.decimate {
-        // Counted after decimation.
-        invalid = 0;
-    } else if !last {
-        invalid = finish(all.get_mut(..out).unwrap_or_default(), k.out_none);
+    if !k.last {
+        invalid = if k.decimate {
+            // Counted after decimation.
+            0
+        } else {
+            finish(all.get_mut(..out).unwrap_or_default(), k.out_none)
+        };
     }
     (out, invalid)
 }
@@ -630,6 +634,26 @@ mod tests {
         let mut s = v;
         s.sort_unstable();
         s[2]
+    }
+
+    #[test]
+    fn small_bit_is_the_rule_written_plainly() {
+        for d in [
+            0,
+            1,
+            1000,
+            SMALL - 2,
+            SMALL - 1,
+            SMALL,
+            SMALL + 1,
+            0xC000_0000,
+            NONE - 2,
+            NONE - 1,
+            NONE,
+        ] {
+            let small = d == NONE || d < 1 << 31;
+            assert_eq!(small_bit(d) >> 31 == 0, small, "{d:#x}");
+        }
     }
 
     #[test]
