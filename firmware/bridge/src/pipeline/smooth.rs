@@ -209,6 +209,9 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
 /// complement and `c` a range (its top bit clear), exact for ranges below 2^31 (with
 /// a neighbour missing the test can only pass when the answer is the centre too), so
 /// that no quick output is no range.
+// (The counts go out through `t` and `changed`: two outputs in registers, not a
+// four-value return through memory.)
+#[allow(clippy::too_many_arguments)]
 #[inline(never)]
 fn stages<const SP: bool, const MD: bool>(
     d: &mut [Reading],
