@@ -95,7 +95,10 @@ pub(super) fn line(
     let (out, mut invalid);
     if half2 < 2 && (k.jump.is_none() || np2 == half2) {
         (out, invalid) = match (k.jump.is_some(), half2 > 0) {
-            (true, true) => stages::<true, true>(all, jump, exact, sp, md, none, c, changed),
+            // Both stages by the exact rules: a loop of their own (the quick loop then
+            // holds no `exact`).
+            (true, true) if exact => stages_exact(all, jump, sp, md, none, c, changed),
+            (true, true) => stages::<true, true>(all, jump, false, sp, md, none, c, changed),
             (true, false) => stages::<true, false>(all, jump, exact, sp, md, none, c, changed),
             _ => stages::<false, true>(all, jump, exact, sp, md, none, c, changed),
         };
@@ -203,7 +206,8 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
 ///
 /// Each stage first tries a quick test that holds when every range is below [`SMALL`]
 /// (else the caller sets `exact` and every point takes the exact rule; with both
-/// stages on, in [`stages_exact`]). Speckle removal: a centre within `jump` of the
+/// stages on, the caller takes [`stages_exact`] instead: `exact` is then ignored).
+/// Speckle removal: a centre within `jump` of the
 /// point before it stays. The median: a centre between its neighbours is the median,
 /// found by one sign test, (c - b) and (s - c) of the same sign in 32-bit two's
 /// complement and `c` a range (its top bit clear), exact for ranges below 2^31 (with
@@ -225,11 +229,6 @@ fn stages<const SP: bool, const MD: bool>(
 ) -> (usize, usize) {
     let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
     let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
-    // Both stages by the exact rules in a loop of their own (the quick loop then holds
-    // no `exact` in its registers).
-    if SP && MD && exact {
-        return stages_exact(d, jump, sp, md, none, t, changed);
-    }
     let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
     // The quick tests made to fail when `exact`.
     let quick_jump = if exact && !MD { 0 } else { jump };
@@ -615,7 +614,12 @@ mod tests {
         none: u32,
     ) -> (usize, usize, u32, usize) {
         let (mut t, mut changed) = (Tally::default(), 0);
-        let (out, invalid) = stages::<SP, MD>(d, jump, exact, sp, md, none, &mut t, &mut changed);
+        // As `line` takes them: both stages by the exact rules in `stages_exact`.
+        let (out, invalid) = if SP && MD && exact {
+            stages_exact(d, jump, sp, md, none, &mut t, &mut changed)
+        } else {
+            stages::<SP, MD>(d, jump, exact, sp, md, none, &mut t, &mut changed)
+        };
         (out, invalid, changed, t.speckle)
     }
 
