@@ -581,7 +581,9 @@ impl Pipeline {
         }
         let (sp, md) = (&mut h.speckle, &mut h.median);
         // The output is converted after decimation, or in the loops.
-        let (w, mut invalid, changed) = smooth::line(input, buf, line, sp, md, &mut t);
+        // The OR of every range the median changed with its new value (0: none).
+        let mut changed = 0u32;
+        let (w, mut invalid) = smooth::line(input, buf, line, sp, md, &mut t, &mut changed);
         (h.live, h.last_step, h.cluster, h.intensity) = (true, last_step, cluster, intensity);
         let mut m = w;
         if line.decimate {
@@ -600,7 +602,7 @@ impl Pipeline {
                 out_none,
             );
         }
-        Some(self.commit(&t.counts(m, invalid, changed)))
+        Some(self.commit(&t.counts(m, invalid, changed != 0)))
     }
 
     /// The slice of a run of `n` points from `first_step`, `cluster` steps apart, that
@@ -840,6 +842,11 @@ struct LineConsts {
     span: u32,
     /// Whether no range of 0 can pass `rule`.
     zero_free: bool,
+    /// Whether the window stages' last gives its outputs in the encoder's form: no
+    /// decimation after and `zero_free` (worked out with it).
+    last: bool,
+    /// The points the median holds on each side of its centre (0: off).
+    half2: usize,
     /// The intensity threshold (0: none, or no intensities).
     min_intensity: u32,
     /// Speckle removal's threshold, when on.
@@ -871,6 +878,8 @@ impl LineConsts {
             low: 0,
             span: 0,
             zero_free: false,
+            last: false,
+            half2: config.median.map_or(0, MedianWidth::half),
             min_intensity: 0,
             jump: config.speckle.map(|f| f.max_jump_mm),
             median: config.median,
@@ -895,11 +904,13 @@ impl LineConsts {
             ..sensor
         };
         (self.low, self.span, self.zero_free) = smooth::span(&self.rule);
+        self.last = !self.decimate && self.zero_free;
     }
 }
 
 /// What [`Pipeline::filter_line`]'s classification and speckle removal rejected in a
-/// line (each at most the line's points).
+/// line (each at most the line's points). Four words: cleared by four stores (a fifth
+/// made it a call to clear memory).
 #[derive(Default)]
 struct Tally {
     error_code: usize,

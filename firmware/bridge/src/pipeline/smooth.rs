@@ -16,7 +16,7 @@
 use scip::Reading;
 
 use super::window::{median_line, speckle3_line, Regs};
-use super::{LineConsts, MedianWidth, Tally};
+use super::{LineConsts, Tally};
 
 /// No range, inside a line.
 pub(super) const NONE: u32 = u32::MAX;
@@ -30,18 +30,21 @@ pub const LINE_HEADROOM: usize = 3;
 /// by a missing neighbour.
 const SMALL: u32 = 1 << 31;
 
-/// Whether `d` is no range or a range below [`SMALL`].
+/// `d` with its top bit clear exactly when `d` is no range or a range below
+/// [`SMALL`] (so that one test of an OR covers several: `d & (d + 1)`, the `+ 1`
+/// wrapping no range to 0 and a range from 2^31 on staying at or above it).
 #[inline(always)]
-fn small(d: u32) -> bool {
-    d.wrapping_add(1) <= SMALL
+fn small_bit(d: u32) -> u32 {
+    d & d.wrapping_add(1)
 }
 
 /// The window stages of [`super::Pipeline::filter_line`] (speckle removal and/or the
 /// median; the caller has checked that one is on) over the line's readings `input`,
 /// with the windows' state `sp` and `md`; `cells` holds at least [`LINE_HEADROOM`]
 /// more than `input`. The output points go to the front of `cells`. Returns their
-/// number, how many of them have no range (when not decimating: they are then in the
-/// encoder's form) and whether the median changed a range.
+/// number and how many of them have no range (when not decimating: they are then in the
+/// encoder's form); ORs into `changed` every range the median changed with its new
+/// value.
 #[inline(never)]
 pub(super) fn line(
     input: &[Reading],
@@ -50,8 +53,9 @@ pub(super) fn line(
     sp: &mut Regs,
     md: &mut Regs,
     c: &mut Tally,
-) -> (usize, usize, bool) {
-    let half2 = k.median.map_or(0, MedianWidth::half);
+    changed: &mut u32,
+) -> (usize, usize) {
+    let half2 = k.half2;
     // The points each window holds, in stream order: the median's, then speckle
     // removal's (the later points), then the line.
     let np1 = if k.jump.is_some() { sp.np.min(1) } else { 0 };
@@ -72,57 +76,60 @@ pub(super) fn line(
         (cell.distance, cell.aux) = sp.p0;
     }
     let Some(all) = cells.get_mut(..head.wrapping_add(m)) else {
-        return (0, 0, false);
+        return (0, 0);
     };
     let big = classify(input, all.get_mut(head..).unwrap_or_default(), k, c);
 
     // Without decimation after and with no range of 0 possible, the last stage gives
     // its outputs in the encoder's form; otherwise no range stays NONE.
-    let last = !k.decimate && k.zero_free;
-    let none = if last { k.out_none } else { NONE };
+    let none = if k.last { k.out_none } else { NONE };
     // The loops' quick tests hold when every range is below SMALL (else every point
-    // takes the exact rule).
-    let small_held = |r: &Regs| small(r.b1) && small(r.p0.0);
+    // takes the exact rule): `x & (x + 1)` has its top bit clear exactly when `x` is
+    // no range or below SMALL (one OR for the two).
+    let small_held = |r: &Regs| (small_bit(r.b1) | small_bit(r.p0.0)) < SMALL;
     let exact = big || !small_held(md) || k.jump.is_some_and(|j| j >= SMALL || !small_held(sp));
     let jump = k.jump.unwrap_or(0);
 
     // The common case, every stage in one loop (the median's point held from the line
     // before, when both are on); otherwise a loop per stage.
-    let (out, mut invalid, diff);
+    let (out, mut invalid);
     if half2 < 2 && (k.jump.is_none() || np2 == half2) {
-        let removed;
-        (out, invalid, diff, removed) = match (k.jump.is_some(), half2 > 0) {
-            (true, true) => stages::<true, true>(all, jump, exact, sp, md, none),
-            (true, false) => stages::<true, false>(all, jump, exact, sp, md, none),
-            _ => stages::<false, true>(all, jump, exact, sp, md, none),
+        (out, invalid) = match (k.jump.is_some(), half2 > 0) {
+            // Both stages by the exact rules: a loop of their own (the quick loop then
+            // holds no `exact`).
+            (true, true) if exact => stages_exact(all, jump, sp, md, none, c, changed),
+            (true, true) => stages::<true, true>(all, jump, false, sp, md, none, c, changed),
+            (true, false) => stages::<true, false>(all, jump, exact, sp, md, none, c, changed),
+            _ => stages::<false, true>(all, jump, exact, sp, md, none, c, changed),
         };
-        c.speckle = c.speckle.wrapping_add(removed);
     } else {
         // Speckle removal over its held point and the line: its outputs stay in place.
         let mut o1 = m;
         if k.jump.is_some() {
             let region = all.get_mut(np2..).unwrap_or_default();
-            let removed;
-            (o1, _, _, removed) = stages::<true, false>(region, jump, exact, sp, md, NONE);
-            c.speckle = c.speckle.wrapping_add(removed);
+            (o1, _) = stages::<true, false>(region, jump, exact, sp, md, NONE, c, changed);
         }
         // The median over its held points and the previous stage's outputs.
         let l2 = np2.wrapping_add(o1);
         let region = all.get_mut(..l2).unwrap_or_default();
         if half2 < 2 {
-            (out, invalid, diff, _) = stages::<false, true>(region, 0, exact, sp, md, none);
+            (out, invalid) = stages::<false, true>(region, 0, exact, sp, md, none, c, changed);
         } else {
             out = l2.saturating_sub(half2);
+            let diff;
             (diff, invalid) = median5(region, md, none);
+            *changed |= diff;
         }
     }
-    if k.decimate {
-        // Counted after decimation.
-        invalid = 0;
-    } else if !last {
-        invalid = finish(all.get_mut(..out).unwrap_or_default(), k.out_none);
+    if !k.last {
+        invalid = if k.decimate {
+            // Counted after decimation.
+            0
+        } else {
+            finish(all.get_mut(..out).unwrap_or_default(), k.out_none)
+        };
     }
-    (out, invalid, diff != 0)
+    (out, invalid)
 }
 
 /// The median of 3 of a centre `c` that [`stages`]' test did not pass: a missing
@@ -193,17 +200,22 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
 /// one, and it is speckle removal's output for the point before speckle removal's
 /// held centre, `sp.b1` or no range). The windows' state is carried in registers from `sp` and `md` and stored
 /// back after; the outputs go to the front of `d`, no range as `none`. Returns the
-/// number of outputs, how many of them have no range, the OR of every range the median
-/// changed with its new value, and the number of ranges speckle removal took.
+/// number of outputs and how many of them have no range; ORs into `changed` every
+/// range the median changed with its new value and adds the ranges speckle removal
+/// took to `t.speckle` (two values returned in registers, the rest once a line).
 ///
 /// Each stage first tries a quick test that holds when every range is below [`SMALL`]
 /// (else the caller sets `exact` and every point takes the exact rule; with both
-/// stages on, in [`stages_exact`]). Speckle removal: a centre within `jump` of the
+/// stages on, the caller takes [`stages_exact`] instead: `exact` is then ignored).
+/// Speckle removal: a centre within `jump` of the
 /// point before it stays. The median: a centre between its neighbours is the median,
 /// found by one sign test, (c - b) and (s - c) of the same sign in 32-bit two's
 /// complement and `c` a range (its top bit clear), exact for ranges below 2^31 (with
 /// a neighbour missing the test can only pass when the answer is the centre too), so
 /// that no quick output is no range.
+// (The counts go out through `t` and `changed`: two outputs in registers, not a
+// four-value return through memory.)
+#[allow(clippy::too_many_arguments)]
 #[inline(never)]
 fn stages<const SP: bool, const MD: bool>(
     d: &mut [Reading],
@@ -212,14 +224,11 @@ fn stages<const SP: bool, const MD: bool>(
     sp: &mut Regs,
     md: &mut Regs,
     none: u32,
-) -> (usize, usize, u32, usize) {
+    t: &mut Tally,
+    changed: &mut u32,
+) -> (usize, usize) {
     let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
     let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
-    // Both stages by the exact rules in a loop of their own (the quick loop then holds
-    // no `exact` in its registers).
-    if SP && MD && exact {
-        return stages_exact(d, jump, sp, md, none);
-    }
     let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
     // The quick tests made to fail when `exact`.
     let quick_jump = if exact && !MD { 0 } else { jump };
@@ -298,7 +307,10 @@ fn stages<const SP: bool, const MD: bool>(
         md.b1 = bm;
         md.p0 = (cm, aux(d, out));
     }
-    (out, invalid, diff, removed)
+    // At most the line's points: no wrap.
+    t.speckle = t.speckle.wrapping_add(removed);
+    *changed |= diff;
+    (out, invalid)
 }
 
 /// [`stages`] with both stages on, by the exact rules (any ranges and threshold):
@@ -310,7 +322,9 @@ fn stages_exact(
     sp: &mut Regs,
     md: &mut Regs,
     none: u32,
-) -> (usize, usize, u32, usize) {
+    t: &mut Tally,
+    changed: &mut u32,
+) -> (usize, usize) {
     let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
     let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
     let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
@@ -341,7 +355,10 @@ fn stages_exact(
         md.b1 = bm;
         md.p0 = (cm, aux(d, out));
     }
-    (out, invalid, diff, removed)
+    // At most the line's points: no wrap.
+    t.speckle = t.speckle.wrapping_add(removed);
+    *changed |= diff;
+    (out, invalid)
 }
 
 /// What [`classify`] works out of a rule, once per rule ([`LineConsts`] keeps it): the
@@ -586,6 +603,26 @@ mod tests {
         c.iter().map(|r| r.distance).collect()
     }
 
+    /// `stages` with its counts returned: outputs, outputs without a range, the
+    /// median's OR of changes, speckle removal's count.
+    fn st<const SP: bool, const MD: bool>(
+        d: &mut [Reading],
+        jump: u32,
+        exact: bool,
+        sp: &mut Regs,
+        md: &mut Regs,
+        none: u32,
+    ) -> (usize, usize, u32, usize) {
+        let (mut t, mut changed) = (Tally::default(), 0);
+        // As `line` takes them: both stages by the exact rules in `stages_exact`.
+        let (out, invalid) = if SP && MD && exact {
+            stages_exact(d, jump, sp, md, none, &mut t, &mut changed)
+        } else {
+            stages::<SP, MD>(d, jump, exact, sp, md, none, &mut t, &mut changed)
+        };
+        (out, invalid, changed, t.speckle)
+    }
+
     /// `median5` with the two distances before the first centre `b` (nearest first;
     /// updated likewise) as its only state.
     fn median5_b(s: &mut [Reading], b: &mut [u32; 2], none: u32) -> (u32, usize) {
@@ -604,6 +641,26 @@ mod tests {
         let mut s = v;
         s.sort_unstable();
         s[2]
+    }
+
+    #[test]
+    fn small_bit_is_the_rule_written_plainly() {
+        for d in [
+            0,
+            1,
+            1000,
+            SMALL - 2,
+            SMALL - 1,
+            SMALL,
+            SMALL + 1,
+            0xC000_0000,
+            NONE - 2,
+            NONE - 1,
+            NONE,
+        ] {
+            let small = d == NONE || d < 1 << 31;
+            assert_eq!(small_bit(d) >> 31 == 0, small, "{d:#x}");
+        }
     }
 
     #[test]
@@ -629,7 +686,7 @@ mod tests {
             b1: NONE,
             ..Regs::default()
         };
-        let r = stages::<true, false>(&mut s, 20, true, &mut sp, &mut Regs::default(), NONE);
+        let r = st::<true, false>(&mut s, 20, true, &mut sp, &mut Regs::default(), NONE);
         assert_eq!((r.0, r.3, s[0].distance), (1, 1, NONE));
         // The median of 1, 2^32 - 6 and 2^31 + 1 (three ranges) is 2^31 + 1 (the
         // differences wrap as 32-bit signed values: both negative).
@@ -638,7 +695,7 @@ mod tests {
             b1: 1,
             ..Regs::default()
         };
-        let r = stages::<false, true>(&mut s, 0, true, &mut Regs::default(), &mut md, NONE);
+        let r = st::<false, true>(&mut s, 0, true, &mut Regs::default(), &mut md, NONE);
         assert_eq!((r.0, s[0].distance), (1, (1 << 31) + 1));
         assert_ne!(r.2, 0);
     }
@@ -656,7 +713,7 @@ mod tests {
                     ..Regs::default()
                 };
                 let (out, invalid, diff, _) =
-                    stages::<false, true>(s, 0, exact, &mut Regs::default(), &mut md, none);
+                    st::<false, true>(s, 0, exact, &mut Regs::default(), &mut md, none);
                 (out, invalid, diff, md.b1)
             };
             let mut s = cells(&[9999, 1002, 1004, NONE, 1010]);
@@ -676,7 +733,7 @@ mod tests {
                 ..Regs::default()
             };
             let (out, _, _, removed) =
-                stages::<true, false>(&mut s, 5, exact, &mut sp, &mut Regs::default(), NONE);
+                st::<true, false>(&mut s, 5, exact, &mut sp, &mut Regs::default(), NONE);
             assert_eq!((out, removed), (4, 2));
             assert_eq!(dist(&s), [1000, NONE, NONE, NONE, 3010]);
             assert_eq!((sp.b1, sp.p0.0, sp.np), (3000, 3010, 1));
@@ -955,7 +1012,7 @@ mod tests {
             ..Regs::default()
         };
         let (out, invalid, diff, removed) =
-            stages::<SP, MD>(&mut c, jump, exact, &mut sp, &mut md, none);
+            st::<SP, MD>(&mut c, jump, exact, &mut sp, &mut md, none);
         let regs = [sp.b1, sp.p0.0, md.b1, md.p0.0];
         (dist(&c[..out]), invalid, diff != 0, removed, regs)
     }
