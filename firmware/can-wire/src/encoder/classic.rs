@@ -128,10 +128,12 @@ impl ScanEncoder {
                         break;
                     }
                     // The sink gave at most as many slots as frames are left: each is
-                    // written (one loop counter: the zip of two slices).
+                    // written (one loop counter: the zip of two slices). The zip runs
+                    // over all of `left`, whose frame count was just asked for (its
+                    // length is the smaller of that and `given`: no second division).
                     let given = slots.len();
-                    let (these, later) = left.split_at(given.wrapping_mul(cap).min(left.len()));
-                    left = later;
+                    let these = left;
+                    left = left.get(given.wrapping_mul(cap)..).unwrap_or(&[]);
                     for (frame, chunk) in slots.iter_mut().zip(these.chunks_exact(cap)) {
                         let h = u64::from(header);
                         let word = if known {
