@@ -167,7 +167,7 @@ impl ScanEncoder {
                     j = end;
                     match sink.data_slot() {
                         Some(frame) => {
-                            frame.set_classic(id, word.to_le_bytes(), len);
+                            frame.set_classic_as(id, word.to_le_bytes(), Frame::classic_shape(len));
                             run.frames = run.frames.wrapping_add(1);
                         }
                         None => lost = true,
@@ -279,7 +279,7 @@ impl Begun {
             s.buffered = s.buffered.wrapping_sub(n as u16);
             match sink.data_slot() {
                 Some(frame) => {
-                    frame.set_classic(id, word.to_le_bytes(), len);
+                    frame.set_classic_as(id, word.to_le_bytes(), Frame::classic_shape(len));
                     *frames = frames.wrapping_add(1);
                 }
                 None => return Ok((k, true)),
