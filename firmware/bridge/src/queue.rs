@@ -5,7 +5,9 @@
 //! bytes over it. Here every slot always holds an initialised frame, and
 //! [`FrameQueue::push_back_slot`] hands out the next one as it is: [`Frame::set`] then
 //! writes only the new frame's bytes (and zeroes what an older, longer frame left), so a
-//! classic data frame costs its 8 bytes.
+//! classic data frame costs its 8 bytes. A CAN FD frame's bytes past the 8th are
+//! cleared as it leaves its slot: a free slot holds none, as the encoder's
+//! [`can_wire::FrameSink`] wants of the slots it writes classic frames into.
 
 use can_wire::Frame;
 
@@ -128,7 +130,11 @@ impl<const Q: usize> FrameQueue<Q> {
         if self.len == 0 {
             return None;
         }
-        let frame = self.slots.get(self.head).copied();
+        let frame = self.slots.get_mut(self.head).map(|slot| {
+            let frame = *slot;
+            slot.clear_fd_bytes();
+            frame
+        });
         self.head = self.slot(1);
         // `len > 0` here.
         self.len = self.len.wrapping_sub(1);
@@ -142,7 +148,11 @@ impl<const Q: usize> FrameQueue<Q> {
         if self.len == 0 {
             return None;
         }
-        let out = self.slots.get(self.head).map(f);
+        let out = self.slots.get_mut(self.head).map(|slot| {
+            let out = f(slot);
+            slot.clear_fd_bytes();
+            out
+        });
         self.head = self.slot(1);
         // `len > 0` here.
         self.len = self.len.wrapping_sub(1);
@@ -151,7 +161,15 @@ impl<const Q: usize> FrameQueue<Q> {
 
     /// Drops the back frame (one just pushed that turned out not to be wanted).
     pub fn pop_back(&mut self) {
-        self.len = self.len.saturating_sub(1);
+        if self.len == 0 {
+            return;
+        }
+        // `len > 0` here.
+        self.len = self.len.wrapping_sub(1);
+        let k = self.slot(self.len);
+        if let Some(slot) = self.slots.get_mut(k) {
+            slot.clear_fd_bytes();
+        }
     }
 
     /// The frames, front first.
@@ -203,6 +221,50 @@ mod tests {
         q.pop_back();
         assert_eq!(q.len(), 2);
         assert_eq!(q.free(), 1);
+    }
+
+    /// A CAN FD frame leaves its slot (by each of the three pops) with its bytes past
+    /// the 8th cleared: a classic frame then set there with plain stores (the
+    /// encoder's `set_classic_as`) is the frame `Frame::new` makes, every byte; the
+    /// frame popped is the FD frame whole.
+    #[test]
+    fn a_free_slot_holds_no_fd_byte() {
+        let id = Id::Standard(StandardId::new(0x155).unwrap());
+        let fd = Frame::new(id, &[0xEE; 64], true).unwrap();
+        let fd12 = Frame::new(id, &[0xDD; 12], true).unwrap();
+        let classic = Frame::new(id, &[1, 2, 3, 4, 5, 6, 7, 8], false).unwrap();
+        let shape = Frame::classic_shape(8);
+        for pop in 0..3 {
+            let mut q = FrameQueue::<2>::new();
+            q.push_back(fd).unwrap();
+            q.push_back(fd12).unwrap();
+            match pop {
+                0 => {
+                    assert_eq!(q.pop_front(), Some(fd));
+                    assert_eq!(q.pop_front(), Some(fd12));
+                }
+                1 => {
+                    assert_eq!(q.pop_front_with(|f| *f), Some(fd));
+                    assert_eq!(q.pop_front_with(|f| *f), Some(fd12));
+                }
+                _ => {
+                    q.pop_back();
+                    q.pop_back();
+                }
+            }
+            assert!(q.is_empty());
+            // Both slots again, from wherever the ring's back is now.
+            let mut n = 0;
+            while n < 2 {
+                let slots = q.push_back_slots(2 - n);
+                assert!(!slots.is_empty());
+                n += slots.len();
+                for slot in slots {
+                    slot.set_classic_as(id, [1, 2, 3, 4, 5, 6, 7, 8], shape);
+                }
+            }
+            assert_eq!(q.iter().copied().collect::<Vec<_>>(), [classic, classic]);
+        }
     }
 
     #[test]

@@ -144,10 +144,22 @@ impl Frame {
 
     /// Makes this a classic frame of the first `len` (at most 8) of `data`, whose bytes
     /// past `len` must be zero: [`Frame::set`] for a payload built in a 64-bit word. A
-    /// longer `len` is cut to 8.
+    /// longer `len` is cut to 8. Any frame may be set so (an older CAN FD frame's bytes
+    /// past the 8th are cleared).
     #[inline]
     pub fn set_classic(&mut self, id: Id, data: [u8; CLASSIC_LEN], len: usize) {
+        self.clear_fd_bytes();
         self.set_classic_as(id, data, Frame::classic_shape(len));
+    }
+
+    /// Zeroes the payload bytes past the 8th (a CAN FD frame's, none for a classic
+    /// frame), keeping the rest: for a slot whose frame has left, so that it holds no
+    /// byte past a classic frame's, as [`Frame::set_classic_as`] wants.
+    #[inline]
+    pub fn clear_fd_bytes(&mut self) {
+        if usize::from(self.shape.len()) > CLASSIC_LEN {
+            self.clear_past_classic();
+        }
     }
 
     /// The length and format of a classic frame of `len` bytes (at most 8; a longer
@@ -158,13 +170,14 @@ impl Frame {
     }
 
     /// [`Frame::set_classic`] with the length and format made beforehand
-    /// ([`Frame::classic_shape`]): a run of frames of one length writes each frame's
-    /// payload word, identifier and shape, and nothing else.
+    /// ([`Frame::classic_shape`]) over a frame with no byte past the 8th (a classic
+    /// frame, a default one, or one whose [`Frame::clear_fd_bytes`] ran: the data slots
+    /// a [`crate::encoder::FrameSink`] hands out): a run of frames of one length writes
+    /// each frame's payload word, identifier and shape, and nothing else. Over a CAN FD
+    /// frame the payload and length are still this frame's, but the older bytes past
+    /// the 8th stay in the slot (and the frame compares unequal to [`Frame::new`]'s).
     #[inline(always)]
     pub fn set_classic_as(&mut self, id: Id, data: [u8; CLASSIC_LEN], shape: ClassicShape) {
-        if usize::from(self.shape.len()) > CLASSIC_LEN {
-            self.clear_past_classic();
-        }
         if let Some(head) = self.data.first_chunk_mut::<CLASSIC_LEN>() {
             *head = data;
         }
@@ -172,8 +185,8 @@ impl Frame {
         self.shape = shape.0;
     }
 
-    /// Zeroes the payload bytes past a classic frame's 8 that an older, longer frame
-    /// left ([`Frame::set_classic`] over an FD frame's slot: rare, out of line).
+    /// Zeroes the payload bytes past a classic frame's 8 that a CAN FD frame holds
+    /// ([`Frame::clear_fd_bytes`]: rare, out of line).
     #[cold]
     #[inline(never)]
     fn clear_past_classic(&mut self) {
@@ -293,6 +306,44 @@ mod tests {
             Frame::default(),
             Frame::new(Id::Standard(StandardId::ZERO), &[], false).unwrap()
         );
+    }
+
+    /// A CAN FD frame's slot cleared past the 8th byte, then set as a classic frame
+    /// with plain stores, is the classic frame `new` makes (every byte, by `==`); so is
+    /// `set_classic` over an uncleared FD frame. Without the clearing the older bytes
+    /// would stay (hand-built expectations, not the code's own output).
+    #[test]
+    fn classic_over_a_cleared_fd_slot_equals_new() {
+        let payload = [1, 2, 3, 4, 5, 6, 7, 8];
+        let want = Frame::new(id(), &payload, false).unwrap();
+        for fd_len in [12, 16, 64] {
+            let mut slot = Frame::new(id(), &[0xEE; 64][..fd_len], true).unwrap();
+            slot.clear_fd_bytes();
+            // The first 8 bytes are kept, the rest is zero, the shape is the FD frame's.
+            assert_eq!(slot.len(), fd_len);
+            assert!(slot.is_fd());
+            let mut bytes = [0u8; 64];
+            bytes[..8].fill(0xEE);
+            assert_eq!(slot.data(), &bytes[..fd_len]);
+            slot.set_classic_as(id(), payload, Frame::classic_shape(8));
+            assert_eq!(slot, want);
+            assert_eq!(slot.data(), &payload);
+            let mut slot = Frame::new(id(), &[0xEE; 64][..fd_len], true).unwrap();
+            slot.set_classic(id(), [9, 9, 9, 0, 0, 0, 0, 0], 3);
+            assert_eq!(slot, Frame::new(id(), &[9, 9, 9], false).unwrap());
+        }
+        // A classic frame (edge: 8 bytes, and 0) loses nothing to the clearing.
+        let mut f = want;
+        f.clear_fd_bytes();
+        assert_eq!(f, want);
+        let mut e = Frame::default();
+        e.clear_fd_bytes();
+        assert_eq!(e, Frame::default());
+        // Uncleared, the FD frame's byte 8 onwards would stay: the frames differ.
+        let mut raw = Frame::new(id(), &[0xEE; 12], true).unwrap();
+        raw.set_classic_as(id(), payload, Frame::classic_shape(8));
+        assert_eq!(raw.data(), &payload);
+        assert_ne!(raw, want);
     }
 
     #[test]

@@ -128,10 +128,12 @@ impl ScanEncoder {
                         break;
                     }
                     // The sink gave at most as many slots as frames are left: each is
-                    // written (one loop counter: the zip of two slices).
+                    // written (one loop counter: the zip of two slices). The zip runs
+                    // over all of `left`, whose frame count was just asked for (its
+                    // length is the smaller of that and `given`: no second division).
                     let given = slots.len();
-                    let (these, later) = left.split_at(given.wrapping_mul(cap).min(left.len()));
-                    left = later;
+                    let these = left;
+                    left = left.get(given.wrapping_mul(cap)..).unwrap_or(&[]);
                     for (frame, chunk) in slots.iter_mut().zip(these.chunks_exact(cap)) {
                         let h = u64::from(header);
                         let word = if known {
@@ -165,7 +167,7 @@ impl ScanEncoder {
                     j = end;
                     match sink.data_slot() {
                         Some(frame) => {
-                            frame.set_classic(id, word.to_le_bytes(), len);
+                            frame.set_classic_as(id, word.to_le_bytes(), Frame::classic_shape(len));
                             run.frames = run.frames.wrapping_add(1);
                         }
                         None => lost = true,
@@ -277,7 +279,7 @@ impl Begun {
             s.buffered = s.buffered.wrapping_sub(n as u16);
             match sink.data_slot() {
                 Some(frame) => {
-                    frame.set_classic(id, word.to_le_bytes(), len);
+                    frame.set_classic_as(id, word.to_le_bytes(), Frame::classic_shape(len));
                     *frames = frames.wrapping_add(1);
                 }
                 None => return Ok((k, true)),

@@ -170,6 +170,11 @@ impl Open {
 /// Where [`ScanEncoder::push_run`] puts data frames as they fill: typically a transmit
 /// queue, whose new back slot the frame is written into in place (on a 32-bit MCU a
 /// frame moved by value is a 76-byte copy).
+///
+/// Every slot it hands out holds no payload byte past the 8th (a classic frame, a
+/// default one, or one cleared with [`Frame::clear_fd_bytes`], as a queue does when a
+/// CAN FD frame leaves its slot): a run of classic frames writes each with plain stores
+/// ([`Frame::set_classic_as`]).
 pub trait FrameSink {
     /// A slot for the next data frame, or `None` when there is no room for it.
     fn data_slot(&mut self) -> Option<&mut Frame>;

@@ -80,9 +80,12 @@ struct VecSink {
     batch: usize,
 }
 
-/// A stale slot, as a queue's reused one: nothing of it may remain.
+/// A stale slot, as a queue's reused one: a CAN FD frame that left it, its bytes past
+/// the 8th cleared (as [`FrameSink`] wants); nothing of it may remain.
 fn stale() -> Frame {
-    Frame::new(sid(0x7FF), &[0xEE; 64], true).unwrap()
+    let mut f = Frame::new(sid(0x7FF), &[0xEE; 64], true).unwrap();
+    f.clear_fd_bytes();
+    f
 }
 
 impl FrameSink for VecSink {

@@ -187,7 +187,8 @@ mod tests {
 
     /// A sink with room for `room` frames that hands out at most `batch` slots per
     /// request, each holding a stale
-    /// CAN FD frame (as a queue's reused slot), and records the requests.
+    /// CAN FD frame cleared past its 8th byte (as a queue's reused slot), and records
+    /// the requests.
     struct Batches {
         frames: Frames,
         room: usize,
@@ -196,23 +197,29 @@ mod tests {
         asked: std::vec::Vec<usize>,
     }
 
+    /// A queue's reused slot: a CAN FD frame that left it, its bytes past the 8th
+    /// cleared (as [`crate::encoder::FrameSink`] wants).
+    fn stale() -> Frame {
+        let mut f = Frame::new(Frame::default().id(), &[0xEE; 64], true).unwrap();
+        f.clear_fd_bytes();
+        f
+    }
+
     impl crate::encoder::FrameSink for Batches {
         fn data_slot(&mut self) -> Option<&mut Frame> {
             self.single += 1;
             if self.frames.len() >= self.room {
                 return None;
             }
-            self.frames
-                .push(Frame::new(Frame::default().id(), &[0xEE; 64], true).unwrap());
+            self.frames.push(stale());
             self.frames.last_mut()
         }
 
         fn data_slots(&mut self, n: usize) -> &mut [Frame] {
             self.asked.push(n);
             let from = self.frames.len();
-            let stale = Frame::new(Frame::default().id(), &[0xEE; 64], true).unwrap();
             let k = n.min(self.batch).min(self.room.saturating_sub(from));
-            self.frames.resize(from + k, stale);
+            self.frames.resize(from + k, stale());
             &mut self.frames[from..]
         }
     }
