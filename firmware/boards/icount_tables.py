@@ -111,6 +111,7 @@ CHECKS = [
     ("decimation by 2, min (issue 13)", "d16", "decimate=2:min", 40.0),
     ("decimation by 2, mean (issue 13)", "d16", "decimate=2:mean", 40.0),
     ("decimation by 3, mean (issue 13)", "d16", "decimate=3:mean", 40.0),
+    ("speckle removal (issue 13)", "d16", "speckle", 40.0),
 ]
 
 
