@@ -227,6 +227,10 @@ fn stages<const SP: bool, const MD: bool>(
     t: &mut Tally,
     changed: &mut u32,
 ) -> (usize, usize) {
+    if !SP && MD {
+        // The median alone: four centres at a time.
+        return median3_pairs(d, exact, md, none, changed);
+    }
     let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
     let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
     let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
@@ -311,6 +315,80 @@ fn stages<const SP: bool, const MD: bool>(
     t.speckle = t.speckle.wrapping_add(removed);
     *changed |= diff;
     (out, invalid)
+}
+
+/// [`stages`] with the median alone (its state in `md`, the median's held point first
+/// in `d` when it holds one), four centres at a time: the centres `k` and `k + 1` share
+/// the pair `v(k)`, `v(k + 1)`; with `lo <= hi` that pair, their medians are
+/// `max(lo, min(hi, v(k - 1)))` and `max(lo, min(hi, v(k + 2)))` when the four are
+/// ranges below [`SMALL`]. Two such pairs per step, one test: `v(k - 1)` is checked
+/// before the loop (and is the last pair's high one after), the other ends are the
+/// pairs' own values but `v(k + 4)` (one test of the OR of the two highs and
+/// `v(k + 4)`). Otherwise (or with `exact`, [`SMALL`] when a range may be at or above
+/// it) two centres one at a time by [`stages`]' rule (its quick test, else
+/// [`median3_off`]). Outputs in place, no range as `none`; returns the number of
+/// outputs and how many have no range, ORs into `changed` every changed range with its
+/// new value.
+#[inline(always)]
+fn median3_pairs(
+    d: &mut [Reading],
+    exact: bool,
+    md: &mut Regs,
+    none: u32,
+    changed: &mut u32,
+) -> (usize, usize) {
+    let exact = if exact { SMALL } else { 0 };
+    let n = d.len();
+    let (mut invalid, mut diff) = (0usize, 0u32);
+    // v(k - 1) and v(k), the raw distances before and at the centre `rest[0]`.
+    let mut b = md.b1;
+    let mut rest = d;
+    let mut c0 = rest.first().map_or(NONE, |r| r.distance);
+    loop {
+        // `b` is a range below SMALL in the loop (after the first step, the last
+        // pair's high one is at least it).
+        if (b | exact) < SMALL {
+            // Four centres at a time: two pairs, one test (the second pair's `b` is
+            // the first's high one, the first's end the second's low or high one).
+            while let [o0, o1, o2, o3, r4, ..] = rest {
+                let (c1, c2, c3, s) = (o1.distance, o2.distance, o3.distance, r4.distance);
+                let (h0, h1) = (c0.max(c1), c2.max(c3));
+                if (h0 | h1 | s) >= SMALL {
+                    break;
+                }
+                let (l0, l1) = (c0 ^ c1 ^ h0, c2 ^ c3 ^ h1);
+                let (x0, x1) = (h0.min(b).max(l0), h0.min(c2).max(l0));
+                let (x2, x3) = (h1.min(c1).max(l1), h1.min(s).max(l1));
+                diff |= (x0 ^ c0) | (x1 ^ c1) | (x2 ^ c2) | (x3 ^ c3);
+                (o0.distance, o1.distance, o2.distance, o3.distance) = (x0, x1, x2, x3);
+                (b, c0) = (c3, s);
+                rest = core::mem::take(&mut rest).get_mut(4..).unwrap_or_default();
+            }
+        }
+        // Two centres alone (a window the pair rule does not cover, or the last
+        // centres of the line).
+        for _ in 0..2 {
+            let [o0, r1, ..] = rest else {
+                break;
+            };
+            let (c, s) = (c0, r1.distance);
+            if ((c.wrapping_sub(b) ^ s.wrapping_sub(c)) | c | exact) >= SMALL {
+                o0.distance = median3_off((b, c, s), exact, &mut diff, &mut invalid, none);
+            }
+            (b, c0) = (c, s);
+            rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
+        }
+        if rest.len() < 2 {
+            break;
+        }
+    }
+    if let Some(cell) = rest.first() {
+        md.np = 1;
+        md.b1 = b;
+        md.p0 = (cell.distance, cell.aux);
+    }
+    *changed |= diff;
+    (n.saturating_sub(1), invalid)
 }
 
 /// [`stages`] with both stages on, by the exact rules (any ranges and threshold):
