@@ -1203,4 +1203,94 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn median3_alone_in_lines_follows_the_rule_written_plainly() {
+        // A stream cut into lines of 0 to 6 points, the median's state held across
+        // them as `line` holds it (its held point first in the next line's cells),
+        // against the median of 3 of the whole stream by the plain rule: no range,
+        // ranges near and above 2^31, ties. The four-centre quick rule only where
+        // every range is below 2^31, the exact rule everywhere.
+        let small = [1, 2, 40, (1 << 31) - 2, (1 << 31) - 1, NONE];
+        let vals = [
+            1,
+            2,
+            40,
+            (1 << 31) - 2,
+            (1 << 31) - 1,
+            1 << 31,
+            (1 << 31) + 1,
+            u32::MAX - 1,
+            NONE,
+        ];
+        let mut next = xorshift(0x1357_9bdf_u32);
+        for round in 0..4000 {
+            let set: &[u32] = if round % 2 == 0 { &small } else { &vals };
+            // Mostly two values, for ties and long quick runs.
+            let narrow = round % 3 == 0;
+            let mut pick = || {
+                let k = if narrow { 2 } else { set.len() };
+                set[next() as usize % k]
+            };
+            let b1 = pick();
+            let lines: Vec<Vec<u32>> = (0..1 + round % 5)
+                .map(|_| {
+                    let len = pick() as usize % 7;
+                    (0..len).map(|_| pick()).collect()
+                })
+                .collect();
+            let stream: Vec<u32> = lines.iter().flatten().copied().collect();
+            let big = |v: &u32| *v != NONE && *v >= 1 << 31;
+            let quick_holds = !stream.iter().chain(&[b1]).any(big);
+            // The plain rule: every point but the last is a centre.
+            let centres = stream.len().saturating_sub(1);
+            let want: Vec<u32> = (0..centres)
+                .map(|i| {
+                    let b = if i == 0 { b1 } else { stream[i - 1] };
+                    median3_reference(b, stream[i], stream[i + 1])
+                })
+                .collect();
+            let want_diff = want
+                .iter()
+                .zip(&stream)
+                .filter(|(x, c)| x != c && **c != NONE)
+                .fold(0, |acc, (x, c)| acc | (x ^ c));
+            let want_invalid = want.iter().filter(|&&x| x == NONE).count();
+            for exact in [false, true] {
+                if !exact && !quick_holds {
+                    continue;
+                }
+                let mut md = Regs {
+                    b1,
+                    ..Regs::default()
+                };
+                let (mut got, mut invalid, mut diff) = (Vec::new(), 0, 0);
+                for line in &lines {
+                    let held: Vec<u32> = if md.np > 0 { vec![md.p0.0] } else { vec![] };
+                    let mut c = cells(&[held, line.clone()].concat());
+                    let mut sp = Regs::default();
+                    let (out, inv, d, _) = st::<false, true>(&mut c, 0, exact, &mut sp, &mut md, 9);
+                    got.extend(dist(&c[..out]));
+                    invalid += inv;
+                    diff |= d;
+                }
+                let shown: Vec<u32> = want
+                    .iter()
+                    .map(|&x| if x == NONE { 9 } else { x })
+                    .collect();
+                assert_eq!(got, shown, "{b1} {lines:?} {exact}");
+                assert_eq!(invalid, want_invalid, "{b1} {lines:?} {exact}");
+                assert_eq!(diff, want_diff, "{b1} {lines:?} {exact}");
+                // The state held: the last point and the one before it.
+                if let Some(&last) = stream.last() {
+                    let before = if stream.len() > 1 {
+                        stream[stream.len() - 2]
+                    } else {
+                        b1
+                    };
+                    assert_eq!((md.np, md.p0.0, md.b1), (1, last, before));
+                }
+            }
+        }
+    }
 }
