@@ -112,6 +112,7 @@ CHECKS = [
     ("decimation by 2, mean (issue 13)", "d16", "decimate=2:mean", 40.0),
     ("decimation by 3, mean (issue 13)", "d16", "decimate=3:mean", 40.0),
     ("speckle removal (issue 13)", "d16", "speckle", 40.0),
+    ("median of 3 (issue 13)", "d16", "median=3", 40.0),
 ]
 
 
