@@ -556,7 +556,7 @@ impl Pipeline {
         line.min_intensity = if intensity { self.min_intensity } else { 0 };
         line.out_none = out_none;
         let line = &self.line;
-        let windows = line.jump.is_some() || line.median.is_some();
+        let windows = line.jump.is_some() || line.half2 > 0;
         if !windows {
             // The classification, then decimation (pipeline/reduce.rs) or the
             // encoder's form.
@@ -589,7 +589,7 @@ impl Pipeline {
         if line.decimate {
             // Points held back by the windows (steps count back from `last_step`).
             let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
-            let lag = held(line.jump.is_some(), sp).saturating_add(held(line.median.is_some(), md));
+            let lag = held(line.jump.is_some(), sp).saturating_add(held(line.half2 > 0, md));
             let lag = u32::try_from(lag).unwrap_or(0);
             let part = buf.get_mut(..m).unwrap_or_default();
             // Step of the first point the decimator gets.
@@ -840,19 +840,15 @@ struct LineConsts {
     low: u32,
     /// The length of that span.
     span: u32,
-    /// Whether no range of 0 can pass `rule`.
-    zero_free: bool,
     /// Whether the window stages' last gives its outputs in the encoder's form: no
-    /// decimation after and `zero_free` (worked out with it).
+    /// decimation after, and no range of 0 can pass `rule`.
     last: bool,
-    /// The points the median holds on each side of its centre (0: off).
+    /// The points the median holds on each side of its centre (0: the median is off).
     half2: usize,
     /// The intensity threshold (0: none, or no intensities).
     min_intensity: u32,
     /// Speckle removal's threshold, when on.
     jump: Option<u32>,
-    /// The median, when on.
-    median: Option<MedianWidth>,
     /// Whether decimation follows (the output then stays in the loop's form).
     decimate: bool,
     /// The encoder's value for no range.
@@ -869,7 +865,7 @@ impl LineConsts {
             .map_or([0, u32::MAX], |w| [w.min_mm, w.max_mm]);
         LineConsts {
             // No sensor's rule (none has no range at all): the first line sets its own.
-            // Until then an empty span and `zero_free` false, right for any rule (every
+            // Until then an empty span and `last` false, right for any rule (every
             // distance takes the full test, every output the encoder's form after).
             rule: can_wire::RangeRule {
                 window,
@@ -877,12 +873,10 @@ impl LineConsts {
             },
             low: 0,
             span: 0,
-            zero_free: false,
             last: false,
             half2: config.median.map_or(0, MedianWidth::half),
             min_intensity: 0,
             jump: config.speckle.map(|f| f.max_jump_mm),
-            median: config.median,
             decimate: config.decimation_factor() > 1,
             out_none: 0,
         }
@@ -903,8 +897,9 @@ impl LineConsts {
             window: self.rule.window,
             ..sensor
         };
-        (self.low, self.span, self.zero_free) = smooth::span(&self.rule);
-        self.last = !self.decimate && self.zero_free;
+        let zero_free;
+        (self.low, self.span, zero_free) = smooth::span(&self.rule);
+        self.last = !self.decimate && zero_free;
     }
 }
 

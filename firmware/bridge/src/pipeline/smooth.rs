@@ -461,7 +461,7 @@ pub(super) fn span(rule: &can_wire::RangeRule) -> (u32, u32, bool) {
 
 /// Error codes, the range window and the intensity threshold: `input` into `out` (as
 /// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
-/// [`SMALL`] passed (whether no range of 0 can is [`LineConsts`]' `zero_free`).
+/// [`SMALL`] passed (whether no range of 0 can pass is part of [`LineConsts`]' `last`).
 pub(super) fn classify(
     input: &[Reading],
     out: &mut [Reading],
