@@ -205,6 +205,18 @@ fn from_fdcan(frame: &FdFrame) -> Option<can_wire::Frame> {
     can_wire::Frame::new(*header.id(), frame.data(), header.fdcan()).ok()
 }
 
+/// Starts the transmit and receive tasks on the FDCAN's two halves (both boards that
+/// build this file start them so).
+pub fn spawn_tasks(
+    spawner: embassy_executor::Spawner,
+    shared: &'static Shared,
+    tx: CanTx<'static>,
+    rx: CanRx<'static>,
+) {
+    spawner.spawn(board_common::started(tx_task(shared, tx), "CAN tx task"));
+    spawner.spawn(board_common::started(rx_task(shared, rx), "CAN rx task"));
+}
+
 /// Moves the bridge's frames into the transmit FIFO, in order. Waits (without blocking
 /// anything else) while the FIFO is full, e.g. during bus-off.
 #[embassy_executor::task]

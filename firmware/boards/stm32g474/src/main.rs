@@ -192,13 +192,6 @@ async fn main(spawner: Spawner) {
         can_tx,
         can_rx,
     } = setup(shared);
-    spawner.spawn(board_common::started(
-        fdcan::tx_task(shared, can_tx),
-        "CAN tx task",
-    ));
-    spawner.spawn(board_common::started(
-        fdcan::rx_task(shared, can_rx),
-        "CAN rx task",
-    ));
+    fdcan::spawn_tasks(spawner, shared, can_tx, can_rx);
     sensor::run(shared, &mut board).await
 }
