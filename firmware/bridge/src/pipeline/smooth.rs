@@ -5,8 +5,9 @@
 //! hold from the line before (copied into headroom in front of the line, so that the
 //! stages see one contiguous array), then speckle removal and the median of 3 run in
 //! one loop over the cells ([`stages`]: the windows' distances in registers, each
-//! output written over the cell of its centre; speckle removal alone and the median
-//! alone are the same loop with the other stage compiled out). Each stage first tries a
+//! output written over the cell of its centre; speckle removal alone is the same loop
+//! with the median compiled out, the median alone a loop of its own taking four centres
+//! at a time, [`median3_pairs`]). Each stage first tries a
 //! quick test: a centre within the threshold of the point before it stays, a centre
 //! between its neighbours is their median. The median of 5 runs a loop of its own,
 //! two centres at a time (one sorted pair of new distances per two outputs when all
@@ -98,22 +99,22 @@ pub(super) fn line(
             // Both stages by the exact rules: a loop of their own (the quick loop then
             // holds no `exact`).
             (true, true) if exact => stages_exact(all, jump, sp, md, none, c, changed),
-            (true, true) => stages::<true, true>(all, jump, false, sp, md, none, c, changed),
-            (true, false) => stages::<true, false>(all, jump, exact, sp, md, none, c, changed),
-            _ => stages::<false, true>(all, jump, exact, sp, md, none, c, changed),
+            (true, true) => stages::<true>(all, jump, false, sp, md, none, c, changed),
+            (true, false) => stages::<false>(all, jump, exact, sp, md, none, c, changed),
+            _ => median3_pairs(all, exact, md, none, changed),
         };
     } else {
         // Speckle removal over its held point and the line: its outputs stay in place.
         let mut o1 = m;
         if k.jump.is_some() {
             let region = all.get_mut(np2..).unwrap_or_default();
-            (o1, _) = stages::<true, false>(region, jump, exact, sp, md, NONE, c, changed);
+            (o1, _) = stages::<false>(region, jump, exact, sp, md, NONE, c, changed);
         }
         // The median over its held points and the previous stage's outputs.
         let l2 = np2.wrapping_add(o1);
         let region = all.get_mut(..l2).unwrap_or_default();
         if half2 < 2 {
-            (out, invalid) = stages::<false, true>(region, 0, exact, sp, md, none, c, changed);
+            (out, invalid) = median3_pairs(region, exact, md, none, changed);
         } else {
             out = l2.saturating_sub(half2);
             let diff;
@@ -194,8 +195,8 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
     out_none
 }
 
-/// Speckle removal (`SP`, threshold `jump`) then the median of 3 (`MD`) in one loop
-/// over `d`, in place: the held points and the classified line in stream order (the
+/// Speckle removal (threshold `jump`), then the median of 3 when `MD`, in one loop
+/// over `d`, in place (the median alone is [`median3_pairs`]): the held points and the classified line in stream order (the
 /// median's held point first when both are on: the caller has checked that it holds
 /// one, and it is speckle removal's output for the point before speckle removal's
 /// held centre, `sp.b1` or no range). The windows' state is carried in registers from `sp` and `md` and stored
@@ -217,7 +218,7 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
 // four-value return through memory.)
 #[allow(clippy::too_many_arguments)]
 #[inline(never)]
-fn stages<const SP: bool, const MD: bool>(
+fn stages<const MD: bool>(
     d: &mut [Reading],
     jump: u32,
     exact: bool,
@@ -227,16 +228,12 @@ fn stages<const SP: bool, const MD: bool>(
     t: &mut Tally,
     changed: &mut u32,
 ) -> (usize, usize) {
-    if !SP && MD {
-        // The median alone: four centres at a time.
-        return median3_pairs(d, exact, md, none, changed);
-    }
     let dist = |d: &[Reading], i: usize| d.get(i).map_or(NONE, |c| c.distance);
     let aux = |d: &[Reading], i: usize| d.get(i).map_or(0, |c| c.aux);
     let (mut removed, mut invalid, mut diff) = (0usize, 0usize, 0u32);
-    // The quick tests made to fail when `exact`.
+    // Speckle removal's quick test made to fail when `exact` (with the median on, the
+    // caller takes `stages_exact` instead).
     let quick_jump = if exact && !MD { 0 } else { jump };
-    let exact = if exact && !SP { SMALL } else { 0 };
     let n = d.len();
     // Each stage's centre (as input) and the distance before it. Speckle removal's
     // first centre is the point after the median's held one; the median's, its held
@@ -246,12 +243,12 @@ fn stages<const SP: bool, const MD: bool>(
     // a range taken had no support from the centre after it (support is symmetric), so
     // it gives that centre none either way.
     let (mut bm, mut cm) = (md.b1, dist(d, 0));
-    let (mut bs, mut cs) = (sp.b1, dist(d, usize::from(MD && SP)));
+    let (mut bs, mut cs) = (sp.b1, dist(d, usize::from(MD)));
     // Outputs lag the look-ahead by one point per stage.
-    let lag = usize::from(SP).wrapping_add(usize::from(MD));
+    let lag = 1usize.wrapping_add(usize::from(MD));
     for j in lag..n {
         // Speckle removal's output replaces its centre `cs`.
-        if SP {
+        let s = {
             let b = if MD { cm } else { bs };
             // Alone, speckle removal gives the last outputs: its quick test fails for
             // no range (the sign of `cs` as i32 makes the difference above any
@@ -275,8 +272,8 @@ fn stages<const SP: bool, const MD: bool>(
                 };
                 out(d, cs);
             }
-        }
-        let s = if SP { cs } else { dist(d, j) };
+            cs
+        };
         if MD {
             // The centre stays (written first, the other cases write over it) when
             // the test passes: only for a range `c` (its top bit clear) between its
@@ -284,28 +281,22 @@ fn stages<const SP: bool, const MD: bool>(
             let c = cm;
             if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
                 o.distance = c;
-                if ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | c | exact) >= SMALL {
-                    o.distance = median3_off((bm, c, s), exact, &mut diff, &mut invalid, none);
+                if ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | c) >= SMALL {
+                    o.distance = median3_off((bm, c, s), 0, &mut diff, &mut invalid, none);
                 }
             }
             (bm, cm) = (c, s);
-        } else if let (false, Some(o)) = (SP, d.get_mut(j.wrapping_sub(lag))) {
-            o.distance = s;
         }
-        if SP {
-            cs = dist(d, j);
-        }
+        cs = dist(d, j);
     }
     let out = n.saturating_sub(lag);
-    if SP {
-        sp.np = n.min(1);
-        // The last centre's input before it (with the median on, still in place: the
-        // outputs end two points before the last).
-        if !MD || n > lag {
-            sp.b1 = if MD { dist(d, n.wrapping_sub(2)) } else { bs };
-        }
-        sp.p0 = (cs, aux(d, n.wrapping_sub(1)));
+    sp.np = n.min(1);
+    // The last centre's input before it (with the median on, still in place: the
+    // outputs end two points before the last).
+    if !MD || n > lag {
+        sp.b1 = if MD { dist(d, n.wrapping_sub(2)) } else { bs };
     }
+    sp.p0 = (cs, aux(d, n.wrapping_sub(1)));
     if MD && n > 0 {
         md.np = 1;
         md.b1 = bm;
@@ -317,7 +308,7 @@ fn stages<const SP: bool, const MD: bool>(
     (out, invalid)
 }
 
-/// [`stages`] with the median alone (its state in `md`, the median's held point first
+/// The median of 3 alone (its state in `md`, the median's held point first
 /// in `d` when it holds one), four centres at a time: the centres `k` and `k + 1` share
 /// the pair `v(k)`, `v(k + 1)`; with `lo <= hi` that pair, their medians are
 /// `max(lo, min(hi, v(k - 1)))` and `max(lo, min(hi, v(k + 2)))` when the four are
@@ -325,11 +316,11 @@ fn stages<const SP: bool, const MD: bool>(
 /// before the loop (and is the last pair's high one after), the other ends are the
 /// pairs' own values but `v(k + 4)` (one test of the OR of the two highs and
 /// `v(k + 4)`). Otherwise (or with `exact`, [`SMALL`] when a range may be at or above
-/// it) two centres one at a time by [`stages`]' rule (its quick test, else
+/// it) two centres one at a time by [`stages`]' median rule (its quick test, else
 /// [`median3_off`]). Outputs in place, no range as `none`; returns the number of
 /// outputs and how many have no range, ORs into `changed` every changed range with its
 /// new value.
-#[inline(always)]
+#[inline(never)]
 fn median3_pairs(
     d: &mut [Reading],
     exact: bool,
@@ -693,10 +684,10 @@ mod tests {
     ) -> (usize, usize, u32, usize) {
         let (mut t, mut changed) = (Tally::default(), 0);
         // As `line` takes them: both stages by the exact rules in `stages_exact`.
-        let (out, invalid) = if SP && MD && exact {
-            stages_exact(d, jump, sp, md, none, &mut t, &mut changed)
-        } else {
-            stages::<SP, MD>(d, jump, exact, sp, md, none, &mut t, &mut changed)
+        let (out, invalid) = match (SP, MD) {
+            (true, true) if exact => stages_exact(d, jump, sp, md, none, &mut t, &mut changed),
+            (true, _) => stages::<MD>(d, jump, exact, sp, md, none, &mut t, &mut changed),
+            _ => median3_pairs(d, exact, md, none, &mut changed),
         };
         (out, invalid, changed, t.speckle)
     }
