@@ -77,6 +77,34 @@ pub struct BridgeArgs {
     /// calibrated (SPEC 3.1 `time_estimated`).
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
     pub time_estimate: bool,
+    /// Run on the simulator's time instead of the host's (a `sim:` sensor only): time
+    /// moves straight to the sensor's next event whenever the bridge waits for it, so a
+    /// run takes only its work's time, `--seconds` counts simulated seconds, and every
+    /// time the bridge sees (scan arrivals, TM answers, status periods) is that of an
+    /// ideal host, the same on any machine (e.g. for CI).
+    #[arg(long)]
+    pub virtual_time: bool,
+}
+
+/// The bridge's clock: the host's, or the simulator's virtual one.
+enum LiveClock {
+    Real(Instant),
+    Virtual(link::VirtualClock),
+}
+
+impl LiveClock {
+    /// Time since the bridge started.
+    fn elapsed(&self) -> Duration {
+        match self {
+            LiveClock::Real(start) => start.elapsed(),
+            LiveClock::Virtual(clock) => Duration::from_micros(clock.now_us()),
+        }
+    }
+
+    /// µs since the bridge started.
+    fn now_us(&self) -> u64 {
+        u64::try_from(self.elapsed().as_micros()).unwrap_or(u64::MAX)
+    }
 }
 
 /// The Foxglove side of the bridge: every frame on the bus (sent and received) is
@@ -85,20 +113,19 @@ struct Viewer {
     view: ws::LiveView,
     dec: crate::decode::LogDecoder,
     load: ws::LoadMeter,
-    start: Instant,
 }
 
 impl Viewer {
-    fn frame(&mut self, frame: &can_wire::Frame) {
+    /// A frame on the bus at `t_us` (µs since the bridge started).
+    fn frame(&mut self, frame: &can_wire::Frame, t_us: u64) {
         self.load.add(frame);
-        let t = u64::try_from(self.start.elapsed().as_micros()).unwrap_or(u64::MAX);
-        if let Some(item) = self.dec.push_frame(t, frame) {
+        if let Some(item) = self.dec.push_frame(t_us, frame) {
             self.view.item(&item);
         }
     }
 
-    fn status(&mut self, bridge: &Bridge<QUEUE>, state: &str) {
-        let t = self.start.elapsed();
+    /// The bridge's state at `t` since it started.
+    fn status(&mut self, bridge: &Bridge<QUEUE>, state: &str, t: Duration) {
         let (frames_per_s, load) = self.load.take(t);
         let s = bridge.stats();
         let c = self.dec.counts();
@@ -143,8 +170,12 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         // As the Ethernet boards configure it.
         config = config.on_network();
     }
-    let mut link = link::open(&spec, Duration::from_secs(2))
-        .with_context(|| format!("opening the sensor {}", args.sensor))?;
+    let virtual_clock = args.virtual_time.then(link::VirtualClock::new);
+    let mut link = match &virtual_clock {
+        Some(clock) => link::open_virtual(&spec, clock.clone()),
+        None => link::open(&spec, Duration::from_secs(2)),
+    }
+    .with_context(|| format!("opening the sensor {}", args.sensor))?;
     let mut can = port::open(
         &args.can,
         config.budget.rates.nominal,
@@ -166,7 +197,10 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
     if !args.quiet {
         eprintln!("scip2can bridge: {} → {}", link.describe(), can.describe());
     }
-    let start = Instant::now();
+    let clock = match virtual_clock {
+        Some(clock) => LiveClock::Virtual(clock),
+        None => LiveClock::Real(Instant::now()),
+    };
     let mut viewer = match &args.foxglove {
         Some(addr) => {
             let view = ws::LiveView::start(addr, "bridge")?;
@@ -179,17 +213,14 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
                 view,
                 dec: crate::decode::LogDecoder::new(config.ids.window()),
                 load: ws::LoadMeter::new(config.budget.rates),
-                start,
             })
         }
         None => None,
     };
     let mut state = String::from("Starting");
-    let deadline = args
-        .seconds
-        .map(|s| start + Duration::from_secs_f64(s.max(0.0)));
-    let now_ms = || start.elapsed().as_millis() as u64;
-    let now_us = || start.elapsed().as_micros() as u64;
+    let deadline = args.seconds.map(|s| Duration::from_secs_f64(s.max(0.0)));
+    let now_ms = || clock.elapsed().as_millis() as u64;
+    let now_us = || clock.now_us();
     bridge.set_time_estimation(args.time_estimate);
     bridge.start(now_ms());
     if burst {
@@ -209,7 +240,7 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
     let mut tm_readings = 0u32;
     // The governor's plan last printed: factor, every n-th scan, points.
     let mut shown_plan = None;
-    while !stop.load(Ordering::SeqCst) && deadline.is_none_or(|d| Instant::now() < d) {
+    while !stop.load(Ordering::SeqCst) && deadline.is_none_or(|d| clock.elapsed() < d) {
         let n = link
             .recv(&mut buf, Duration::from_millis(2))
             .context("reading the sensor")?;
@@ -223,7 +254,7 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
             while let Some(frame) = bridge.pop_frame() {
                 can.send(&frame).context("writing to the CAN port")?;
                 if let Some(v) = &mut viewer {
-                    v.frame(&frame);
+                    v.frame(&frame, now_us());
                 }
             }
         }
@@ -246,7 +277,7 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
             }
             tm_readings = if reading { tm_readings + 1 } else { 0 };
             if !args.quiet && !repeat {
-                eprintln!("[{:8.3} s] {notice:?}", start.elapsed().as_secs_f64());
+                eprintln!("[{:8.3} s] {notice:?}", clock.elapsed().as_secs_f64());
             }
         }
         // The governor's plan when the stream starts, and again whenever it changes
@@ -257,7 +288,7 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
                 shown_plan = Some(now);
                 eprintln!(
                     "[{:8.3} s] governor: {} points per scan (1 in {} steps kept), 1 scan in {} sent, worst-case bus load {:.1} %",
-                    start.elapsed().as_secs_f64(),
+                    clock.elapsed().as_secs_f64(),
                     plan.points,
                     plan.factor,
                     plan.every_nth,
@@ -268,24 +299,24 @@ pub fn run(args: BridgeArgs) -> anyhow::Result<()> {
         while let Some(frame) = bridge.pop_frame() {
             can.send(&frame).context("writing to the CAN port")?;
             if let Some(v) = &mut viewer {
-                v.frame(&frame);
+                v.frame(&frame, now_us());
             }
         }
         while let Some(frame) = can.recv().context("reading the CAN port")? {
             // µs of the same clock: time frames (SPEC 9) are stamped at that resolution.
-            bridge.on_can_frame_at(&frame, start.elapsed().as_micros() as u64);
+            bridge.on_can_frame_at(&frame, now_us());
             if let Some(v) = &mut viewer {
-                v.frame(&frame);
+                v.frame(&frame, now_us());
             }
         }
-        if start.elapsed() >= next_report {
+        if clock.elapsed() >= next_report {
             next_report += Duration::from_secs(1);
             if let Some(v) = &mut viewer {
-                v.status(&bridge, &state);
+                v.status(&bridge, &state, clock.elapsed());
             }
             if !args.quiet {
                 let now = Summary::of(&bridge);
-                eprintln!("{}", now.line(&last, start.elapsed().as_secs_f64()));
+                eprintln!("{}", now.line(&last, clock.elapsed().as_secs_f64()));
                 last = now;
             }
         }

@@ -3,6 +3,8 @@
 
 use std::io::{self, Read, Write};
 use std::net::{TcpStream, ToSocketAddrs};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context};
@@ -174,11 +176,55 @@ impl Link for SerialLink {
     }
 }
 
-/// A simulator in this process, driven by the real clock (× its speed).
+/// Simulated time that a [`SimLink`] shares with the loop driving it: µs that advance
+/// only while the link waits for the sensor, straight to the sensor's next event, so that
+/// a run takes as long as its work and comes out the same on any host
+/// (`scip2can bridge --virtual-time`).
+#[derive(Debug, Clone, Default)]
+pub struct VirtualClock(Arc<AtomicU64>);
+
+impl VirtualClock {
+    /// A clock at 0.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// µs since the clock was made.
+    pub fn now_us(&self) -> u64 {
+        self.0.load(Ordering::SeqCst)
+    }
+
+    /// Moves the clock on to `t_us` (never back).
+    fn advance_to(&self, t_us: u64) {
+        self.0.fetch_max(t_us, Ordering::SeqCst);
+    }
+}
+
+/// What a [`SimLink`]'s sensor runs on.
+#[derive(Debug)]
+enum SimTime {
+    /// The host's clock, times the speed.
+    Real(Clock),
+    /// A [`VirtualClock`], times the speed.
+    Virtual { clock: VirtualClock, speed: f64 },
+}
+
+impl SimTime {
+    /// Sensor µs now.
+    fn now_us(&self) -> u64 {
+        match self {
+            SimTime::Real(clock) => clock.now_us(),
+            SimTime::Virtual { clock, speed } => (clock.now_us() as f64 * speed) as u64,
+        }
+    }
+}
+
+/// A simulator in this process, driven by the real clock (× its speed) or by a
+/// [`VirtualClock`].
 #[derive(Debug)]
 pub struct SimLink {
     sensor: Sensor,
-    clock: Clock,
+    time: SimTime,
     pending: Vec<u8>,
 }
 
@@ -187,7 +233,18 @@ impl SimLink {
     pub fn new(sensor: Sensor, speed: f64) -> Self {
         Self {
             sensor,
-            clock: Clock::new(speed),
+            time: SimTime::Real(Clock::new(speed)),
+            pending: Vec::new(),
+        }
+    }
+
+    /// A link to `sensor` on `clock`: its time runs `speed` times faster than the
+    /// clock's, and waiting for it moves the clock on instead of sleeping.
+    pub fn on_virtual_clock(sensor: Sensor, speed: f64, clock: VirtualClock) -> Self {
+        let speed = if speed > 0.0 { speed } else { 1.0 };
+        Self {
+            sensor,
+            time: SimTime::Virtual { clock, speed },
             pending: Vec::new(),
         }
     }
@@ -196,31 +253,66 @@ impl SimLink {
     pub fn sensor(&self) -> &Sensor {
         &self.sensor
     }
+
+    /// Waits on the virtual clock for the sensor's next bytes, at most `timeout` of it.
+    fn wait_virtual(&mut self, clock: &VirtualClock, speed: f64, timeout: Duration) {
+        let deadline = clock
+            .now_us()
+            .saturating_add(u64::try_from(timeout.as_micros()).unwrap_or(u64::MAX));
+        loop {
+            let now = clock.now_us();
+            let out = self.sensor.take_output((now as f64 * speed) as u64);
+            if !out.is_empty() {
+                self.pending = out;
+                return;
+            }
+            if now >= deadline {
+                return;
+            }
+            // The first clock µs at which the sensor's next event is due; at least
+            // 1 µs on, so that an event that keeps nothing for the host cannot stall.
+            let wake = self
+                .sensor
+                .next_wakeup()
+                .map_or(deadline, |at| (at as f64 / speed).ceil() as u64);
+            clock.advance_to(wake.clamp(now.saturating_add(1), deadline));
+        }
+    }
 }
 
 impl Link for SimLink {
     fn send(&mut self, bytes: &[u8]) -> io::Result<()> {
-        self.sensor.receive(self.clock.now_us(), bytes);
+        self.sensor.receive(self.time.now_us(), bytes);
         Ok(())
     }
 
     fn recv(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
-        let deadline = Instant::now() + timeout;
-        while self.pending.is_empty() {
-            let out = self.sensor.take_output(self.clock.now_us());
-            if !out.is_empty() {
-                self.pending = out;
-                break;
+        match &self.time {
+            SimTime::Virtual { clock, speed } => {
+                if self.pending.is_empty() {
+                    let (clock, speed) = (clock.clone(), *speed);
+                    self.wait_virtual(&clock, speed, timeout);
+                }
             }
-            let now = Instant::now();
-            if now >= deadline {
-                return Ok(0);
+            SimTime::Real(clock) => {
+                let deadline = Instant::now() + timeout;
+                while self.pending.is_empty() {
+                    let out = self.sensor.take_output(clock.now_us());
+                    if !out.is_empty() {
+                        self.pending = out;
+                        break;
+                    }
+                    let now = Instant::now();
+                    if now >= deadline {
+                        return Ok(0);
+                    }
+                    let wake = self
+                        .sensor
+                        .next_wakeup()
+                        .map_or(Duration::from_millis(5), |at| clock.until(at));
+                    std::thread::sleep(wake.min(deadline - now).min(Duration::from_millis(5)));
+                }
             }
-            let wake = self
-                .sensor
-                .next_wakeup()
-                .map_or(Duration::from_millis(5), |at| self.clock.until(at));
-            std::thread::sleep(wake.min(deadline - now).min(Duration::from_millis(5)));
         }
         let n = self.pending.len().min(buf.len());
         buf.get_mut(..n)
@@ -295,4 +387,19 @@ pub fn open(spec: &SensorSpec, timeout: Duration) -> anyhow::Result<Box<dyn Link
         SensorSpec::Serial { path, baud } => Box::new(SerialLink::open(path, *baud)?),
         SensorSpec::Sim(options) => Box::new(SimLink::new(options.build()?, options.speed)),
     })
+}
+
+/// Opens the simulated sensor a spec names on `clock` ([`SimLink::on_virtual_clock`]);
+/// an error for any other sensor, whose time is the world's.
+pub fn open_virtual(spec: &SensorSpec, clock: VirtualClock) -> anyhow::Result<Box<dyn Link>> {
+    match spec {
+        SensorSpec::Sim(options) => Ok(Box::new(SimLink::on_virtual_clock(
+            options.build()?,
+            options.speed,
+            clock,
+        ))),
+        _ => Err(anyhow!(
+            "virtual time needs the simulated sensor (sim:...): a real sensor's time is the world's"
+        )),
+    }
 }
