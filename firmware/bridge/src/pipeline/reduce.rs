@@ -302,9 +302,15 @@ fn whole_groups<'c>(
     }
     o.groups(cells, k, |g| match g {
         [a, b, c] => {
+            let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
+            // Three ranges below 2^30 (the usual group; no range is not): the rounded
+            // mean `(sum + 1) / 3` in 32 bits, a multiply by the reciprocal, no call.
+            if (a | b | c) < 1 << 30 {
+                // Below 3 × 2^30 + 1: no wrap.
+                return (a.wrapping_add(b).wrapping_add(c).wrapping_add(1) / 3, 0);
+            }
             // Threes unrolled: the ranges (0 for none) and their count, the sum in 64
             // bits (three u32s: no wrap).
-            let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
             let valid = u32::from(a != NONE)
                 .wrapping_add(u32::from(b != NONE))
                 .wrapping_add(u32::from(c != NONE));
@@ -687,6 +693,7 @@ mod tests {
         };
         const HALF: u32 = 1 << 31;
         const TOP: u32 = u32::MAX - 1;
+        const Q: u32 = 1 << 30;
         let all = [
             NO,
             NO,
@@ -709,7 +716,16 @@ mod tests {
             1,
             2,
             2, // 5 / 3 up
-            9, // the short last group
+            Q - 1,
+            Q - 1,
+            Q - 2, // the largest three ranges in 32 bits: (3 * 2^30 - 4 + 1) / 3
+            Q,
+            1,
+            1, // one range from 2^30: (2^30 + 2 + 1) / 3 = 357 913 942.33 down
+            Q - 1,
+            NO,
+            Q - 1, // two
+            9,     // the short last group
         ];
         let by_hand = [
             None,
@@ -719,6 +735,9 @@ mod tests {
             Some(TOP),
             Some(1),
             Some(2),
+            Some(Q - 1),
+            Some(357_913_942),
+            Some(Q - 1),
             Some(9),
         ];
         assert_eq!(want(&all), by_hand);
@@ -743,6 +762,23 @@ mod tests {
                         NO
                     } else {
                         ((x >> 8) as u32).max(1)
+                    }
+                })
+                .collect();
+            let len = (next() % 7 + 1) as usize;
+            let lines: Vec<&[u32]> = all.chunks(len).collect();
+            assert_eq!(run(&lines), want(&all));
+        }
+        // The same with ranges of every magnitude, most of them real ones (below 2^17)
+        // and some near 2^30, where the 32-bit sum ends.
+        for _ in 0..200 {
+            let all: Vec<u32> = (0..60)
+                .map(|_| {
+                    let x = next();
+                    match x % 8 {
+                        0 => NO,
+                        1 => Q - 2 + (x >> 8) as u32 % 4,
+                        _ => ((x >> 8) as u32 >> (x >> 40) % 32).max(1),
                     }
                 })
                 .collect();
