@@ -571,19 +571,40 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
     let (mut pl, mut ph) = (md.b1.min(c), md.b1.max(c));
     let mut diff = 0u32;
     loop {
-        while let [o0, o1, r2, r3, ..] = rest {
-            let (c, v1, v2, v3) = (o0.distance, o1.distance, r2.distance, r3.distance);
-            let (ql, qh) = (v1.min(v2), v1.max(v2));
-            if (ph | qh | e | v3) >= SMALL {
-                break;
+        // `e` and `P` ranges below SMALL: the loops test only the distances they add
+        // (each step leaves `e` and `P` among the distances it tested).
+        if (e | ph) < SMALL {
+            // Two centres at a time, and two more when the line holds them and their
+            // window passes (the second step's `P` the first's `Q`, its `e` the first
+            // centre).
+            while let [o0, o1, o2, o3, tail @ ..] = rest {
+                let (c0, c1, c2, c3) = (o0.distance, o1.distance, o2.distance, o3.distance);
+                let (ql, qh) = (c1.min(c2), c1.max(c2));
+                if (qh | c3) >= SMALL {
+                    break;
+                }
+                let (u, w) = (pl.max(ql), ph.min(qh));
+                let (s2, s3) = (u.min(w), u.max(w));
+                let (x0, x1) = (s3.min(e).max(s2), s3.min(c3).max(s2));
+                diff |= (x0 ^ c0) | (x1 ^ c1);
+                (o0.distance, o1.distance) = (x0, x1);
+                (e, pl, ph) = (c0, ql, qh);
+                let mut step = 2;
+                if let [r4, r5, ..] = tail {
+                    let (v4, v5) = (r4.distance, r5.distance);
+                    let (rl, rh) = (c3.min(v4), c3.max(v4));
+                    if (rh | v5) < SMALL {
+                        let (u, w) = (ql.max(rl), qh.min(rh));
+                        let (s2, s3) = (u.min(w), u.max(w));
+                        let (x2, x3) = (s3.min(c0).max(s2), s3.min(v5).max(s2));
+                        diff |= (x2 ^ c2) | (x3 ^ c3);
+                        (o2.distance, o3.distance) = (x2, x3);
+                        (e, pl, ph) = (c2, rl, rh);
+                        step = 4;
+                    }
+                }
+                rest = core::mem::take(&mut rest).get_mut(step..).unwrap_or_default();
             }
-            let (u, w) = (pl.max(ql), ph.min(qh));
-            let (s2, s3) = (u.min(w), u.max(w));
-            let (x0, x1) = (s3.min(e).max(s2), s3.min(v3).max(s2));
-            diff |= (x0 ^ c) | (x1 ^ v1);
-            (o0.distance, o1.distance) = (x0, x1);
-            (e, pl, ph) = (c, ql, qh);
-            rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
         }
         // One centre alone: a window the quick rule does not cover, or an odd last
         // centre.
