@@ -16,7 +16,7 @@
 
 use scip::Reading;
 
-use super::window::{median_line, speckle3_line, Regs};
+use super::window::{speckle3_line, Regs};
 use super::{LineConsts, Tally};
 
 /// No range, inside a line.
@@ -528,19 +528,6 @@ pub(super) fn classify_rare(
     }
 }
 
-/// A median's output `x` with no range as `out_none` ([`NONE`] to leave it), counted in
-/// `invalid`.
-#[inline(always)]
-fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
-    // At most the line's points: no wrap.
-    *invalid = invalid.wrapping_add(usize::from(x == NONE));
-    if x == NONE {
-        out_none
-    } else {
-        x
-    }
-}
-
 /// The median of 5 over `s` (the points `md` held, then the line): every cell but the
 /// last two is a centre, `md.b1` and `md.b2` the distances before the first (nearest
 /// first). No range is written as `out_none` ([`NONE`] to leave it). Leaves in `md`
@@ -633,20 +620,37 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
 /// The median of 5 for one centre of [`median5`], out of its loop (a window with no
 /// range in it or a range at or above [`SMALL`], or an odd last centre): the centre
 /// `o` (its distance before) between the neighbours `nb` becomes its output, no range
-/// as `slow.1`, counted in `slow.0`. A window of ranges below [`SMALL`] by the quick
-/// rule (the median of the middle two of `nb[1]`, `o`, `nb[2]`, `nb[3]` and `nb[0]`),
-/// any other by the general rule. Returns the OR of the centre with its new value.
+/// as `slow.1`, counted in `slow.0`. Returns the OR of the centre with its new value.
+///
+/// A missing centre stays missing. Otherwise the general rule (the centre clamped
+/// into the middle one or two of the ranges in the window) is the median of five
+/// ranges when the missing neighbours are filled in: a pair of them as 0 and
+/// `u32::MAX - 1` (at or below and at or above every range: the middle stays), an odd
+/// one as the centre (with `n` ranges, `n` even, the centre once more makes the
+/// middle of `n + 1` the centre clamped into the middle two).
 #[inline(never)]
 fn median5_exact(o: &mut Reading, nb: [u32; 4], slow: &mut (usize, u32)) -> u32 {
     let c = o.distance;
+    let mut nb = nb;
+    if (nb[0] | nb[1] | c | nb[2] | nb[3]) >= SMALL {
+        if c == NONE {
+            o.distance = no_range(&mut slow.0, slow.1);
+            return 0;
+        }
+        let missing = nb.iter().filter(|&&v| v == NONE).count();
+        let mut fill = if missing % 2 == 1 { c } else { 0 };
+        for v in &mut nb {
+            if *v == NONE {
+                *v = fill;
+                fill = if fill == 0 { NONE - 1 } else { 0 };
+            }
+        }
+    }
+    // The median of the middle two of `x1`, `c`, `a1`, `a2` and `x2`.
     let [x2, x1, a1, a2] = nb;
-    let x = if (x2 | x1 | c | a1 | a2) < SMALL {
-        let (u, w) = (x1.min(c).max(a1.min(a2)), x1.max(c).min(a1.max(a2)));
-        u.max(w).min(x2).max(u.min(w))
-    } else {
-        median_line(c, nb, NONE)
-    };
-    o.distance = out(x, slow.1, &mut slow.0);
+    let (u, w) = (x1.min(c).max(a1.min(a2)), x1.max(c).min(a1.max(a2)));
+    let x = u.max(w).min(x2).max(u.min(w));
+    o.distance = x;
     x ^ c
 }
 
@@ -667,6 +671,7 @@ pub(super) fn finish(cells: &mut [Reading], out_none: u32) -> usize {
 #[cfg(test)]
 mod tests {
     extern crate std;
+    use super::super::window::median_line;
     use super::*;
     use std::vec::Vec;
 
