@@ -576,21 +576,26 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
                 diff |= (x0 ^ c0) | (x1 ^ c1);
                 (o0.distance, o1.distance) = (x0, x1);
                 (e, pl, ph) = (c0, ql, qh);
-                let mut step = 2;
-                if let [r4, r5, ..] = tail {
-                    let (v4, v5) = (r4.distance, r5.distance);
-                    let (rl, rh) = (c3.min(v4), c3.max(v4));
-                    if (rh | v5) < SMALL {
-                        let (u, w) = (ql.max(rl), qh.min(rh));
-                        let (s2, s3) = (u.min(w), u.max(w));
-                        let (x2, x3) = (s3.min(c0).max(s2), s3.min(v5).max(s2));
-                        diff |= (x2 ^ c2) | (x3 ^ c3);
-                        (o2.distance, o3.distance) = (x2, x3);
-                        (e, pl, ph) = (c2, rl, rh);
-                        step = 4;
-                    }
+                let pass = match tail {
+                    [r4, r5, ..] => Some((r4.distance, r5.distance)),
+                    _ => None,
+                };
+                let Some((v4, v5)) = pass else {
+                    rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
+                    break;
+                };
+                let (rl, rh) = (c3.min(v4), c3.max(v4));
+                if (rh | v5) >= SMALL {
+                    rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
+                    break;
                 }
-                rest = core::mem::take(&mut rest).get_mut(step..).unwrap_or_default();
+                let (u, w) = (ql.max(rl), qh.min(rh));
+                let (s2, s3) = (u.min(w), u.max(w));
+                let (x2, x3) = (s3.min(c0).max(s2), s3.min(v5).max(s2));
+                diff |= (x2 ^ c2) | (x3 ^ c3);
+                (o2.distance, o3.distance) = (x2, x3);
+                (e, pl, ph) = (c2, rl, rh);
+                rest = core::mem::take(&mut rest).get_mut(4..).unwrap_or_default();
             }
         }
         // One centre alone: a window the quick rule does not cover, or an odd last
