@@ -10,9 +10,9 @@
 //! at a time, [`median3_pairs`]). Each stage first tries a
 //! quick test: a centre within the threshold of the point before it stays, a centre
 //! between its neighbours is their median. The median of 5 runs a loop of its own,
-//! two centres at a time (one sorted pair of new distances per two outputs when all
-//! six are ranges below 2^31, the general rule otherwise), after speckle removal's
-//! loop.
+//! two or four centres a turn (one sorted pair of new distances per two outputs when
+//! all six are ranges below 2^31, the general rule otherwise: the same network with the
+//! missing neighbours filled in), after speckle removal's loop.
 
 use scip::Reading;
 
@@ -541,11 +541,13 @@ pub(super) fn classify_rare(
 /// the smaller low, the largest the larger high); with `s2 <= s3` those two, the
 /// median of the four and a fifth value `e` is `max(s2, min(s3, e))`: for centre `k`
 /// with `e = v(k - 2)`, for `k + 1` with `v(k + 3)`. The next two centres' `P` is this
-/// `Q`. The quick rule holds when the six distances are ranges below [`SMALL`] (no
-/// range, [`NONE`], is then the only value with the top bit set: one test of the OR of
-/// the pairs' highs and the two ends); otherwise, and for an odd last centre, one
-/// centre at a time by [`median5_exact`]. The quick rule's outputs are ranges: only
-/// [`median5_exact`] counts no range.
+/// `Q`, its `e` the centre `k`: the loop takes two such steps a turn when the line
+/// holds them. The quick rule holds when the six distances are ranges below [`SMALL`]
+/// (no range, [`NONE`], is then the only value with the top bit set): `e` and `P` are
+/// tested once on entering the loop, and each step tests only what it adds (the OR of
+/// `Q`'s high and `v(k + 3)`), since it leaves `e` and `P` among the distances tested.
+/// Otherwise, and for an odd last centre, one centre at a time by [`median5_exact`].
+/// The quick rule's outputs are ranges: only [`median5_exact`] counts no range.
 #[inline(never)]
 fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
     // Written by the single centres' rule only (out of the loop's registers).
@@ -764,6 +766,48 @@ mod tests {
     }
 
     #[test]
+    fn median5_single_centre_follows_the_rule_written_plainly() {
+        // Every window of five over values that meet the fill-ins (0 and u32::MAX - 1,
+        // ties with them), ranges beside 2^31 and no range, one to four neighbours
+        // missing: the single centre's rule against the rule written plainly, its
+        // output as the encoder's value, the count and the returned change.
+        const OUT_NONE: u32 = 0xdead_beef;
+        let vals = [0, 1, 500, (1 << 31) - 1, 1 << 31, u32::MAX - 1, NONE];
+        let n = vals.len();
+        for t in 0..n.pow(5) {
+            let w: [u32; 5] = core::array::from_fn(|i| vals[t / n.pow(i as u32) % n]);
+            let want = median_reference(&w, 2);
+            let mut o = Reading {
+                distance: w[2],
+                ..Reading::default()
+            };
+            let mut slow = (3usize, OUT_NONE);
+            let changed = median5_exact(&mut o, [w[0], w[1], w[3], w[4]], &mut slow);
+            let shown = if want == NONE { OUT_NONE } else { want };
+            assert_eq!(o.distance, shown, "{w:?}");
+            assert_eq!(slow, (3 + usize::from(want == NONE), OUT_NONE), "{w:?}");
+            assert_eq!(changed != 0, want != w[2], "{w:?}");
+        }
+        // By hand: one neighbour missing, the centre clamped into the middle two of
+        // the four ranges (10 20 | 30 40); two missing, the median of three.
+        let one = |c: u32, nb: [u32; 4]| {
+            let mut o = Reading {
+                distance: c,
+                ..Reading::default()
+            };
+            median5_exact(&mut o, nb, &mut (0, 9));
+            o.distance
+        };
+        assert_eq!(one(10, [NONE, 20, 30, 40]), 20);
+        assert_eq!(one(25, [NONE, 10, 30, 40]), 25);
+        assert_eq!(one(45, [10, NONE, 30, 40]), 40);
+        assert_eq!(one(45, [NONE, 10, NONE, 40]), 40);
+        assert_eq!(one(5, [10, NONE, NONE, 40]), 10);
+        assert_eq!(one(5, [NONE, NONE, NONE, 40]), 5);
+        assert_eq!(one(NONE, [1, 2, 3, 4]), 9);
+    }
+
+    #[test]
     fn median5_network_is_the_sorted_median() {
         // Every 5-tuple over 0..5 (ties included): the network against sorting.
         for t in 0..5u32.pow(5) {
@@ -890,7 +934,7 @@ mod tests {
 
     #[test]
     fn median5_in_lines_follows_the_general_rule() {
-        // A stream cut into lines of 0 to 6 points (now and then longer), the median's
+        // A stream cut into lines of 0 to 6 points (now and then up to 12 or 39), the median's
         // state held across them as `line` holds it (the distances before the next
         // centre in `b`, the last two cells of a line kept for the next): every output
         // against the general rule (`median_line`, and the rule written plainly), with
@@ -924,10 +968,10 @@ mod tests {
             let before = [pick(&mut next), pick(&mut next)];
             let lines: Vec<Vec<u32>> = (0..next() % 8)
                 .map(|_| {
-                    let len = if next() % 8 == 0 {
-                        next() % 40
-                    } else {
-                        next() % 7
+                    let len = match next() % 8 {
+                        0 => next() % 40,
+                        1 | 2 => next() % 13,
+                        _ => next() % 7,
                     };
                     (0..len).map(|_| pick(&mut next)).collect()
                 })
