@@ -602,11 +602,11 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
         }
         // One centre alone: a window the quick rule does not cover, or an odd last
         // centre.
-        let [o0, o1, r2, ..] = rest else {
+        let [o0, o1, _, ..] = rest else {
             break;
         };
         let (c, v1, x1) = (o0.distance, o1.distance, pl ^ ph ^ o0.distance);
-        diff |= median5_exact(o0, [e, x1, v1, r2.distance], &mut slow);
+        diff |= median5_exact(rest, e, x1, &mut slow);
         (e, pl, ph) = (x1, c.min(v1), c.max(v1));
         rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
     }
@@ -626,8 +626,10 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
 
 /// The median of 5 for one centre of [`median5`], out of its loop (a window with no
 /// range in it or a range at or above [`SMALL`], or an odd last centre): the centre
-/// `o` (its distance before) between the neighbours `nb` becomes its output, no range
-/// as `slow.1`, counted in `slow.0`. Returns the OR of the centre with its new value.
+/// `w[0]` (its distance before), between `x2` and `x1` (the distances before it,
+/// nearest last) and `w[1]` and `w[2]`, becomes its output, no range as `slow.1`,
+/// counted in `slow.0` (fewer than three cells: nothing). Returns the OR of the centre
+/// with its new value.
 ///
 /// A missing centre stays missing. Otherwise the general rule (the centre clamped
 /// into the middle one or two of the ranges in the window) is the median of five
@@ -636,9 +638,12 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
 /// one as the centre (with `n` ranges, `n` even, the centre once more makes the
 /// middle of `n + 1` the centre clamped into the middle two).
 #[inline(never)]
-fn median5_exact(o: &mut Reading, nb: [u32; 4], slow: &mut (usize, u32)) -> u32 {
+fn median5_exact(w: &mut [Reading], x2: u32, x1: u32, slow: &mut (usize, u32)) -> u32 {
+    let [o, a1, a2, ..] = w else {
+        return 0;
+    };
     let c = o.distance;
-    let mut nb = nb;
+    let mut nb = [x2, x1, a1.distance, a2.distance];
     if (nb[0] | nb[1] | c | nb[2] | nb[3]) >= SMALL {
         if c == NONE {
             o.distance = no_range(&mut slow.0, slow.1);
@@ -777,26 +782,21 @@ mod tests {
         for t in 0..n.pow(5) {
             let w: [u32; 5] = core::array::from_fn(|i| vals[t / n.pow(i as u32) % n]);
             let want = median_reference(&w, 2);
-            let mut o = Reading {
-                distance: w[2],
-                ..Reading::default()
-            };
+            let mut s = cells(&w[2..]);
             let mut slow = (3usize, OUT_NONE);
-            let changed = median5_exact(&mut o, [w[0], w[1], w[3], w[4]], &mut slow);
+            let changed = median5_exact(&mut s, w[0], w[1], &mut slow);
             let shown = if want == NONE { OUT_NONE } else { want };
-            assert_eq!(o.distance, shown, "{w:?}");
+            // The centre's cell only.
+            assert_eq!(dist(&s), [shown, w[3], w[4]], "{w:?}");
             assert_eq!(slow, (3 + usize::from(want == NONE), OUT_NONE), "{w:?}");
             assert_eq!(changed != 0, want != w[2], "{w:?}");
         }
         // By hand: one neighbour missing, the centre clamped into the middle two of
         // the four ranges (10 20 | 30 40); two missing, the median of three.
         let one = |c: u32, nb: [u32; 4]| {
-            let mut o = Reading {
-                distance: c,
-                ..Reading::default()
-            };
-            median5_exact(&mut o, nb, &mut (0, 9));
-            o.distance
+            let mut s = cells(&[c, nb[2], nb[3]]);
+            median5_exact(&mut s, nb[0], nb[1], &mut (0, 9));
+            s[0].distance
         };
         assert_eq!(one(10, [NONE, 20, 30, 40]), 20);
         assert_eq!(one(25, [NONE, 10, 30, 40]), 25);
