@@ -10,13 +10,13 @@
 //! at a time, [`median3_pairs`]). Each stage first tries a
 //! quick test: a centre within the threshold of the point before it stays, a centre
 //! between its neighbours is their median. The median of 5 runs a loop of its own,
-//! two centres at a time (one sorted pair of new distances per two outputs when all
-//! six are ranges below 2^31, the general rule otherwise), after speckle removal's
-//! loop.
+//! two or four centres a turn (one sorted pair of new distances per two outputs when
+//! all six are ranges below 2^31, the general rule otherwise: the same network with the
+//! missing neighbours filled in), after speckle removal's loop.
 
 use scip::Reading;
 
-use super::window::{median_line, speckle3_line, Regs};
+use super::window::{speckle3_line, Regs};
 use super::{LineConsts, Tally};
 
 /// No range, inside a line.
@@ -528,19 +528,6 @@ pub(super) fn classify_rare(
     }
 }
 
-/// A median's output `x` with no range as `out_none` ([`NONE`] to leave it), counted in
-/// `invalid`.
-#[inline(always)]
-fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
-    // At most the line's points: no wrap.
-    *invalid = invalid.wrapping_add(usize::from(x == NONE));
-    if x == NONE {
-        out_none
-    } else {
-        x
-    }
-}
-
 /// The median of 5 over `s` (the points `md` held, then the line): every cell but the
 /// last two is a centre, `md.b1` and `md.b2` the distances before the first (nearest
 /// first). No range is written as `out_none` ([`NONE`] to leave it). Leaves in `md`
@@ -554,11 +541,13 @@ fn out(x: u32, out_none: u32, invalid: &mut usize) -> u32 {
 /// the smaller low, the largest the larger high); with `s2 <= s3` those two, the
 /// median of the four and a fifth value `e` is `max(s2, min(s3, e))`: for centre `k`
 /// with `e = v(k - 2)`, for `k + 1` with `v(k + 3)`. The next two centres' `P` is this
-/// `Q`. The quick rule holds when the six distances are ranges below [`SMALL`] (no
-/// range, [`NONE`], is then the only value with the top bit set: one test of the OR of
-/// the pairs' highs and the two ends); otherwise, and for an odd last centre, one
-/// centre at a time by [`median5_exact`]. The quick rule's outputs are ranges: only
-/// [`median5_exact`] counts no range.
+/// `Q`, its `e` the centre `k`: the loop takes two such steps a turn when the line
+/// holds them. The quick rule holds when the six distances are ranges below [`SMALL`]
+/// (no range, [`NONE`], is then the only value with the top bit set): `e` and `P` are
+/// tested once on entering the loop, and each step tests only what it adds (the OR of
+/// `Q`'s high and `v(k + 3)`), since it leaves `e` and `P` among the distances tested.
+/// Otherwise, and for an odd last centre, one centre at a time by [`median5_exact`].
+/// The quick rule's outputs are ranges: only [`median5_exact`] counts no range.
 #[inline(never)]
 fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
     // Written by the single centres' rule only (out of the loop's registers).
@@ -571,27 +560,53 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
     let (mut pl, mut ph) = (md.b1.min(c), md.b1.max(c));
     let mut diff = 0u32;
     loop {
-        while let [o0, o1, r2, r3, ..] = rest {
-            let (c, v1, v2, v3) = (o0.distance, o1.distance, r2.distance, r3.distance);
-            let (ql, qh) = (v1.min(v2), v1.max(v2));
-            if (ph | qh | e | v3) >= SMALL {
-                break;
+        // `e` and `P` ranges below SMALL: the loops test only the distances they add
+        // (each step leaves `e` and `P` among the distances it tested).
+        if (e | ph) < SMALL {
+            // Two centres at a time, and two more when the line holds them and their
+            // window passes (the second step's `P` the first's `Q`, its `e` the first
+            // centre).
+            while let [o0, o1, o2, o3, tail @ ..] = rest {
+                let (c0, c1, c2, c3) = (o0.distance, o1.distance, o2.distance, o3.distance);
+                let (ql, qh) = (c1.min(c2), c1.max(c2));
+                if (qh | c3) >= SMALL {
+                    break;
+                }
+                let (u, w) = (pl.max(ql), ph.min(qh));
+                let (s2, s3) = (u.min(w), u.max(w));
+                let (x0, x1) = (s3.min(e).max(s2), s3.min(c3).max(s2));
+                diff |= (x0 ^ c0) | (x1 ^ c1);
+                (o0.distance, o1.distance) = (x0, x1);
+                (e, pl, ph) = (c0, ql, qh);
+                let pass = match tail {
+                    [r4, r5, ..] => Some((r4.distance, r5.distance)),
+                    _ => None,
+                };
+                let Some((v4, v5)) = pass else {
+                    rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
+                    break;
+                };
+                let (rl, rh) = (c3.min(v4), c3.max(v4));
+                if (rh | v5) >= SMALL {
+                    rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
+                    break;
+                }
+                let (u, w) = (ql.max(rl), qh.min(rh));
+                let (s2, s3) = (u.min(w), u.max(w));
+                let (x2, x3) = (s3.min(c0).max(s2), s3.min(v5).max(s2));
+                diff |= (x2 ^ c2) | (x3 ^ c3);
+                (o2.distance, o3.distance) = (x2, x3);
+                (e, pl, ph) = (c2, rl, rh);
+                rest = core::mem::take(&mut rest).get_mut(4..).unwrap_or_default();
             }
-            let (u, w) = (pl.max(ql), ph.min(qh));
-            let (s2, s3) = (u.min(w), u.max(w));
-            let (x0, x1) = (s3.min(e).max(s2), s3.min(v3).max(s2));
-            diff |= (x0 ^ c) | (x1 ^ v1);
-            (o0.distance, o1.distance) = (x0, x1);
-            (e, pl, ph) = (c, ql, qh);
-            rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
         }
         // One centre alone: a window the quick rule does not cover, or an odd last
         // centre.
-        let [o0, o1, r2, ..] = rest else {
+        let [o0, o1, _, ..] = rest else {
             break;
         };
         let (c, v1, x1) = (o0.distance, o1.distance, pl ^ ph ^ o0.distance);
-        diff |= median5_exact(o0, [e, x1, v1, r2.distance], &mut slow);
+        diff |= median5_exact(rest, e, x1, &mut slow);
         (e, pl, ph) = (x1, c.min(v1), c.max(v1));
         rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
     }
@@ -611,21 +626,43 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
 
 /// The median of 5 for one centre of [`median5`], out of its loop (a window with no
 /// range in it or a range at or above [`SMALL`], or an odd last centre): the centre
-/// `o` (its distance before) between the neighbours `nb` becomes its output, no range
-/// as `slow.1`, counted in `slow.0`. A window of ranges below [`SMALL`] by the quick
-/// rule (the median of the middle two of `nb[1]`, `o`, `nb[2]`, `nb[3]` and `nb[0]`),
-/// any other by the general rule. Returns the OR of the centre with its new value.
+/// `w[0]` (its distance before), between `x2` and `x1` (the distances before it,
+/// nearest last) and `w[1]` and `w[2]`, becomes its output, no range as `slow.1`,
+/// counted in `slow.0` (fewer than three cells: nothing). Returns the OR of the centre
+/// with its new value.
+///
+/// A missing centre stays missing. Otherwise the general rule (the centre clamped
+/// into the middle one or two of the ranges in the window) is the median of five
+/// ranges when the missing neighbours are filled in: a pair of them as 0 and
+/// `u32::MAX - 1` (at or below and at or above every range: the middle stays), an odd
+/// one as the centre (with `n` ranges, `n` even, the centre once more makes the
+/// middle of `n + 1` the centre clamped into the middle two).
 #[inline(never)]
-fn median5_exact(o: &mut Reading, nb: [u32; 4], slow: &mut (usize, u32)) -> u32 {
-    let c = o.distance;
-    let [x2, x1, a1, a2] = nb;
-    let x = if (x2 | x1 | c | a1 | a2) < SMALL {
-        let (u, w) = (x1.min(c).max(a1.min(a2)), x1.max(c).min(a1.max(a2)));
-        u.max(w).min(x2).max(u.min(w))
-    } else {
-        median_line(c, nb, NONE)
+fn median5_exact(w: &mut [Reading], x2: u32, x1: u32, slow: &mut (usize, u32)) -> u32 {
+    let [o, a1, a2, ..] = w else {
+        return 0;
     };
-    o.distance = out(x, slow.1, &mut slow.0);
+    let c = o.distance;
+    let mut nb = [x2, x1, a1.distance, a2.distance];
+    if (nb[0] | nb[1] | c | nb[2] | nb[3]) >= SMALL {
+        if c == NONE {
+            o.distance = no_range(&mut slow.0, slow.1);
+            return 0;
+        }
+        let missing = nb.iter().filter(|&&v| v == NONE).count();
+        let mut fill = if missing % 2 == 1 { c } else { 0 };
+        for v in &mut nb {
+            if *v == NONE {
+                *v = fill;
+                fill = if fill == 0 { NONE - 1 } else { 0 };
+            }
+        }
+    }
+    // The median of the middle two of `x1`, `c`, `a1`, `a2` and `x2`.
+    let [x2, x1, a1, a2] = nb;
+    let (u, w) = (x1.min(c).max(a1.min(a2)), x1.max(c).min(a1.max(a2)));
+    let x = u.max(w).min(x2).max(u.min(w));
+    o.distance = x;
     x ^ c
 }
 
@@ -646,6 +683,7 @@ pub(super) fn finish(cells: &mut [Reading], out_none: u32) -> usize {
 #[cfg(test)]
 mod tests {
     extern crate std;
+    use super::super::window::median_line;
     use super::*;
     use std::vec::Vec;
 
@@ -730,6 +768,43 @@ mod tests {
             let small = d == NONE || d < 1 << 31;
             assert_eq!(small_bit(d) >> 31 == 0, small, "{d:#x}");
         }
+    }
+
+    #[test]
+    fn median5_single_centre_follows_the_rule_written_plainly() {
+        // Every window of five over values that meet the fill-ins (0 and u32::MAX - 1,
+        // ties with them), ranges beside 2^31 and no range, one to four neighbours
+        // missing: the single centre's rule against the rule written plainly, its
+        // output as the encoder's value, the count and the returned change.
+        const OUT_NONE: u32 = 0xdead_beef;
+        let vals = [0, 1, 500, (1 << 31) - 1, 1 << 31, u32::MAX - 1, NONE];
+        let n = vals.len();
+        for t in 0..n.pow(5) {
+            let w: [u32; 5] = core::array::from_fn(|i| vals[t / n.pow(i as u32) % n]);
+            let want = median_reference(&w, 2);
+            let mut s = cells(&w[2..]);
+            let mut slow = (3usize, OUT_NONE);
+            let changed = median5_exact(&mut s, w[0], w[1], &mut slow);
+            let shown = if want == NONE { OUT_NONE } else { want };
+            // The centre's cell only.
+            assert_eq!(dist(&s), [shown, w[3], w[4]], "{w:?}");
+            assert_eq!(slow, (3 + usize::from(want == NONE), OUT_NONE), "{w:?}");
+            assert_eq!(changed != 0, want != w[2], "{w:?}");
+        }
+        // By hand: one neighbour missing, the centre clamped into the middle two of
+        // the four ranges (10 20 | 30 40); two missing, the median of three.
+        let one = |c: u32, nb: [u32; 4]| {
+            let mut s = cells(&[c, nb[2], nb[3]]);
+            median5_exact(&mut s, nb[0], nb[1], &mut (0, 9));
+            s[0].distance
+        };
+        assert_eq!(one(10, [NONE, 20, 30, 40]), 20);
+        assert_eq!(one(25, [NONE, 10, 30, 40]), 25);
+        assert_eq!(one(45, [10, NONE, 30, 40]), 40);
+        assert_eq!(one(45, [NONE, 10, NONE, 40]), 40);
+        assert_eq!(one(5, [10, NONE, NONE, 40]), 10);
+        assert_eq!(one(5, [NONE, NONE, NONE, 40]), 5);
+        assert_eq!(one(NONE, [1, 2, 3, 4]), 9);
     }
 
     #[test]
@@ -859,7 +934,7 @@ mod tests {
 
     #[test]
     fn median5_in_lines_follows_the_general_rule() {
-        // A stream cut into lines of 0 to 6 points (now and then longer), the median's
+        // A stream cut into lines of 0 to 6 points (now and then up to 12 or 39), the median's
         // state held across them as `line` holds it (the distances before the next
         // centre in `b`, the last two cells of a line kept for the next): every output
         // against the general rule (`median_line`, and the rule written plainly), with
@@ -893,10 +968,10 @@ mod tests {
             let before = [pick(&mut next), pick(&mut next)];
             let lines: Vec<Vec<u32>> = (0..next() % 8)
                 .map(|_| {
-                    let len = if next() % 8 == 0 {
-                        next() % 40
-                    } else {
-                        next() % 7
+                    let len = match next() % 8 {
+                        0 => next() % 40,
+                        1 | 2 => next() % 13,
+                        _ => next() % 7,
                     };
                     (0..len).map(|_| pick(&mut next)).collect()
                 })
