@@ -376,7 +376,8 @@ pub(super) fn untake(s: &InProgress, codes: &[u32]) -> (u16, u32) {
 }
 
 /// The buffered points of `s` as a data frame with identifier `id`, written into `out`.
-#[inline]
+/// Never inlined: the runs and the point path ([`ScanEncoder::flush_into`]) share it.
+#[inline(never)]
 pub(super) fn flush(
     s: &mut InProgress,
     id: embedded_can::Id,
