@@ -180,6 +180,9 @@ impl TimeSync {
         Some(a.master_us.wrapping_add(dt).wrapping_add(correction))
     }
 
+    /// Out of line, like [`TimeSync::reject`] and [`TimeSync::accept`]: each has several
+    /// callers (a frame of their 64-bit fields each, inlined).
+    #[inline(never)]
     fn restart(&mut self, rx: u64, m: i64) {
         self.anchor = Some(Anchor {
             bridge_us: rx,
@@ -194,6 +197,7 @@ impl TimeSync {
         self.stats.samples = self.stats.samples.wrapping_add(1);
     }
 
+    #[inline(never)]
     fn reject(&mut self, rx: u64, m: i64) -> bool {
         self.stats.outliers = self.stats.outliers.wrapping_add(1);
         self.rejects_in_row = self.rejects_in_row.saturating_add(1);
@@ -259,6 +263,7 @@ impl TimeSync {
         self.accept(rx, predicted.wrapping_add(e.wrapping_div(2)))
     }
 
+    #[inline(never)]
     fn accept(&mut self, rx: u64, master: i64) -> bool {
         self.anchor = Some(Anchor {
             bridge_us: rx,

@@ -516,6 +516,73 @@ fn lossless_runs_code_every_distance_as_the_code_table_says() {
     }
 }
 
+/// The intensity widths share one coding loop, each intensity cut to its top bits
+/// first: a run's data bytes for D16 with I8, I12 and I16, written here by hand (little
+/// endian, least significant bit first; the 2-byte data header, then per point the
+/// 16-bit distance code and the intensity code above it). Both coding loops: the 1 mm
+/// one (`at_least(20)`: 5 mm is an error code, no range, code 0) and the general one
+/// (`at_least(0)`: 5 mm is a range); intensities at both ends (0x00FF has no top bits,
+/// 0xFFFF all), a range past the largest code (0xFFFF). CAN FD (one frame) and classic
+/// (the payloads of its frames, whole points each for I8 and I16).
+#[test]
+fn the_intensity_widths_keep_their_top_bits() {
+    let points = [
+        (0x1234u32, 0xABCDu16),
+        (0x0567, 0x00FF),
+        (5, 0x8001),
+        (70_000, 0xFFFF),
+    ];
+    // Per rule minimum, the third point's distance code.
+    for (min, p3) in [(20u32, 0x00u8), (0, 0x05)] {
+        let i8 = [
+            0x34, 0x12, 0xAB, 0x67, 0x05, 0x00, p3, 0x00, 0x80, 0xFF, 0xFF, 0xFF,
+        ];
+        // 28 bits a point: 0x1234, 0xABC; 0x0567, 0x00F; p3, 0x800; 0xFFFF, 0xFFF.
+        let i12 = [
+            0x34, 0x12, 0xBC, 0x7A, 0x56, 0xF0, 0x00, p3, 0x00, 0x00, 0xF8, 0xFF, 0xFF, 0xFF,
+        ];
+        let i16 = [
+            0x34, 0x12, 0xCD, 0xAB, 0x67, 0x05, 0xFF, 0x00, p3, 0x00, 0x01, 0x80, 0xFF, 0xFF, 0xFF,
+            0xFF,
+        ];
+        let cases: [(IntensityEncoding, &[u8]); 3] = [
+            (IntensityEncoding::I8, &i8),
+            (IntensityEncoding::I12, &i12),
+            (IntensityEncoding::I16, &i16),
+        ];
+        for (intensity, bytes) in cases {
+            let enc = Encoding {
+                distance: DistanceEncoding::D16,
+                intensity,
+                unit_exp: 0,
+            };
+            let rule = RangeRule::at_least(min);
+            for format in [FrameFormat::FD64, FrameFormat::Classic] {
+                let ids = IdWindow::DEFAULT.node(1).unwrap();
+                let mut e = ScanEncoder::new(ids, format).unwrap();
+                e.begin(&header(4, enc)).unwrap();
+                let mut frames: Vec<Frame> = Vec::new();
+                let run = e.push_run(&points, rule, |p| *p, &mut frames).unwrap();
+                assert_eq!(run.points, 4);
+                assert_eq!(run.invalid, u32::from(min > 5), "{intensity:?} {min}");
+                let mut payload = Vec::new();
+                for f in &frames {
+                    // Data header: the first point's index (low 12 bits), sequence 7.
+                    assert_eq!(f.data()[1] >> 4, 7);
+                    payload.extend_from_slice(&f.data()[2..]);
+                }
+                if format.is_fd() {
+                    assert_eq!(frames.len(), 1);
+                    assert_eq!(&frames[0].data()[..2], &[0x00, 0x70]);
+                    assert_eq!(&payload[..bytes.len()], bytes, "{intensity:?} {min}");
+                } else if intensity != IntensityEncoding::I12 {
+                    assert_eq!(payload, bytes, "{intensity:?} {min}");
+                }
+            }
+        }
+    }
+}
+
 /// The data frames of runs (the fixed-width loops, classic and CAN FD, the D16 loop
 /// compiled for its width and the shared one; the lossless coding's) and of single
 /// points carry the node's data identifier, written here by hand: the window's base

@@ -53,6 +53,8 @@ impl Decoder {
     }
 
     /// An error inside a response: skip to its end.
+    #[cold]
+    #[inline(never)]
     pub(super) fn fail(&mut self, kind: ErrorKind) -> Option<Event<'static>> {
         let line = self.line_no;
         // Lines of a damaged measurement are still LF-framed: keep checking their sums
