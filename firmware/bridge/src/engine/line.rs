@@ -69,10 +69,14 @@ impl<const Q: usize> Core<Q> {
             };
             let (pipeline, cells, mut out) = self.split();
             let k = pipeline.filter_line(first, line.readings, cells, sensor, has_aux, none);
-            if let Some(k) = k {
+            if let Some((k, no_range)) = k {
                 if !*out.overflow {
                     let points = cells.get(..k).unwrap_or_default();
-                    out.encode_run(points, rule);
+                    // The fixed-width encodings take the points as checked (0 no
+                    // range, any other value a range, as the rule says): no coding
+                    // test per point.
+                    let checked = (!lossless).then(|| u32::try_from(no_range).unwrap_or(0));
+                    out.encode_run(points, rule, checked);
                 }
                 return;
             }
@@ -95,7 +99,7 @@ impl<const Q: usize> Core<Q> {
             self.pipeline.count_direct(invalid, rejected);
             return;
         }
-        let (taken, mut invalid, mut rejected) = self.split().2.encode_run(readings, rule);
+        let (taken, mut invalid, mut rejected) = self.split().2.encode_run(readings, rule, None);
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = readings.get(taken..).unwrap_or(&[]);

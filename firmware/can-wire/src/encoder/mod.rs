@@ -99,6 +99,10 @@ struct InProgress {
     /// Points taken by a classic run whose codes wait at the front of the encoder's code
     /// buffer, not yet in the CRC or the packer (counted in `pushed` and `buffered`).
     pending: usize,
+    /// While a [`ScanEncoder::push_checked_run`] runs: its points' count and how many
+    /// of them are no range (0); `(usize::MAX, 0)` otherwise. A block of exactly that
+    /// many points is the whole run, and is coded without a test per point.
+    checked: (usize, u32),
 }
 
 /// Points a run codes at a time: a data line's worth.
@@ -410,6 +414,7 @@ impl ScanEncoder {
             intensity_bits,
             full_len: data_frame_len(&enc, usize::from(capacity)).ok_or(Error::FrameTooLong)?,
             pending: 0,
+            checked: (usize::MAX, 0),
         });
         Ok(frames)
     }
@@ -457,6 +462,38 @@ impl ScanEncoder {
                 self.run_fixed::<true, 0, 0, _, _, _>(db, ib, points, rule, &point, sink)
             }
         }
+    }
+
+    /// [`ScanEncoder::push_run`] with the rule [`RangeRule::at_least(1)`] for points
+    /// already checked (a filter's output): each point's distance is 0 for no range or
+    /// a range (any other value), and `no_range` is the number of points whose distance
+    /// is 0. The frames, counts and stops are those of `push_run` with that rule. A
+    /// fixed-width scan in 1 mm units codes such a run (when it is one block, a data
+    /// line's worth) with no test per point: each distance is its own code, and only
+    /// the OR of the distances is checked, once, for a range at or past the
+    /// out-of-range code (such a block is coded by the general rule). A wrong
+    /// `no_range` leaves the points' codes right but miscounts the valid points (the
+    /// trailer's count) and the run's `invalid`.
+    #[inline]
+    pub fn push_checked_run<T, F, S>(
+        &mut self,
+        points: &[T],
+        no_range: u32,
+        point: F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        if let Open::Fixed(s) = &mut self.open {
+            s.checked = (points.len(), no_range);
+        }
+        let run = self.push_run(points, RangeRule::at_least(1), point, sink);
+        if let Open::Fixed(s) = &mut self.open {
+            s.checked = (usize::MAX, 0);
+        }
+        run
     }
 
     /// [`ScanEncoder::run_lossless`], never inlined into [`ScanEncoder::push_run`]: the
