@@ -72,11 +72,11 @@ impl<const Q: usize> Core<Q> {
             if let Some((k, no_range)) = k {
                 if !*out.overflow {
                     let points = cells.get(..k).unwrap_or_default();
-                    // The fixed-width encodings take the points as checked (0 no
-                    // range, any other value a range, as the rule says): no coding
-                    // test per point.
-                    let checked = (!lossless).then(|| u32::try_from(no_range).unwrap_or(0));
-                    out.encode_run(points, rule, checked);
+                    // As checked points (0 no range, any other value a range, as the
+                    // fixed-width encodings' rule says: no coding test per point; the
+                    // lossless coding takes them by its rule). At most the line's
+                    // points: no truncation.
+                    out.encode_run(points, rule, Some(no_range as u32));
                 }
                 return;
             }
@@ -119,11 +119,15 @@ impl<const Q: usize> Core<Q> {
 #[inline(never)]
 fn count_no_range(rule: &can_wire::RangeRule, readings: &[scip::Reading]) -> (usize, usize) {
     let (mut invalid, mut rejected) = (0usize, 0usize);
+    let [lo, hi] = rule.window;
     for r in readings {
         let d = r.distance;
+        // A range is a sensor's range inside the window.
+        let sensor = rule.is_sensor_range(d);
+        let outside = d < lo || d > hi;
         // At most the readings' count.
-        invalid = invalid.wrapping_add(usize::from(!rule.is_range(d)));
-        rejected = rejected.wrapping_add(usize::from(rule.is_sensor_range(d) && !rule.is_range(d)));
+        invalid = invalid.wrapping_add(usize::from(!sensor || outside));
+        rejected = rejected.wrapping_add(usize::from(sensor && outside));
     }
     (invalid, rejected)
 }

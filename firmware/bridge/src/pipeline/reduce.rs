@@ -484,7 +484,10 @@ mod tests {
                 .filter_line(step, &input, &mut cells, rule, intensity, none)
                 .unwrap();
             // The count of no range is that of the cells so given.
-            assert_eq!(no_range, cells[..k].iter().filter(|c| c.distance == none).count());
+            assert_eq!(
+                no_range,
+                cells[..k].iter().filter(|c| c.distance == none).count()
+            );
             out.extend(
                 cells[..k]
                     .iter()

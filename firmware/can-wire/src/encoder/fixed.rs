@@ -201,22 +201,6 @@ pub(super) fn code_block_any<T, F: Fn(&T) -> (u32, u16)>(
     s: &InProgress,
     codes: &mut [u32],
 ) -> (u16, u32, u32) {
-    // The whole of a checked run (`push_checked_run`) in 1 mm units: each distance its
-    // own code, when their OR says that none is at or past the out-of-range code.
-    let (len, zeros) = s.checked;
-    if len == points.len() && s.coder.is_mm() {
-        let any = if ib == 0 {
-            copy_checked::<false, T, F>(points, point, s, codes)
-        } else {
-            copy_checked::<true, T, F>(points, point, s, codes)
-        };
-        if any < s.coder.max_code() {
-            // At most a block's points; the caller's zeros among them if it is right.
-            let n = codes.len().min(points.len()) as u32;
-            let zeros = zeros.min(n);
-            return (n.wrapping_sub(zeros) as u16, zeros, 0);
-        }
-    }
     match ib {
         0 => code_block::<0, T, F>(points, rule, point, s, codes),
         8 => code_block::<8, T, F>(points, rule, point, s, codes),
@@ -239,52 +223,54 @@ pub(super) fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     s: &InProgress,
     codes: &mut [u32],
 ) -> (u16, u32, u32) {
+    // The whole of a checked run (`push_checked_run`) in 1 mm units without
+    // intensities: each distance its own code, when their OR says that none is at or
+    // past the out-of-range code.
+    let (len, zeros) = s.checked;
+    let zeros = zeros.filter(|_| IB == 0 && len == points.len() && s.coder.is_mm());
+    if let Some(zeros) = zeros {
+        let any = copy_checked(points, point, codes);
+        if any < s.coder.max_code() {
+            // `len` is at most a block's points, the caller's zeros among them (if it
+            // is right: else the counts are wrong, nothing else).
+            return ((len as u32).wrapping_sub(zeros) as u16, zeros, 0);
+        }
+    }
     if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() {
         return code_mm::<IB, T, F>(points, rule, point, s, codes);
     }
     code_points::<IB, T, F>(points, rule, point, s, codes)
 }
 
-/// The points of a whole checked run ([`ScanEncoder::push_checked_run`]: the rule
-/// [`RangeRule::at_least(1)`]) into `codes` in 1 mm units, each distance as its own
-/// code with the intensity's code above (when `INTENSITY`, at the scan's width), no
-/// test per point; returns the OR of the distances. When that is below the
+/// The distances of a whole checked run ([`ScanEncoder::push_checked_run`]: the rule
+/// [`RangeRule::at_least(1)`]) without intensities into `codes` in 1 mm units, each as
+/// its own code, no test per point; returns their OR. When that is below the
 /// out-of-range code, so is every distance: each point's code is then right (a range
 /// as itself, 0 as no range); otherwise (a range may be at or past the out-of-range
 /// code, to be coded so) the caller codes the block by the general rule, over what
-/// this wrote. Two points a turn; out of line, a few registers.
+/// this wrote. Two points a turn.
 ///
 /// [`ScanEncoder::push_checked_run`]: super::ScanEncoder::push_checked_run
-#[inline(never)]
-fn copy_checked<const INTENSITY: bool, T, F: Fn(&T) -> (u32, u16)>(
-    points: &[T],
-    point: &F,
-    s: &InProgress,
-    codes: &mut [u32],
-) -> u32 {
-    let shift = s.intensity_shift;
-    let code = |d: u32, intensity: u16| {
-        if INTENSITY {
-            // The intensity's top bits (a shift of 16 - its width, at most 8); `d` has
-            // at most 16 bits when the code is used.
-            d | (u32::from(intensity) >> (shift & 15)) << 16
-        } else {
-            d
-        }
+#[inline(always)]
+fn copy_checked<T, F: Fn(&T) -> (u32, u16)>(points: &[T], point: &F, codes: &mut [u32]) -> u32 {
+    // The codes of the points (the FD run gives the whole buffer), pairs of both; too
+    // few codes (never: a block fits the buffer) go the general way.
+    let Some(codes) = codes.get_mut(..points.len()) else {
+        return u32::MAX;
     };
     let mut any = 0u32;
     let (pairs, last) = codes.as_chunks_mut::<2>();
     let (from, rest) = points.as_chunks::<2>();
     for ([c0, c1], [p0, p1]) in pairs.iter_mut().zip(from) {
-        let ((d0, i0), (d1, i1)) = (point(p0), point(p1));
+        let (d0, d1) = (point(p0).0, point(p1).0);
         any |= d0 | d1;
-        *c0 = code(d0, i0);
-        *c1 = code(d1, i1);
+        *c0 = d0;
+        *c1 = d1;
     }
-    for (out, p) in last.iter_mut().zip(rest) {
-        let (d, intensity) = point(p);
+    if let (Some(out), Some(p)) = (last.first_mut(), rest.first()) {
+        let d = point(p).0;
         any |= d;
-        *out = code(d, intensity);
+        *out = d;
     }
     any
 }
