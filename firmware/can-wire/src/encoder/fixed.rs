@@ -259,15 +259,17 @@ fn copy_checked<T, F: Fn(&T) -> (u32, u16)>(points: &[T], point: &F, codes: &mut
         return u32::MAX;
     };
     let mut any = 0u32;
-    let (pairs, last) = codes.as_chunks_mut::<2>();
-    let (from, rest) = points.as_chunks::<2>();
-    for ([c0, c1], [p0, p1]) in pairs.iter_mut().zip(from) {
-        let (d0, d1) = (point(p0).0, point(p1).0);
-        any |= d0 | d1;
-        *c0 = d0;
-        *c1 = d1;
-    }
-    if let (Some(out), Some(p)) = (last.first_mut(), rest.first()) {
+    let mut pairs = codes.chunks_exact_mut(2);
+    let mut from = points.chunks_exact(2);
+    (&mut pairs).zip(&mut from).for_each(|(c, p)| {
+        if let ([c0, c1], [p0, p1]) = (c, p) {
+            let (d0, d1) = (point(p0).0, point(p1).0);
+            any |= d0 | d1;
+            *c0 = d0;
+            *c1 = d1;
+        }
+    });
+    if let ([out], [p]) = (pairs.into_remainder(), from.remainder()) {
         let d = point(p).0;
         any |= d;
         *out = d;
