@@ -69,10 +69,14 @@ impl<const Q: usize> Core<Q> {
             };
             let (pipeline, cells, mut out) = self.split();
             let k = pipeline.filter_line(first, line.readings, cells, sensor, has_aux, none);
-            if let Some(k) = k {
+            if let Some((k, no_range)) = k {
                 if !*out.overflow {
                     let points = cells.get(..k).unwrap_or_default();
-                    out.encode_run(points, rule);
+                    // As checked points (0 no range, any other value a range, as the
+                    // fixed-width encodings' rule says: no coding test per point; the
+                    // lossless coding takes them by its rule). At most the line's
+                    // points: no truncation.
+                    out.encode_run(points, rule, Some(no_range as u32));
                 }
                 return;
             }
@@ -95,7 +99,7 @@ impl<const Q: usize> Core<Q> {
             self.pipeline.count_direct(invalid, rejected);
             return;
         }
-        let (taken, mut invalid, mut rejected) = self.split().2.encode_run(readings, rule);
+        let (taken, mut invalid, mut rejected) = self.split().2.encode_run(readings, rule, None);
         // Points the encoder did not take (it stopped early) are counted too, as the
         // pipeline emitted them.
         let rest = readings.get(taken..).unwrap_or(&[]);
@@ -115,11 +119,15 @@ impl<const Q: usize> Core<Q> {
 #[inline(never)]
 fn count_no_range(rule: &can_wire::RangeRule, readings: &[scip::Reading]) -> (usize, usize) {
     let (mut invalid, mut rejected) = (0usize, 0usize);
+    let [lo, hi] = rule.window;
     for r in readings {
         let d = r.distance;
+        // A range is a sensor's range inside the window.
+        let sensor = rule.is_sensor_range(d);
+        let outside = d < lo || d > hi;
         // At most the readings' count.
-        invalid = invalid.wrapping_add(usize::from(!rule.is_range(d)));
-        rejected = rejected.wrapping_add(usize::from(rule.is_sensor_range(d) && !rule.is_range(d)));
+        invalid = invalid.wrapping_add(usize::from(!sensor || outside));
+        rejected = rejected.wrapping_add(usize::from(sensor && outside));
     }
     (invalid, rejected)
 }

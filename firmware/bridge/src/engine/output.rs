@@ -101,16 +101,20 @@ impl<const Q: usize> Output<'_, Q> {
 
     /// Points the pipeline emitted, into the encoder in one run (what [`Output::emit`]
     /// does for each of them); returns how many it took, how many of those were no
-    /// range and how many of those were ranges outside the rule's window. Inlined: its
+    /// range and how many of those were ranges outside the rule's window. `checked`:
+    /// the points are a filter's output, this many of them no range (with a
+    /// fixed-width encoding `rule` is [`can_wire::RangeRule::at_least`] 1: distance 0
+    /// no range, any other a range; [`ScanEncoder::push_checked_run`]). Inlined: its
     /// parts are the engine's fields, borrowed apart, not a struct built for a call.
     #[inline(always)]
     pub(super) fn encode_run(
         &mut self,
         points: &[scip::Reading],
         rule: can_wire::RangeRule,
+        checked: Option<u32>,
     ) -> (usize, usize, usize) {
         let mut slots = DataSlots(self.queue);
-        match push_readings(self.encoder, points, rule, &mut slots) {
+        match push_readings(self.encoder, points, rule, checked, &mut slots) {
             Ok(run) => {
                 self.stats.frames = self.stats.frames.wrapping_add(run.frames);
                 match run.stop {
@@ -132,8 +136,9 @@ impl<const Q: usize> Output<'_, Q> {
     }
 }
 
-/// A run of readings into the encoder ([`ScanEncoder::push_run`]), its frames into
-/// `sink`. Not generic (the queue is a `dyn` sink, one call per frame) and never
+/// A run of readings into the encoder ([`ScanEncoder::push_run`], or with `checked`
+/// [`ScanEncoder::push_checked_run`], by [`ScanEncoder::push_run_with`]), its frames
+/// into `sink`. Not generic (the queue is a `dyn` sink, one call per frame) and never
 /// inlined: the encoder's loops are compiled here, in this crate, at its optimisation
 /// level (the boards build their own crates for size; a copy instantiated there for the
 /// board's queue ran the DL loops about 40 % slower on the Cortex-M4).
@@ -142,9 +147,10 @@ fn push_readings(
     encoder: &mut ScanEncoder,
     points: &[scip::Reading],
     rule: can_wire::RangeRule,
+    checked: Option<u32>,
     sink: &mut dyn FrameSink,
 ) -> Result<can_wire::Run, can_wire::Error> {
-    encoder.push_run(points, rule, reading_point, sink)
+    encoder.push_run_with(points, rule, checked, reading_point, sink)
 }
 
 /// One point into the encoder ([`ScanEncoder::push_point_to`]): like [`push_readings`],

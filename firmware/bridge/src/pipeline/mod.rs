@@ -503,7 +503,7 @@ impl Pipeline {
     /// them. The output points are left at the front
     /// of `cells` as readings for the CAN encoder: `out_none` for no range, a range of
     /// 0 mm as 1 (the encodings code it so), `aux` the intensity (0 for none); their
-    /// number is returned. Counters, the `filtered` flag and what
+    /// number is returned, and how many of them are no range (`out_none`). Counters, the `filtered` flag and what
     /// [`Pipeline::end_scan`] emits are those of pushing the points one by one. `None`,
     /// nothing changed, when every stage is off (use [`Pipeline::pass_run`]), `cells`
     /// is too short, or the run does not continue the open scan in sequence.
@@ -515,7 +515,7 @@ impl Pipeline {
         sensor: can_wire::RangeRule,
         intensity: bool,
         out_none: u32,
-    ) -> Option<usize> {
+    ) -> Option<(usize, usize)> {
         let n = input.len();
         // (The settings' direct runs say whether every stage is off: one test.)
         if self.direct == DirectRuns::Passthrough || cells.len() < n.saturating_add(LINE_HEADROOM) {
@@ -537,7 +537,7 @@ impl Pipeline {
         let buf = cells;
         add(&mut self.stats.points_in, n);
         let Some(last) = input.len().checked_sub(1) else {
-            return Some(0);
+            return Some((0, 0));
         };
         // Step of the slice's last point: the run fits the scan's u16 steps, so `lo +
         // last` is below 2^16 and times the cluster (below 2^16) below 2^32.
@@ -571,7 +571,7 @@ impl Pipeline {
             } else {
                 (n, smooth::finish(cells, out_none))
             };
-            return Some(self.commit(&t.counts(m, invalid, false)));
+            return Some((self.commit(&t.counts(m, invalid, false)), invalid));
         }
         // The windows' state for the line: as the last line left it, or loaded.
         let h = &mut self.held;
@@ -602,7 +602,7 @@ impl Pipeline {
                 out_none,
             );
         }
-        Some(self.commit(&t.counts(m, invalid, changed != 0)))
+        Some((self.commit(&t.counts(m, invalid, changed != 0)), invalid))
     }
 
     /// The slice of a run of `n` points from `first_step`, `cluster` steps apart, that
@@ -2099,9 +2099,14 @@ mod tests {
                     })
                     .collect();
                 let mut cells = std::vec![scip::Reading::default(); len + LINE_HEADROOM];
-                let k = p
+                let (k, no_range) = p
                     .filter_line(at as u16, &input, &mut cells, rule, true, none)
                     .unwrap();
+                // The count of no range is that of the cells so given.
+                assert_eq!(
+                    no_range,
+                    cells[..k].iter().filter(|c| c.distance == none).count()
+                );
                 out.extend(
                     cells[..k]
                         .iter()
@@ -2243,7 +2248,9 @@ mod tests {
                             cells.extend([scip::Reading::default(); LINE_HEADROOM]);
                             let k = p.filter_line(a[0].step, &input, &mut cells, can_wire::RangeRule::at_least(1), with_intensity, 7_777_777);
                             match k {
-                                Some(k) => {
+                                Some((k, no_range)) => {
+                                    let none = 7_777_777;
+                                    proptest::prop_assert_eq!(no_range, cells[..k].iter().filter(|c| c.distance == none).count());
                                     let base = out.len();
                                     out.extend(cells[..k].iter().enumerate().map(|(j, c)| Point {
                                     // The line path gives no steps: the reference's are used.
@@ -2344,13 +2351,14 @@ mod tests {
                     let mut cells = std::vec![scip::Reading::default(); a.len() + LINE_HEADROOM];
                     let none = 7_777_777;
                     let k = p.filter_line(a[0].step, &input, &mut cells, can_wire::RangeRule::at_least(1), false, none);
-                    let Some(k) = k else {
+                    let Some((k, no_range)) = k else {
                         // Every stage off: no line path.
                         p.push_batch(a, &mut |x| out.push(x));
                         rest = b;
                         i += 1;
                         continue;
                     };
+                    proptest::prop_assert_eq!(no_range, cells[..k].iter().filter(|c| c.distance == none).count());
                     let base = out.len();
                     out.extend(cells[..k].iter().enumerate().map(|(j, c)| Point {
                         step: want.get(base + j).map_or(0, |w| w.step),

@@ -486,9 +486,16 @@ mod tests {
                 .map(|(i, &d)| reading(d, u32::from(step) + i as u32 + 1))
                 .collect();
             let mut cells = std::vec![reading(0, 0); line.len() + LINE_HEADROOM];
-            let k = p.filter_line(step, &input, &mut cells, rule, intensity, none);
+            let (k, no_range) = p
+                .filter_line(step, &input, &mut cells, rule, intensity, none)
+                .unwrap();
+            // The count of no range is that of the cells so given.
+            assert_eq!(
+                no_range,
+                cells[..k].iter().filter(|c| c.distance == none).count()
+            );
             out.extend(
-                cells[..k.unwrap()]
+                cells[..k]
                     .iter()
                     .map(|c| ((c.distance != none).then_some(c.distance), c.aux)),
             );
@@ -533,10 +540,10 @@ mod tests {
         let mut cells = [reading(0, 0); 8];
         let none = 7_777_777;
         let k = p.filter_line(0, &line1, &mut cells, rule, true, none);
-        assert_eq!(k, Some(1));
+        assert_eq!(k, Some((1, 0)));
         assert_eq!((cells[0].distance, cells[0].aux), (300, 2));
         let k = p.filter_line(4, &line2, &mut cells, rule, true, none);
-        assert_eq!(k, Some(1));
+        assert_eq!(k, Some((1, 0)));
         assert_eq!((cells[0].distance, cells[0].aux), (900, 4));
         let mut last = Vec::new();
         assert_eq!(

@@ -248,10 +248,58 @@ pub(super) fn code_block<const IB: u32, T, F: Fn(&T) -> (u32, u16)>(
     s: &InProgress,
     codes: &mut [u32],
 ) -> (u16, u32, u32) {
+    // The whole of a checked run (`push_checked_run`) in 1 mm units without
+    // intensities: each distance its own code, when their OR says that none is at or
+    // past the out-of-range code.
+    let (len, zeros) = s.checked;
+    let zeros = zeros.filter(|_| IB == 0 && len == points.len() && s.coder.is_mm());
+    if let Some(zeros) = zeros {
+        let any = copy_checked(points, point, codes);
+        if any < s.coder.max_code() {
+            // `len` is at most a block's points, the caller's zeros among them (if it
+            // is right: else the counts are wrong, nothing else).
+            return ((len as u32).wrapping_sub(zeros) as u16, zeros, 0);
+        }
+    }
     if s.coder.is_mm() && rule.min > 0 && rule.min <= s.coder.max_code() {
         return code_mm::<IB, T, F>(points, rule, point, s, codes);
     }
     code_points::<IB, T, F>(points, rule, point, s, codes)
+}
+
+/// The distances of a whole checked run ([`ScanEncoder::push_checked_run`]: the rule
+/// [`RangeRule::at_least(1)`]) without intensities into `codes` in 1 mm units, each as
+/// its own code, no test per point; returns their OR. When that is below the
+/// out-of-range code, so is every distance: each point's code is then right (a range
+/// as itself, 0 as no range); otherwise (a range may be at or past the out-of-range
+/// code, to be coded so) the caller codes the block by the general rule, over what
+/// this wrote. Two points a turn.
+///
+/// [`ScanEncoder::push_checked_run`]: super::ScanEncoder::push_checked_run
+#[inline(always)]
+fn copy_checked<T, F: Fn(&T) -> (u32, u16)>(points: &[T], point: &F, codes: &mut [u32]) -> u32 {
+    // The codes of the points (the FD run gives the whole buffer), pairs of both; too
+    // few codes (never: a block fits the buffer) go the general way.
+    let Some(codes) = codes.get_mut(..points.len()) else {
+        return u32::MAX;
+    };
+    let mut any = 0u32;
+    let mut pairs = codes.chunks_exact_mut(2);
+    let mut from = points.chunks_exact(2);
+    (&mut pairs).zip(&mut from).for_each(|(c, p)| {
+        if let ([c0, c1], [p0, p1]) = (c, p) {
+            let (d0, d1) = (point(p0).0, point(p1).0);
+            any |= d0 | d1;
+            *c0 = d0;
+            *c1 = d1;
+        }
+    });
+    if let ([out], [p]) = (pairs.into_remainder(), from.remainder()) {
+        let d = point(p).0;
+        any |= d;
+        *out = d;
+    }
+    any
 }
 
 /// The loop of [`code_block`] for the usual cases: the unit is 1 mm and `rule.min` is

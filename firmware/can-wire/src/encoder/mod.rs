@@ -99,6 +99,10 @@ struct InProgress {
     /// Points taken by a classic run whose codes wait at the front of the encoder's code
     /// buffer, not yet in the CRC or the packer (counted in `pushed` and `buffered`).
     pending: usize,
+    /// The run being pushed: its points' count and, for a
+    /// [`ScanEncoder::push_checked_run`], how many of them are no range (0). A block of exactly that
+    /// many points is the whole run, and is coded without a test per point.
+    checked: (usize, Option<u32>),
 }
 
 /// Points a run codes at a time: a data line's worth.
@@ -410,6 +414,7 @@ impl ScanEncoder {
             intensity_bits,
             full_len: data_frame_len(&enc, usize::from(capacity)).ok_or(Error::FrameTooLong)?,
             pending: 0,
+            checked: (0, None),
         });
         Ok(frames)
     }
@@ -433,11 +438,60 @@ impl ScanEncoder {
         F: Fn(&T) -> (u32, u16),
         S: FrameSink + ?Sized,
     {
-        let s = match &self.open {
+        self.push_run_with(points, rule, None, point, sink)
+    }
+
+    /// [`ScanEncoder::push_run`] with the rule [`RangeRule::at_least(1)`] for points
+    /// already checked (a filter's output): each point's distance is 0 for no range or
+    /// a range (any other value but `u32::MAX`, which no rule takes for a range), and
+    /// `no_range` is the number of points whose distance is 0. The frames, counts and
+    /// stops are those of `push_run` with that rule. A
+    /// fixed-width scan in 1 mm units without intensities codes such a run (when it is
+    /// one block, a data line's worth) with no test per point: each distance is its
+    /// own code, and only the OR of the distances is checked, once, for a range at or
+    /// past the out-of-range code (such a block is coded by the general rule). A wrong
+    /// `no_range` leaves the points' codes right but miscounts the valid points (the
+    /// trailer's count) and the run's `invalid`.
+    #[inline]
+    pub fn push_checked_run<T, F, S>(
+        &mut self,
+        points: &[T],
+        no_range: u32,
+        point: F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        self.push_run_with(points, RangeRule::at_least(1), Some(no_range), point, sink)
+    }
+
+    /// [`ScanEncoder::push_run`] (`checked` `None`) or
+    /// [`ScanEncoder::push_checked_run`] (`checked` its `no_range`; `rule` must then be
+    /// [`RangeRule::at_least(1)`] for a fixed-width scan) by a value: a caller that
+    /// takes both kinds of run has one copy of the dispatch. A lossless scan codes by
+    /// `rule` either way (`checked` is not used).
+    #[inline]
+    pub fn push_run_with<T, F, S>(
+        &mut self,
+        points: &[T],
+        rule: RangeRule,
+        checked: Option<u32>,
+        point: F,
+        sink: &mut S,
+    ) -> Result<Run, Error>
+    where
+        F: Fn(&T) -> (u32, u16),
+        S: FrameSink + ?Sized,
+    {
+        let s = match &mut self.open {
             Open::Fixed(s) => s,
             Open::Lossless(_) => return self.run_lossless_apart(points, rule, &point, sink),
             Open::None => return Err(Error::NoScan),
         };
+        // Every run says whether it is checked (only a run's blocks read it).
+        s.checked = (points.len(), checked);
         let classic = !self.format.is_fd();
         let (db, ib) = (s.distance_bits, s.intensity_bits);
         // D16 without intensity on classic CAN gets a loop compiled for its width (not

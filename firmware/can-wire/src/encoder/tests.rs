@@ -675,3 +675,248 @@ fn classic_capacity_is_the_runs_points_per_frame() {
         }
     }
 }
+
+proptest::proptest! {
+    /// A checked run (`push_checked_run`: 0 no range, any other distance a range, the
+    /// count of zeros given) makes the frames, trailer, counts and stops of pushing
+    /// the points one by one by that rule written plainly (0 invalid, else a range in
+    /// millimetres), and the same `Run`s as the general `push_run` with the rule
+    /// "at least 1": in every encoding and frame format, with runs cut anywhere (one
+    /// point to more than a block), lost frames, and runs of small ranges (each
+    /// distance its own code) or with edge values (0, the out-of-range codes and their
+    /// neighbours, 2^15, 2^31 and the largest values, u32::MAX no range) among them.
+    #[test]
+    fn checked_runs_equal_point_by_point(
+        d in 0usize..3,
+        i in 0usize..4,
+        unit_exp in 0u8..3,
+        format in proptest::sample::select(vec![
+            FrameFormat::Classic,
+            FrameFormat::Fd { max_len: 12 },
+            FrameFormat::Fd { max_len: 24 },
+            FrameFormat::FD64,
+        ]),
+        count in 1u16..150,
+        extra in 0usize..3,
+        seed in proptest::collection::vec(
+            (0u32..4095, proptest::prelude::any::<u16>(), 0usize..40),
+            160,
+        ),
+        edgy in proptest::collection::vec(proptest::prelude::any::<bool>(), 8),
+        cuts in proptest::collection::vec(1usize..45, 1..8),
+        room in 0usize..80,
+        batch in 0usize..5,
+        mix in proptest::prelude::any::<bool>(),
+    ) {
+        const EDGES: [u32; 24] = [
+            0, 1, 2, 4094, 4095, 4096, 16382, 16383, 16384, 32767, 32768, 65533, 65534,
+            65535, 65536, 65537, 131_071, 262_143, (1 << 31) - 1, 1 << 31,
+            (1 << 31) + 1, u32::MAX - 2, u32::MAX - 1, u32::MAX,
+        ];
+        let enc = Encoding {
+            distance: DistanceEncoding::ALL[d],
+            intensity: IntensityEncoding::ALL[i],
+            unit_exp,
+        };
+        let ids = IdWindow::DEFAULT.node(3).unwrap();
+        let at_least_1 = RangeRule::at_least(1);
+        // Per run (by the cut's index), small ranges and zeros only, or edge values
+        // now and then too.
+        let mut points: Vec<(u32, u16)> = Vec::new();
+        let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
+        let total = usize::from(count) + extra;
+        for (n, &cut) in cuts.iter().cycle().enumerate() {
+            if points.len() >= total {
+                break;
+            }
+            let from = points.len();
+            let to = (from + cut).min(total);
+            for j in from..to {
+                let (mm, int, pick) = seed[j % seed.len()];
+                let d = if mm % 9 == 0 {
+                    0
+                } else if edgy[n % edgy.len()] && pick < EDGES.len() && mm % 3 == 0 {
+                    EDGES[pick]
+                } else {
+                    mm
+                };
+                points.push((d, int));
+            }
+            runs.push(from..to);
+        }
+        // The rule "at least 1" written plainly: 0 is no range, and so is u32::MAX
+        // (the filler of a rule's unused exceptions: no rule takes it for a range).
+        let plain = |d: u32| {
+            if d == 0 || d == u32::MAX {
+                Distance::Invalid
+            } else {
+                Distance::Mm(d)
+            }
+        };
+        // Point by point by the plain rule, with the same room for frames.
+        let mut one = ScanEncoder::new(ids, format).unwrap();
+        one.begin(&header(count, enc)).unwrap();
+        let mut expected = Vec::new();
+        let (mut stop, mut lost) = (None, 0);
+        for &(r, i) in &points {
+            match one.push_point(plain(r), i) {
+                Ok(Some(f)) if expected.len() < room => expected.push(f),
+                Ok(Some(_)) => lost += 1,
+                Ok(None) => {}
+                Err(e) => {
+                    proptest::prop_assert_eq!(e, Error::TooManyPoints);
+                    stop = Some(RunStop::TooManyPoints);
+                    break;
+                }
+            }
+        }
+        // Checked runs (`two`), beside general runs with the rule "at least 1"
+        // (`three`), each into a sink of the same room; with `mix` every other run
+        // point by point into both.
+        let mut two = ScanEncoder::new(ids, format).unwrap();
+        two.begin(&header(count, enc)).unwrap();
+        let mut three = ScanEncoder::new(ids, format).unwrap();
+        three.begin(&header(count, enc)).unwrap();
+        let mut sink = VecSink { frames: Vec::new(), room, batch };
+        let mut sink3 = VecSink { frames: Vec::new(), room, batch };
+        let (mut run_stop, mut run_lost, mut frames) = (None, 0, 0);
+        let (mut invalid, mut expected_invalid) = (0, 0);
+        let mut at = 0;
+        for n in 0.. {
+            if run_stop.is_some() || at >= points.len() {
+                break;
+            }
+            // After a lost frame the next run starts at the first point not taken (and
+            // after the last cut, the rest is one run).
+            let end = runs.get(n).map_or(points.len(), |r| r.end).max(at);
+            let now = &points[at..end];
+            if now.is_empty() {
+                continue;
+            }
+            if mix && n % 2 == 1 {
+                for &(r, i) in now {
+                    let mut got = false;
+                    let pushed = two.push_point_into(plain(r), i, || {
+                        let slot = sink.data_slot();
+                        got = slot.is_some();
+                        slot
+                    });
+                    let pushed3 = three.push_point_into(plain(r), i, || sink3.data_slot());
+                    proptest::prop_assert_eq!(pushed.is_ok(), pushed3.is_ok());
+                    match pushed {
+                        Ok(true) if got => frames += 1,
+                        Ok(true) => run_lost += 1,
+                        Ok(false) => {}
+                        Err(_) => {
+                            run_stop = Some(RunStop::TooManyPoints);
+                            break;
+                        }
+                    }
+                }
+                at = end;
+            } else {
+                let zeros = now.iter().filter(|p| p.0 == 0).count() as u32;
+                let got = two
+                    .push_checked_run(now, zeros, |p: &(u32, u16)| *p, &mut sink)
+                    .unwrap();
+                let general = three
+                    .push_run(now, at_least_1, |p: &(u32, u16)| *p, &mut sink3)
+                    .unwrap();
+                proptest::prop_assert_eq!(got, general);
+                proptest::prop_assert_eq!(got.rejected, 0);
+                frames += got.frames;
+                let taken = &now[..got.points as usize];
+                invalid += got.invalid;
+                expected_invalid += taken.iter().filter(|p| plain(p.0) == Distance::Invalid).count();
+                match got.stop {
+                    Some(RunStop::NoSlot) => {
+                        run_lost += 1;
+                        at += got.points as usize;
+                    }
+                    other => {
+                        run_stop = other;
+                        at = end;
+                    }
+                }
+            }
+        }
+        proptest::prop_assert_eq!(run_stop, stop);
+        proptest::prop_assert_eq!(run_lost, lost);
+        proptest::prop_assert_eq!(invalid as usize, expected_invalid);
+        proptest::prop_assert_eq!(frames as usize, sink.frames.len());
+        proptest::prop_assert_eq!(&sink.frames, &expected);
+        proptest::prop_assert_eq!(&sink3.frames, &expected);
+        let t1 = one.finish(TrailerFlags::default()).unwrap();
+        let t2 = two.finish(TrailerFlags::default()).unwrap();
+        let t3 = three.finish(TrailerFlags::default()).unwrap();
+        proptest::prop_assert_eq!(&t1, &t2);
+        proptest::prop_assert_eq!(t1, t3);
+    }
+}
+
+/// Checked runs by hand (D16 in 1 mm, classic frames, 3 points a frame): a block of
+/// small ranges and zeros, each distance its own code; a block with a range at the
+/// out-of-range code 65535 and past it, coded 65535 and not counted valid; the
+/// largest distances (u32::MAX is no range to every rule: code 0). The payloads and
+/// the trailer's valid count written out.
+#[test]
+fn checked_runs_by_hand() {
+    let ids = IdWindow::DEFAULT.node(3).unwrap();
+    let d16 = Encoding::PLAIN_MM;
+    // Each distance its own code (the OR below 65535); the general rule for a range
+    // at or past 65535 and for u32::MAX; each its own code, an odd point last; the
+    // general rule for an OR of 65535 (all of them below it).
+    let lines: [&[u32]; 4] = [
+        &[0, 1, 65534, 300, 0, 7],
+        &[65535, 65536, 1 << 31, 2, u32::MAX, 0],
+        &[32768, 4095, 7],
+        &[32768, 32767, 65533],
+    ];
+    let mut e = ScanEncoder::new(ids, FrameFormat::Classic).unwrap();
+    e.begin(&header(18, d16)).unwrap();
+    let mut frames = Vec::new();
+    let mut runs = Vec::new();
+    for line in lines {
+        let zeros = line.iter().filter(|&&d| d == 0).count() as u32;
+        runs.push(
+            e.push_checked_run(line, zeros, |&d: &u32| (d, 0), &mut frames)
+                .unwrap(),
+        );
+    }
+    let run = |points, invalid, frames| Run {
+        points,
+        invalid,
+        rejected: 0,
+        frames,
+        stop: None,
+    };
+    assert_eq!(
+        runs,
+        [run(6, 2, 2), run(6, 2, 2), run(3, 0, 1), run(3, 0, 1)]
+    );
+    // Codes per frame (data header first: first index, then the sequence's low bits).
+    let payload = |first: u16, codes: [u16; 3]| {
+        let mut b = vec![];
+        b.extend_from_slice(&(first | 0x7 << 12).to_le_bytes());
+        for c in codes {
+            b.extend_from_slice(&c.to_le_bytes());
+        }
+        b
+    };
+    let want = [
+        payload(0, [0, 1, 65534]),
+        payload(3, [300, 0, 7]),
+        payload(6, [65535, 65535, 65535]),
+        payload(9, [2, 0, 0]),
+        payload(12, [32768, 4095, 7]),
+        payload(15, [32768, 32767, 65533]),
+    ];
+    let got: Vec<&[u8]> = frames.iter().map(|f| f.data()).collect();
+    assert_eq!(got, want.iter().map(|w| &w[..]).collect::<Vec<_>>());
+    // Valid: 18 points, 3 zeros and u32::MAX no range, 3 at or past the
+    // out-of-range code.
+    let t = e.finish(TrailerFlags::default()).unwrap();
+    let trailer = crate::trailer::Trailer::parse(t.last().unwrap().data()).unwrap();
+    assert_eq!(trailer.points_sent, 18);
+    assert_eq!(trailer.points_valid, 11);
+}
