@@ -101,18 +101,17 @@ pub(super) fn line(
     // The common case, every stage in one loop (the median's point held from the line
     // before, when both are on); otherwise a loop per stage.
     let (out, mut invalid);
-    if half2 < 2 && (k.jump.is_none() || np2 == half2) {
-        (out, invalid) = if k.jump.is_some() && half2 == 0 {
-            speckle_line(all, input, k, held, sp, none, c)
-        } else {
-            let exact = pass(all, c) || held;
-            match (k.jump.is_some(), exact) {
-                // Both stages by the exact rules: a loop of their own (the quick loop
-                // then holds no `exact`).
-                (true, true) => stages_exact(all, jump, sp, md, none, c, changed),
-                (true, false) => stages::<true>(all, jump, false, sp, md, none, c, changed),
-                _ => median3_pairs(all, exact, md, none, changed),
-            }
+    if k.jump.is_some() && half2 == 0 {
+        // Speckle removal alone.
+        (out, invalid) = speckle_line(all, input, k, held, sp, none, c);
+    } else if half2 < 2 && (k.jump.is_none() || np2 == half2) {
+        let exact = pass(all, c) || held;
+        (out, invalid) = match (k.jump.is_some(), exact) {
+            // Both stages by the exact rules: a loop of their own (the quick loop then
+            // holds no `exact`).
+            (true, true) => stages_exact(all, jump, sp, md, none, c, changed),
+            (true, false) => stages::<true>(all, jump, false, sp, md, none, c, changed),
+            _ => median3_pairs(all, exact, md, none, changed),
         };
     } else {
         // Speckle removal over its held point and the line: its outputs stay in place.
