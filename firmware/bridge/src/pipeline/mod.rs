@@ -554,6 +554,7 @@ impl Pipeline {
             line.set_sensor(sensor);
         }
         line.min_intensity = if intensity { self.min_intensity } else { 0 };
+        line.span_loaded = if line.min_intensity > 0 { 0 } else { line.span };
         line.out_none = out_none;
         let line = &self.line;
         let windows = line.jump.is_some() || line.half2 > 0;
@@ -840,6 +841,10 @@ struct LineConsts {
     low: u32,
     /// The length of that span.
     span: u32,
+    /// The span of the classification as the points are loaded (`smooth::speckle_line`):
+    /// `span`, or 0 with an intensity threshold (every distance then takes the full
+    /// rule). Set with the line's threshold (a field, so that the loop is one).
+    span_loaded: u32,
     /// Whether the window stages' last gives its outputs in the encoder's form: no
     /// decimation after, and no range of 0 can pass `rule`.
     last: bool,
@@ -873,6 +878,7 @@ impl LineConsts {
             },
             low: 0,
             span: 0,
+            span_loaded: 0,
             last: false,
             half2: config.median.map_or(0, MedianWidth::half),
             min_intensity: 0,

@@ -362,12 +362,12 @@ fn speckle_line(
     // The classification as the points are loaded: the common span by one test (no
     // distance with a threshold), an error code below the sensor's minimum by a
     // second, any other distance through `classify_point`.
-    let (low, span) = (k.low, if k.min_intensity > 0 { 0 } else { k.span });
+    let (low, span) = (k.low, k.span_loaded);
     let class = |r: &Reading, t: &mut Tally| {
         let x = r.distance;
         if x.wrapping_sub(low) < span {
             x
-        } else if x < k.rule.min && span > 0 {
+        } else if x < k.rule.min {
             // Counted here, at most the line's points (no wrap).
             t.error_code = t.error_code.wrapping_add(1);
             NONE
@@ -381,7 +381,7 @@ fn speckle_line(
     let mut src = input.iter();
     if held == 0 {
         if let (Some(cell), Some(r)) = (d.first_mut(), src.next()) {
-            (cell.distance, cell.aux) = (class(r, t), r.aux);
+            (cell.distance, cell.aux) = (classify_point(k, r.distance, r.aux, t), r.aux);
         }
     }
     let (mut bs, mut cs) = (sp.b1, d.first().map_or(NONE, |c| c.distance));
@@ -565,32 +565,18 @@ pub(super) fn span(rule: &can_wire::RangeRule) -> (u32, u32, bool) {
 /// Error codes, the range window and the intensity threshold: `input` into `out` (as
 /// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
 /// [`SMALL`] passed (whether no range of 0 can pass is part of [`LineConsts`]' `last`).
+/// (One copy for its callers.)
+#[inline(never)]
 pub(super) fn classify(
     input: &[Reading],
     out: &mut [Reading],
     k: &LineConsts,
     c: &mut Tally,
 ) -> bool {
-    let mut big = false;
-    if k.min_intensity > 0 {
-        classify_loop::<true>(input, out, k, c, &mut big);
-    } else {
-        classify_loop::<false>(input, out, k, c, &mut big);
-    }
-    big
-}
-
-/// The loop of [`classify`], with or without an intensity threshold.
-#[inline(always)]
-fn classify_loop<const THRESHOLD: bool>(
-    input: &[Reading],
-    out: &mut [Reading],
-    k: &LineConsts,
-    c: &mut Tally,
-    big: &mut bool,
-) {
-    let (mut low_intensity, mut below) = (0usize, 0usize);
-    let (min, low, span) = (k.rule.min, k.low, k.span);
+    let (mut big, mut below) = (false, 0usize);
+    // With an intensity threshold the span is empty: every distance but an error code
+    // below the sensor's minimum takes the full rule (one loop for both).
+    let (min, low, span) = (k.rule.min, k.low, k.span_loaded);
     for (cell, r) in out.iter_mut().zip(input) {
         let (mut d, aux) = (r.distance, r.aux);
         if d.wrapping_sub(low) >= span {
@@ -600,33 +586,26 @@ fn classify_loop<const THRESHOLD: bool>(
                 below = below.wrapping_add(1);
                 d = NONE;
             } else {
-                d = classify_rare(&k.rule, d, c, big);
+                d = classify_point(k, d, aux, c);
+                big |= small_bit(d) >= SMALL;
             }
-        }
-        if THRESHOLD && d != NONE && aux < k.min_intensity {
-            // At most the line's points: no wrap.
-            low_intensity = low_intensity.wrapping_add(1);
-            d = NONE;
         }
         // Both words at once (adjacent in the cell).
         (cell.distance, cell.aux) = (d, aux);
     }
-    // Each at most the line's points: no wrap.
+    // At most the line's points: no wrap.
     c.error_code = c.error_code.wrapping_add(below);
-    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
+    big
 }
 
-/// A distance outside the common span: the distance or [`NONE`], counted in `c`
-/// (error codes, ranges outside the window); `big` set for a range at or above
-/// [`SMALL`].
+/// One reading's distance classified by the full rule (error codes, the range
+/// window, the intensity threshold): the distance or [`NONE`], counted in `c`. Out of
+/// line, for the distances outside the common span (and in [`speckle_line`] every
+/// distance when there is a threshold, and the line's first point).
 #[cold]
 #[inline(never)]
-pub(super) fn classify_rare(
-    rule: &can_wire::RangeRule,
-    d: u32,
-    c: &mut Tally,
-    big: &mut bool,
-) -> u32 {
+fn classify_point(k: &LineConsts, d: u32, aux: u32, c: &mut Tally) -> u32 {
+    let rule = &k.rule;
     // Counts of at most the line's points: no wrap.
     if d == NONE || !rule.is_sensor_range(d) {
         c.error_code = c.error_code.wrapping_add(1);
@@ -634,27 +613,7 @@ pub(super) fn classify_rare(
     } else if !rule.is_range(d) {
         c.out_of_range = c.out_of_range.wrapping_add(1);
         NONE
-    } else {
-        *big |= d >= SMALL;
-        d
-    }
-}
-
-/// One reading's distance classified (error codes, the range window, the intensity
-/// threshold) for [`speckle_line`]'s loop, out of line: it takes the common span's
-/// distances and the error codes below the sensor's minimum itself when there is no
-/// threshold. Counts into `c`.
-#[cold]
-#[inline(never)]
-fn classify_point(k: &LineConsts, d: u32, aux: u32, c: &mut Tally) -> u32 {
-    let mut big = false;
-    let d = if d.wrapping_sub(k.low) < k.span {
-        d
-    } else {
-        classify_rare(&k.rule, d, c, &mut big)
-    };
-    if d != NONE && aux < k.min_intensity {
-        // At most the line's points: no wrap.
+    } else if aux < k.min_intensity {
         c.low_intensity = c.low_intensity.wrapping_add(1);
         NONE
     } else {
@@ -830,6 +789,7 @@ mod tests {
                 let mut k = LineConsts::of(&crate::pipeline::PipelineConfig::default());
                 k.set_sensor(can_wire::RangeRule::at_least(0));
                 k.jump = Some(jump);
+                k.span_loaded = k.span;
                 let d0 = d.to_vec();
                 let (mut d2, mut sp2, mut t2) = (d0.clone(), *sp, Tally::default());
                 sp2.np = 0;
@@ -1184,6 +1144,8 @@ mod tests {
                 k.rule.window = rule.window;
                 k.set_sensor(rule);
                 k.min_intensity = min_intensity;
+                // As `filter_line` sets it with the threshold.
+                k.span_loaded = if min_intensity > 0 { 0 } else { k.span };
                 let mut out = cells(&std::vec![7; ds.len()]);
                 let mut t = Tally::default();
                 classify(&input, &mut out, &k, &mut t);
