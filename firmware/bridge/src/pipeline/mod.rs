@@ -554,7 +554,6 @@ impl Pipeline {
             line.set_sensor(sensor);
         }
         line.min_intensity = if intensity { self.min_intensity } else { 0 };
-        line.span_loaded = if line.min_intensity > 0 { 0 } else { line.span };
         line.out_none = out_none;
         let line = &self.line;
         let windows = line.jump.is_some() || line.half2 > 0;
@@ -563,7 +562,7 @@ impl Pipeline {
             // encoder's form.
             let n = input.len();
             let cells = buf.get_mut(..n).unwrap_or_default();
-            smooth::classify(input, cells, line, &mut t);
+            smooth::classify(input, cells, line, line.span_with_threshold(), &mut t);
             let (m, invalid) = if line.decimate {
                 let back = u32::try_from(last).unwrap_or(0).saturating_mul(cluster);
                 let first = last_step.saturating_sub(back);
@@ -841,10 +840,6 @@ struct LineConsts {
     low: u32,
     /// The length of that span.
     span: u32,
-    /// The span of the classification as the points are loaded (`smooth::speckle_line`):
-    /// `span`, or 0 with an intensity threshold (every distance then takes the full
-    /// rule). Set with the line's threshold (a field, so that the loop is one).
-    span_loaded: u32,
     /// Whether the window stages' last gives its outputs in the encoder's form: no
     /// decimation after, and no range of 0 can pass `rule`.
     last: bool,
@@ -878,13 +873,24 @@ impl LineConsts {
             },
             low: 0,
             span: 0,
-            span_loaded: 0,
             last: false,
             half2: config.median.map_or(0, MedianWidth::half),
             min_intensity: 0,
             jump: config.speckle.map(|f| f.max_jump_mm),
             decimate: config.decimation_factor() > 1,
             out_none: 0,
+        }
+    }
+
+    /// The classification's span for the line: `span`, or none with an intensity
+    /// threshold (every distance then takes the full rule). Worked out by the callers
+    /// of the loops and passed in, so that each loop is one (no copy per case).
+    #[inline(always)]
+    fn span_with_threshold(&self) -> u32 {
+        if self.min_intensity > 0 {
+            0
+        } else {
+            self.span
         }
     }
 

@@ -94,8 +94,9 @@ pub(super) fn line(
     // The line classified into its cells by a pass of its own (returns whether a range
     // at or above SMALL passed), but where speckle removal runs without the median in
     // its loop: `speckle_line` classifies as it loads.
+    let span = k.span_with_threshold();
     let pass = |all: &mut [Reading], c: &mut Tally| {
-        classify(input, all.get_mut(head..).unwrap_or_default(), k, c)
+        classify(input, all.get_mut(head..).unwrap_or_default(), k, span, c)
     };
 
     // The common case, every stage in one loop (the median's point held from the line
@@ -103,7 +104,7 @@ pub(super) fn line(
     let (out, mut invalid);
     if k.jump.is_some() && half2 == 0 {
         // Speckle removal alone.
-        (out, invalid) = speckle_line(all, input, k, held, sp, none, c);
+        (out, invalid) = speckle_line(all, input, k, span, held, sp, none, c);
     } else if half2 < 2 && (k.jump.is_none() || np2 == half2) {
         let exact = pass(all, c) || held;
         (out, invalid) = match (k.jump.is_some(), exact) {
@@ -118,7 +119,7 @@ pub(super) fn line(
         let (mut o1, mut exact) = (m, held);
         if k.jump.is_some() {
             let region = all.get_mut(np2..).unwrap_or_default();
-            (o1, _) = speckle_line(region, input, k, held, sp, NONE, c);
+            (o1, _) = speckle_line(region, input, k, span, held, sp, NONE, c);
         } else {
             exact |= pass(all, c);
         }
@@ -126,12 +127,10 @@ pub(super) fn line(
         let l2 = np2.wrapping_add(o1);
         let region = all.get_mut(..l2).unwrap_or_default();
         if half2 < 2 {
-            // (After speckle removal, by the exact rules when one of them is a range at
-            // or above SMALL, which only a window reaching SMALL lets pass: the scan's
-            // first line only.)
-            exact |= k.jump.is_some()
-                && k.rule.window[1] >= SMALL
-                && region.iter().any(|c| small_bit(c.distance) >= SMALL);
+            // (After speckle removal, which does not say whether a range at or above
+            // SMALL passed, by the exact rules when the window lets one pass: the
+            // scan's first line only.)
+            exact |= k.jump.is_some() && k.rule.window[1] >= SMALL;
             (out, invalid) = median3_pairs(region, exact, md, none, changed);
         } else {
             out = l2.saturating_sub(half2);
@@ -331,7 +330,8 @@ fn stages<const MD: bool>(
 /// Speckle removal alone (threshold from `k`) over `d`, in place: the point it holds
 /// from the line before (`sp.p0`, when `d` is one longer than `input`) in front, then
 /// the line's readings `input`, classified as they are loaded (error codes, the range
-/// window, the intensity threshold: counted into `t`, no range as [`NONE`]) into
+/// window, the intensity threshold: counted into `t`, no range as [`NONE`]; `span` is
+/// [`LineConsts`]' `span_with_threshold`) into
 /// their cells, so that the line is read and written once (no classification pass
 /// before). The window's state in `sp`; outputs to the front of `d`, no range as
 /// `none`. Returns the number of outputs and how many of them have no range, and adds
@@ -349,6 +349,7 @@ fn speckle_line(
     d: &mut [Reading],
     input: &[Reading],
     k: &LineConsts,
+    span: u32,
     exact: bool,
     sp: &mut Regs,
     none: u32,
@@ -362,7 +363,7 @@ fn speckle_line(
     // The classification as the points are loaded: the common span by one test (no
     // distance with a threshold), an error code below the sensor's minimum by a
     // second, any other distance through `classify_point`.
-    let (low, span) = (k.low, k.span_loaded);
+    let low = k.low;
     let class = |r: &Reading, t: &mut Tally| {
         let x = r.distance;
         if x.wrapping_sub(low) < span {
@@ -563,7 +564,8 @@ pub(super) fn span(rule: &can_wire::RangeRule) -> (u32, u32, bool) {
 }
 
 /// Error codes, the range window and the intensity threshold: `input` into `out` (as
-/// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
+/// long), no range as [`NONE`], counted into `c` (`span` is [`LineConsts`]'
+/// `span_with_threshold`). Returns whether a range at or above
 /// [`SMALL`] passed (whether no range of 0 can pass is part of [`LineConsts`]' `last`).
 /// (One copy for its callers.)
 #[inline(never)]
@@ -571,12 +573,13 @@ pub(super) fn classify(
     input: &[Reading],
     out: &mut [Reading],
     k: &LineConsts,
+    span: u32,
     c: &mut Tally,
 ) -> bool {
     let (mut big, mut below) = (false, 0usize);
     // With an intensity threshold the span is empty: every distance but an error code
     // below the sensor's minimum takes the full rule (one loop for both).
-    let (min, low, span) = (k.rule.min, k.low, k.span_loaded);
+    let (min, low) = (k.rule.min, k.low);
     for (cell, r) in out.iter_mut().zip(input) {
         let (mut d, aux) = (r.distance, r.aux);
         if d.wrapping_sub(low) >= span {
@@ -789,11 +792,10 @@ mod tests {
                 let mut k = LineConsts::of(&crate::pipeline::PipelineConfig::default());
                 k.set_sensor(can_wire::RangeRule::at_least(0));
                 k.jump = Some(jump);
-                k.span_loaded = k.span;
                 let d0 = d.to_vec();
                 let (mut d2, mut sp2, mut t2) = (d0.clone(), *sp, Tally::default());
                 sp2.np = 0;
-                let r2 = speckle_line(&mut d2, &d0, &k, exact, &mut sp2, none, &mut t2);
+                let r2 = speckle_line(&mut d2, &d0, &k, k.span, exact, &mut sp2, none, &mut t2);
                 // The held point is `sp`'s.
                 sp.np = 1;
                 if let Some(c) = d0.first() {
@@ -803,6 +805,7 @@ mod tests {
                     d,
                     d0.get(1..).unwrap_or_default(),
                     &k,
+                    k.span,
                     exact,
                     sp,
                     none,
@@ -1144,11 +1147,9 @@ mod tests {
                 k.rule.window = rule.window;
                 k.set_sensor(rule);
                 k.min_intensity = min_intensity;
-                // As `filter_line` sets it with the threshold.
-                k.span_loaded = if min_intensity > 0 { 0 } else { k.span };
                 let mut out = cells(&std::vec![7; ds.len()]);
                 let mut t = Tally::default();
-                classify(&input, &mut out, &k, &mut t);
+                classify(&input, &mut out, &k, k.span_with_threshold(), &mut t);
                 let (mut e, mut w, mut l) = (0, 0, 0);
                 for (r, o) in input.iter().zip(&out) {
                     let d = r.distance;
