@@ -562,7 +562,7 @@ impl Pipeline {
             // encoder's form.
             let n = input.len();
             let cells = buf.get_mut(..n).unwrap_or_default();
-            smooth::classify(input, cells, line, &mut t);
+            smooth::classify(input, cells, line, line.span_with_threshold(), &mut t);
             let (m, invalid) = if line.decimate {
                 let back = u32::try_from(last).unwrap_or(0).saturating_mul(cluster);
                 let first = last_step.saturating_sub(back);
@@ -879,6 +879,18 @@ impl LineConsts {
             jump: config.speckle.map(|f| f.max_jump_mm),
             decimate: config.decimation_factor() > 1,
             out_none: 0,
+        }
+    }
+
+    /// The classification's span for the line: `span`, or none with an intensity
+    /// threshold (every distance then takes the full rule). Worked out by the callers
+    /// of the loops and passed in, so that each loop is one (no copy per case).
+    #[inline(always)]
+    fn span_with_threshold(&self) -> u32 {
+        if self.min_intensity > 0 {
+            0
+        } else {
+            self.span
         }
     }
 
@@ -2124,6 +2136,109 @@ mod tests {
             assert_eq!(out, want, "{config:?}");
             assert_eq!(counters(p.stats()), want_k, "{config:?}");
             assert_eq!(p.filtered(), want_filtered, "{config:?}");
+        }
+    }
+
+    /// Ranges within the speckle threshold of no range (`u32::MAX`) beside error codes
+    /// and beside small ranges, where quick rules would go wrong (no range looks like
+    /// support, a median's neighbour near 2^32 looks small), at a line's start, middle
+    /// and end, in the scan's first line too: speckle removal alone (its loop classifies
+    /// the line as it loads it), with the median of 3 (exact after a range at or above
+    /// 2^31) or 5 after; with an intensity threshold (every point then through the
+    /// out-of-line classification) and without. Points, counters and `filtered` as the
+    /// whole-scan reference.
+    #[test]
+    fn ranges_near_no_range_take_the_exact_rules() {
+        let big = u32::MAX - 5;
+        // (Two such ranges side by side stay, and a median's centre beside them is no
+        // median of its neighbours by the quick rule: the scan's first line, too.)
+        let distances = [
+            big,
+            big - 4,
+            100,
+            105,
+            110,
+            big,
+            0,
+            1000,
+            1010,
+            0,
+            big,
+            0,
+            990,
+            1000,
+            big,
+            big - 2,
+            2000,
+            2005,
+            0,
+            0,
+            big - 3,
+            0,
+            1500,
+            1490,
+            1480,
+            0,
+            big,
+        ];
+        let lengths = [5usize, 3, 4, 1, 6, 2];
+        for median in [None, Some(MedianWidth::Three), Some(MedianWidth::Five)] {
+            for min_intensity in [None, Some(4)] {
+                let config = PipelineConfig {
+                    speckle: Some(SpeckleFilter { max_jump_mm: 10 }),
+                    median,
+                    min_intensity,
+                    ..PipelineConfig::default()
+                };
+                let points: Vec<RawPoint> = distances
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &d)| RawPoint {
+                        step: i as u16,
+                        distance: d,
+                        intensity: Some(i as u32 % 5 + 1),
+                        valid: d != 0,
+                    })
+                    .collect();
+                let (mut want, want_k, want_filtered) = reference(&config, &points);
+                let mut p = Pipeline::new(config).unwrap();
+                let info = scan(0, distances.len() as u16 - 1);
+                assert!(matches!(p.begin_scan(info), ScanStart::Publish { .. }));
+                let none = 7_777_777;
+                let (mut out, mut at, mut l) = (Vec::new(), 0usize, 0usize);
+                while at < points.len() {
+                    let len = lengths[l % lengths.len()].min(points.len() - at);
+                    let input: Vec<scip::Reading> = points[at..at + len]
+                        .iter()
+                        .map(|r| scip::Reading {
+                            distance: r.distance,
+                            aux: r.intensity.unwrap_or(0),
+                            ..scip::Reading::default()
+                        })
+                        .collect();
+                    let mut cells = std::vec![scip::Reading::default(); len + LINE_HEADROOM];
+                    let rule = can_wire::RangeRule::at_least(1);
+                    let k = p
+                        .filter_line(at as u16, &input, &mut cells, rule, true, none)
+                        .unwrap();
+                    out.extend(
+                        cells[..k]
+                            .iter()
+                            .map(|c| (c.distance != none).then_some(c.distance)),
+                    );
+                    at += len;
+                    l += 1;
+                }
+                let mut tail = Vec::new();
+                p.end_scan(true, &mut |x: Point| tail.push(x.range_mm));
+                out.extend(tail);
+                let norm = |p: &mut Point| p.range_mm = p.range_mm.map(|r| r.max(1));
+                want.iter_mut().for_each(norm);
+                let want: Vec<Option<u32>> = want.iter().map(|p| p.range_mm).collect();
+                assert_eq!(out, want, "{config:?}");
+                assert_eq!(counters(p.stats()), want_k, "{config:?}");
+                assert_eq!(p.filtered(), want_filtered, "{config:?}");
+            }
         }
     }
 

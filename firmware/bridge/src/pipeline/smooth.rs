@@ -5,9 +5,10 @@
 //! hold from the line before (copied into headroom in front of the line, so that the
 //! stages see one contiguous array), then speckle removal and the median of 3 run in
 //! one loop over the cells ([`stages`]: the windows' distances in registers, each
-//! output written over the cell of its centre; speckle removal alone is the same loop
-//! with the median compiled out, the median alone a loop of its own taking four centres
-//! at a time, [`median3_pairs`]). Each stage first tries a
+//! output written over the cell of its centre; speckle removal alone a loop of its own
+//! that classifies the line's readings as it loads them, [`speckle_line`], with no
+//! pass of its own for the classification; the median alone a loop of its own taking
+//! four centres at a time, [`median3_pairs`]). Each stage first tries a
 //! quick test: a centre within the threshold of the point before it stays, a centre
 //! between its neighbours is their median. The median of 5 runs a loop of its own,
 //! two or four centres a turn (one sorted pair of new distances per two outputs when
@@ -79,41 +80,57 @@ pub(super) fn line(
     let Some(all) = cells.get_mut(..head.wrapping_add(m)) else {
         return (0, 0);
     };
-    let big = classify(input, all.get_mut(head..).unwrap_or_default(), k, c);
-
     // Without decimation after and with no range of 0 possible, the last stage gives
     // its outputs in the encoder's form; otherwise no range stays NONE.
     let none = if k.last { k.out_none } else { NONE };
     // The loops' quick tests hold when every range is below SMALL (else every point
     // takes the exact rule): `x & (x + 1)` has its top bit clear exactly when `x` is
-    // no range or below SMALL (one OR for the two).
+    // no range or below SMALL (one OR for the two). A range at or above SMALL in the
+    // line (found by the classification) makes the median exact too; speckle removal
+    // alone does not need it.
     let small_held = |r: &Regs| (small_bit(r.b1) | small_bit(r.p0.0)) < SMALL;
-    let exact = big || !small_held(md) || k.jump.is_some_and(|j| j >= SMALL || !small_held(sp));
+    let held = !small_held(md) || k.jump.is_some_and(|j| j >= SMALL || !small_held(sp));
     let jump = k.jump.unwrap_or(0);
+    // The line classified into its cells by a pass of its own (returns whether a range
+    // at or above SMALL passed), but where speckle removal runs without the median in
+    // its loop: `speckle_line` classifies as it loads.
+    let span = k.span_with_threshold();
+    let pass = |all: &mut [Reading], c: &mut Tally| {
+        classify(input, all.get_mut(head..).unwrap_or_default(), k, span, c)
+    };
 
     // The common case, every stage in one loop (the median's point held from the line
     // before, when both are on); otherwise a loop per stage.
     let (out, mut invalid);
-    if half2 < 2 && (k.jump.is_none() || np2 == half2) {
-        (out, invalid) = match (k.jump.is_some(), half2 > 0) {
+    if k.jump.is_some() && half2 == 0 {
+        // Speckle removal alone.
+        (out, invalid) = speckle_line(all, input, k, span, held, sp, none, c);
+    } else if half2 < 2 && (k.jump.is_none() || np2 == half2) {
+        let exact = pass(all, c) || held;
+        (out, invalid) = match (k.jump.is_some(), exact) {
             // Both stages by the exact rules: a loop of their own (the quick loop then
             // holds no `exact`).
-            (true, true) if exact => stages_exact(all, jump, sp, md, none, c, changed),
-            (true, true) => stages::<true>(all, jump, false, sp, md, none, c, changed),
-            (true, false) => stages::<false>(all, jump, exact, sp, md, none, c, changed),
+            (true, true) => stages_exact(all, jump, sp, md, none, c, changed),
+            (true, false) => stages::<true>(all, jump, false, sp, md, none, c, changed),
             _ => median3_pairs(all, exact, md, none, changed),
         };
     } else {
         // Speckle removal over its held point and the line: its outputs stay in place.
-        let mut o1 = m;
+        let (mut o1, mut exact) = (m, held);
         if k.jump.is_some() {
             let region = all.get_mut(np2..).unwrap_or_default();
-            (o1, _) = stages::<false>(region, jump, exact, sp, md, NONE, c, changed);
+            (o1, _) = speckle_line(region, input, k, span, held, sp, NONE, c);
+        } else {
+            exact |= pass(all, c);
         }
         // The median over its held points and the previous stage's outputs.
         let l2 = np2.wrapping_add(o1);
         let region = all.get_mut(..l2).unwrap_or_default();
         if half2 < 2 {
+            // (After speckle removal, which does not say whether a range at or above
+            // SMALL passed, by the exact rules when the window lets one pass: the
+            // scan's first line only.)
+            exact |= k.jump.is_some() && k.rule.window[1] >= SMALL;
             (out, invalid) = median3_pairs(region, exact, md, none, changed);
         } else {
             out = l2.saturating_sub(half2);
@@ -196,7 +213,9 @@ fn no_range(invalid: &mut usize, out_none: u32) -> u32 {
 }
 
 /// Speckle removal (threshold `jump`), then the median of 3 when `MD`, in one loop
-/// over `d`, in place (the median alone is [`median3_pairs`]): the held points and the classified line in stream order (the
+/// over `d`, in place (the median alone is [`median3_pairs`]; `line` takes
+/// [`speckle_line`] for speckle removal alone, which classifies as it loads: `MD` is
+/// always on there, its other case left for the loop's shape): the held points and the classified line in stream order (the
 /// median's held point first when both are on: the caller has checked that it holds
 /// one, and it is speckle removal's output for the point before speckle removal's
 /// held centre, `sp.b1` or no range). The windows' state is carried in registers from `sp` and `md` and stored
@@ -306,6 +325,100 @@ fn stages<const MD: bool>(
     t.speckle = t.speckle.wrapping_add(removed);
     *changed |= diff;
     (out, invalid)
+}
+
+/// Speckle removal alone (threshold from `k`) over `d`, in place: the point it holds
+/// from the line before (`sp.p0`, when `d` is one longer than `input`) in front, then
+/// the line's readings `input`, classified as they are loaded (error codes, the range
+/// window, the intensity threshold: counted into `t`, no range as [`NONE`]; `span` is
+/// [`LineConsts`]' `span_with_threshold`) into
+/// their cells, so that the line is read and written once (no classification pass
+/// before). The window's state in `sp`; outputs to the front of `d`, no range as
+/// `none`. Returns the number of outputs and how many of them have no range, and adds
+/// the ranges taken to `t.speckle`.
+///
+/// The quick test of [`stages`] (a centre within the threshold of the point before it
+/// stays, a centre without a range or at or above [`SMALL`] never) is exact for a
+/// threshold below [`SMALL`], whatever the ranges: the distance from [`NONE`] to a
+/// centre below [`SMALL`] is above any such threshold, so no range is supported by a
+/// missing point. `exact` (set for a threshold at or above [`SMALL`]) takes the
+/// general rule for every point.
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn speckle_line(
+    d: &mut [Reading],
+    input: &[Reading],
+    k: &LineConsts,
+    span: u32,
+    exact: bool,
+    sp: &mut Regs,
+    none: u32,
+    t: &mut Tally,
+) -> (usize, usize) {
+    let jump = k.jump.unwrap_or(0);
+    let (mut removed, mut invalid) = (0usize, 0usize);
+    // Its quick test made to fail when `exact`.
+    let quick_jump = if exact { 0 } else { jump };
+    let n = d.len();
+    // The classification as the points are loaded: the common span by one test (no
+    // distance with a threshold), an error code below the sensor's minimum by a
+    // second, any other distance through `classify_point`.
+    let low = k.low;
+    let class = |r: &Reading, t: &mut Tally| {
+        let x = r.distance;
+        if x.wrapping_sub(low) < span {
+            x
+        } else if x < k.rule.min {
+            // Counted here, at most the line's points (no wrap).
+            t.error_code = t.error_code.wrapping_add(1);
+            NONE
+        } else {
+            classify_point(k, x, r.aux, t)
+        }
+    };
+    // The line's first point is the first centre when no point is held (then
+    // classified before the loop); the loop's look-ahead reads the rest.
+    let held = n.saturating_sub(input.len());
+    let mut src = input.iter();
+    if held == 0 {
+        if let (Some(cell), Some(r)) = (d.first_mut(), src.next()) {
+            (cell.distance, cell.aux) = (classify_point(k, r.distance, r.aux, t), r.aux);
+        }
+    }
+    let (mut bs, mut cs) = (sp.b1, d.first().map_or(NONE, |c| c.distance));
+    if let [w0, rest @ ..] = &mut *d {
+        // The output's cell, one behind the look-ahead.
+        let mut o = w0;
+        for (cell, r) in rest.iter_mut().zip(src) {
+            // The look-ahead, classified into its cell.
+            let a = class(r, t);
+            (cell.distance, cell.aux) = (a, r.aux);
+            // The quick test fails for no range (the sign of `cs` as i32 makes the
+            // difference above any threshold), so that no quick output needs the
+            // no-range test. The centre is written first, the slow branch writes over
+            // it.
+            let guard = ((cs as i32) >> 31) as u32;
+            let b = bs;
+            bs = cs;
+            o.distance = cs;
+            if b.abs_diff(cs) | guard > quick_jump {
+                let x = speckle_exact(cs, b, a, jump, &mut removed);
+                o.distance = if x == NONE {
+                    no_range(&mut invalid, none)
+                } else {
+                    x
+                };
+            }
+            o = cell;
+            cs = a;
+        }
+    }
+    sp.np = n.min(1);
+    sp.b1 = bs;
+    sp.p0 = (cs, d.last().map_or(0, |c| c.aux));
+    // At most the line's points: no wrap.
+    t.speckle = t.speckle.wrapping_add(removed);
+    (n.saturating_sub(1), invalid)
 }
 
 /// The median of 3 alone (its state in `md`, the median's held point first
@@ -451,34 +564,22 @@ pub(super) fn span(rule: &can_wire::RangeRule) -> (u32, u32, bool) {
 }
 
 /// Error codes, the range window and the intensity threshold: `input` into `out` (as
-/// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
+/// long), no range as [`NONE`], counted into `c` (`span` is [`LineConsts`]'
+/// `span_with_threshold`). Returns whether a range at or above
 /// [`SMALL`] passed (whether no range of 0 can pass is part of [`LineConsts`]' `last`).
+/// (One copy for its callers.)
+#[inline(never)]
 pub(super) fn classify(
     input: &[Reading],
     out: &mut [Reading],
     k: &LineConsts,
+    span: u32,
     c: &mut Tally,
 ) -> bool {
-    let mut big = false;
-    if k.min_intensity > 0 {
-        classify_loop::<true>(input, out, k, c, &mut big);
-    } else {
-        classify_loop::<false>(input, out, k, c, &mut big);
-    }
-    big
-}
-
-/// The loop of [`classify`], with or without an intensity threshold.
-#[inline(always)]
-fn classify_loop<const THRESHOLD: bool>(
-    input: &[Reading],
-    out: &mut [Reading],
-    k: &LineConsts,
-    c: &mut Tally,
-    big: &mut bool,
-) {
-    let (mut low_intensity, mut below) = (0usize, 0usize);
-    let (min, low, span) = (k.rule.min, k.low, k.span);
+    let (mut big, mut below) = (false, 0usize);
+    // With an intensity threshold the span is empty: every distance but an error code
+    // below the sensor's minimum takes the full rule (one loop for both).
+    let (min, low) = (k.rule.min, k.low);
     for (cell, r) in out.iter_mut().zip(input) {
         let (mut d, aux) = (r.distance, r.aux);
         if d.wrapping_sub(low) >= span {
@@ -488,33 +589,26 @@ fn classify_loop<const THRESHOLD: bool>(
                 below = below.wrapping_add(1);
                 d = NONE;
             } else {
-                d = classify_rare(&k.rule, d, c, big);
+                d = classify_point(k, d, aux, c);
+                big |= small_bit(d) >= SMALL;
             }
-        }
-        if THRESHOLD && d != NONE && aux < k.min_intensity {
-            // At most the line's points: no wrap.
-            low_intensity = low_intensity.wrapping_add(1);
-            d = NONE;
         }
         // Both words at once (adjacent in the cell).
         (cell.distance, cell.aux) = (d, aux);
     }
-    // Each at most the line's points: no wrap.
+    // At most the line's points: no wrap.
     c.error_code = c.error_code.wrapping_add(below);
-    c.low_intensity = c.low_intensity.wrapping_add(low_intensity);
+    big
 }
 
-/// A distance outside the common span: the distance or [`NONE`], counted in `c`
-/// (error codes, ranges outside the window); `big` set for a range at or above
-/// [`SMALL`].
+/// One reading's distance classified by the full rule (error codes, the range
+/// window, the intensity threshold): the distance or [`NONE`], counted in `c`. Out of
+/// line, for the distances outside the common span (and in [`speckle_line`] every
+/// distance when there is a threshold, and the line's first point).
 #[cold]
 #[inline(never)]
-pub(super) fn classify_rare(
-    rule: &can_wire::RangeRule,
-    d: u32,
-    c: &mut Tally,
-    big: &mut bool,
-) -> u32 {
+fn classify_point(k: &LineConsts, d: u32, aux: u32, c: &mut Tally) -> u32 {
+    let rule = &k.rule;
     // Counts of at most the line's points: no wrap.
     if d == NONE || !rule.is_sensor_range(d) {
         c.error_code = c.error_code.wrapping_add(1);
@@ -522,8 +616,10 @@ pub(super) fn classify_rare(
     } else if !rule.is_range(d) {
         c.out_of_range = c.out_of_range.wrapping_add(1);
         NONE
+    } else if aux < k.min_intensity {
+        c.low_intensity = c.low_intensity.wrapping_add(1);
+        NONE
     } else {
-        *big |= d >= SMALL;
         d
     }
 }
@@ -724,7 +820,45 @@ mod tests {
         // As `line` takes them: both stages by the exact rules in `stages_exact`.
         let (out, invalid) = match (SP, MD) {
             (true, true) if exact => stages_exact(d, jump, sp, md, none, &mut t, &mut changed),
-            (true, _) => stages::<MD>(d, jump, exact, sp, md, none, &mut t, &mut changed),
+            (true, true) => stages::<MD>(d, jump, exact, sp, md, none, &mut t, &mut changed),
+            (true, false) => {
+                // Speckle removal alone classifies the line as it loads it: every cell
+                // after the held point is the line's reading, by a rule that takes
+                // every distance but NONE (an error code) for a range. Run too with the
+                // held point as the line's first (classified before the loop): the
+                // same outputs, state and counts.
+                let mut k = LineConsts::of(&crate::pipeline::PipelineConfig::default());
+                k.set_sensor(can_wire::RangeRule::at_least(0));
+                k.jump = Some(jump);
+                let d0 = d.to_vec();
+                let (mut d2, mut sp2, mut t2) = (d0.clone(), *sp, Tally::default());
+                sp2.np = 0;
+                let r2 = speckle_line(&mut d2, &d0, &k, k.span, exact, &mut sp2, none, &mut t2);
+                // The held point is `sp`'s.
+                sp.np = 1;
+                if let Some(c) = d0.first() {
+                    sp.p0 = (c.distance, c.aux);
+                }
+                let r = speckle_line(
+                    d,
+                    d0.get(1..).unwrap_or_default(),
+                    &k,
+                    k.span,
+                    exact,
+                    sp,
+                    none,
+                    &mut t,
+                );
+                assert_eq!((r, t.speckle), (r2, t2.speckle));
+                assert_eq!(dist(&d[..r.0]), dist(&d2[..r2.0]));
+                assert_eq!((sp.b1, sp.p0.0, sp.np), (sp2.b1, sp2.p0.0, sp2.np));
+                // The error codes: the line's NONE readings (the held point's too in
+                // the second run).
+                let errors = |v: &[Reading]| v.iter().filter(|r| r.distance == NONE).count();
+                assert_eq!(t.error_code, errors(&d0[1..]));
+                assert_eq!(t2.error_code, errors(&d0));
+                r
+            }
             _ => median3_pairs(d, exact, md, none, &mut changed),
         };
         (out, invalid, changed, t.speckle)
@@ -1090,7 +1224,7 @@ mod tests {
                 k.min_intensity = min_intensity;
                 let mut out = cells(&std::vec![7; ds.len()]);
                 let mut t = Tally::default();
-                classify(&input, &mut out, &k, &mut t);
+                classify(&input, &mut out, &k, k.span_with_threshold(), &mut t);
                 let (mut e, mut w, mut l) = (0, 0, 0);
                 for (r, o) in input.iter().zip(&out) {
                     let d = r.distance;
@@ -1192,7 +1326,10 @@ mod tests {
             let big = |v: &u32| *v != NONE && *v >= 1 << 31;
             let quick_holds = !line.iter().chain(&[b0, c0, b1, c1]).any(big) && jump < 1 << 31;
             for exact in [false, true] {
-                if !exact && !quick_holds {
+                // Speckle removal alone: its quick test is exact for any ranges with a
+                // threshold below 2^31.
+                let alone_holds = jump < 1 << 31;
+                if !exact && !alone_holds {
                     continue;
                 }
                 // Speckle removal alone: its centre c0 (b0 before it), then the line.
@@ -1218,6 +1355,9 @@ mod tests {
                 assert_eq!(removed, gone);
                 if len > 0 {
                     assert_eq!((r[0], r[1]), (s[len - 1], s[len]));
+                }
+                if !exact && !quick_holds {
+                    continue;
                 }
                 // The median alone: its centre c1 (b1 before it), then the line.
                 let m: Vec<u32> = std::iter::once(c1).chain(line.iter().copied()).collect();
