@@ -2218,9 +2218,13 @@ mod tests {
                         .collect();
                     let mut cells = std::vec![scip::Reading::default(); len + LINE_HEADROOM];
                     let rule = can_wire::RangeRule::at_least(1);
-                    let k = p
+                    let (k, no_range) = p
                         .filter_line(at as u16, &input, &mut cells, rule, true, none)
                         .unwrap();
+                    assert_eq!(
+                        no_range,
+                        cells[..k].iter().filter(|c| c.distance == none).count()
+                    );
                     out.extend(
                         cells[..k]
                             .iter()
