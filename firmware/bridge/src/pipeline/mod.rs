@@ -562,7 +562,7 @@ impl Pipeline {
             // encoder's form.
             let n = input.len();
             let cells = buf.get_mut(..n).unwrap_or_default();
-            smooth::classify(input, cells, line, line.span_with_threshold(), &mut t);
+            smooth::classify(input, cells, line, &mut t);
             let (m, invalid) = if line.decimate {
                 let back = u32::try_from(last).unwrap_or(0).saturating_mul(cluster);
                 let first = last_step.saturating_sub(back);
@@ -879,18 +879,6 @@ impl LineConsts {
             jump: config.speckle.map(|f| f.max_jump_mm),
             decimate: config.decimation_factor() > 1,
             out_none: 0,
-        }
-    }
-
-    /// The classification's span for the line: `span`, or none with an intensity
-    /// threshold (every distance then takes the full rule). Worked out by the callers
-    /// of the loops and passed in, so that each loop is one (no copy per case).
-    #[inline(always)]
-    fn span_with_threshold(&self) -> u32 {
-        if self.min_intensity > 0 {
-            0
-        } else {
-            self.span
         }
     }
 

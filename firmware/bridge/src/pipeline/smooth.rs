@@ -94,9 +94,9 @@ pub(super) fn line(
     // The line classified into its cells by a pass of its own (returns whether a range
     // at or above SMALL passed), but where speckle removal runs without the median in
     // its loop: `speckle_line` classifies as it loads.
-    let span = k.span_with_threshold();
+    let span = k.span;
     let pass = |all: &mut [Reading], c: &mut Tally| {
-        classify(input, all.get_mut(head..).unwrap_or_default(), k, span, c)
+        classify(input, all.get_mut(head..).unwrap_or_default(), k, c)
     };
 
     // The common case, every stage in one loop (the median's point held from the line
@@ -298,8 +298,7 @@ fn stages(
 /// from the line before (`sp.p0`, when `d` is one longer than `input`) in front, then
 /// the line's readings `input`, classified as they are loaded (error codes, the range
 /// window, the intensity threshold: counted into `t`, no range as [`NONE`]; `span` is
-/// [`LineConsts`]' `span_with_threshold`) into
-/// their cells, so that the line is read and written once (no classification pass
+/// [`LineConsts`]' `span`) into their cells, so that the line is read and written once (no classification pass
 /// before). The window's state in `sp`; outputs to the front of `d`, no range as
 /// `none`. Returns the number of outputs and how many of them have no range, and adds
 /// the ranges taken to `t.speckle`.
@@ -311,8 +310,29 @@ fn stages(
 /// missing point. `exact` (set for a threshold at or above [`SMALL`]) takes the
 /// general rule for every point.
 #[allow(clippy::too_many_arguments)]
-#[inline(never)]
+#[inline(always)]
 fn speckle_line(
+    d: &mut [Reading],
+    input: &[Reading],
+    k: &LineConsts,
+    span: u32,
+    exact: bool,
+    sp: &mut Regs,
+    none: u32,
+    t: &mut Tally,
+) -> (usize, usize) {
+    // A loop with the intensity threshold and one without.
+    if k.min_intensity > 0 {
+        speckle_loop::<true>(d, input, k, span, exact, sp, none, t)
+    } else {
+        speckle_loop::<false>(d, input, k, span, exact, sp, none, t)
+    }
+}
+
+/// The loop of [`speckle_line`], with or without the intensity threshold's test.
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn speckle_loop<const THRESHOLD: bool>(
     d: &mut [Reading],
     input: &[Reading],
     k: &LineConsts,
@@ -327,13 +347,13 @@ fn speckle_line(
     // Its quick test made to fail when `exact`.
     let quick_jump = if exact { 0 } else { jump };
     let n = d.len();
-    // The classification as the points are loaded: the common span by one test (no
-    // distance with a threshold), an error code below the sensor's minimum by a
-    // second, any other distance through `classify_point`.
-    let low = k.low;
+    // The classification as the points are loaded: the common span by one test (and
+    // one for the intensity with a threshold), an error code below the sensor's
+    // minimum by a second, any other distance through `classify_point`.
+    let (low, min_intensity) = (k.low, k.min_intensity);
     let class = |r: &Reading, t: &mut Tally| {
         let x = r.distance;
-        if x.wrapping_sub(low) < span {
+        if x.wrapping_sub(low) < span && (!THRESHOLD || r.aux >= min_intensity) {
             x
         } else if x < k.rule.min {
             // Counted here, at most the line's points (no wrap).
@@ -531,12 +551,29 @@ pub(super) fn span(rule: &can_wire::RangeRule) -> (u32, u32, bool) {
 }
 
 /// Error codes, the range window and the intensity threshold: `input` into `out` (as
-/// long), no range as [`NONE`], counted into `c` (`span` is [`LineConsts`]'
-/// `span_with_threshold`). Returns whether a range at or above
+/// long), no range as [`NONE`], counted into `c`. Returns whether a range at or above
 /// [`SMALL`] passed (whether no range of 0 can pass is part of [`LineConsts`]' `last`).
-/// (One copy for its callers.)
-#[inline(never)]
+/// A loop with the threshold and one without (one copy each for the callers).
+#[inline(always)]
 pub(super) fn classify(
+    input: &[Reading],
+    out: &mut [Reading],
+    k: &LineConsts,
+    c: &mut Tally,
+) -> bool {
+    // (The span passed in: read inside, LLVM versions the loop on it.)
+    if k.min_intensity > 0 {
+        classify_loop::<true>(input, out, k, k.span, c)
+    } else {
+        classify_loop::<false>(input, out, k, k.span, c)
+    }
+}
+
+/// The loop of [`classify`]: a distance in the common span (`k.low`, `span` long) is a
+/// range by one test, and with a `THRESHOLD` one more for its intensity; an error code
+/// below the sensor's minimum by a second; any other reading takes the full rule.
+#[inline(never)]
+fn classify_loop<const THRESHOLD: bool>(
     input: &[Reading],
     out: &mut [Reading],
     k: &LineConsts,
@@ -544,12 +581,10 @@ pub(super) fn classify(
     c: &mut Tally,
 ) -> bool {
     let (mut big, mut below) = (false, 0usize);
-    // With an intensity threshold the span is empty: every distance but an error code
-    // below the sensor's minimum takes the full rule (one loop for both).
-    let (min, low) = (k.rule.min, k.low);
+    let (min, low, min_intensity) = (k.rule.min, k.low, k.min_intensity);
     for (cell, r) in out.iter_mut().zip(input) {
         let (mut d, aux) = (r.distance, r.aux);
-        if d.wrapping_sub(low) >= span {
+        if d.wrapping_sub(low) >= span || (THRESHOLD && aux < min_intensity) {
             if d < min {
                 // An error code below the sensor's minimum (the common one): counted
                 // here, at most the line's points (no wrap).
@@ -1191,7 +1226,7 @@ mod tests {
                 k.min_intensity = min_intensity;
                 let mut out = cells(&std::vec![7; ds.len()]);
                 let mut t = Tally::default();
-                classify(&input, &mut out, &k, k.span_with_threshold(), &mut t);
+                classify(&input, &mut out, &k, &mut t);
                 let (mut e, mut w, mut l) = (0, 0, 0);
                 for (r, o) in input.iter().zip(&out) {
                     let d = r.distance;
