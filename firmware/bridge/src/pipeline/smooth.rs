@@ -741,8 +741,17 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
             break;
         };
         let (c, v1, x1) = (o0.distance, o1.distance, pl ^ ph ^ o0.distance);
-        diff |= median5_exact(rest, e, x1, &mut slow);
+        // `n` centres: more than one only for a run of missing centres.
+        let (d, n) = median5_exact(rest, e, x1, &mut slow);
+        diff |= d;
         (e, pl, ph) = (x1, c.min(v1), c.max(v1));
+        if n > 1 {
+            // After the run: no range before the centre, v(k - 1) the run's last.
+            let v;
+            (rest, v) = after_run(core::mem::take(&mut rest), n);
+            (e, pl, ph) = (NONE, v, NONE);
+            continue;
+        }
         rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
     }
     // The cells after the centres held for the next line, and v(k - 1) and v(k - 2).
@@ -764,7 +773,8 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
 /// `w[0]` (its distance before), between `x2` and `x1` (the distances before it,
 /// nearest last) and `w[1]` and `w[2]`, becomes its output, no range as `slow.1`,
 /// counted in `slow.0` (fewer than three cells: nothing). Returns the OR of the centre
-/// with its new value.
+/// with its new value, and the number of centres taken: 1, or for a missing centre the
+/// run of missing centres from it ([`none_run`]).
 ///
 /// A missing centre stays missing. Otherwise the general rule (the centre clamped
 /// into the middle one or two of the ranges in the window) is the median of five
@@ -773,16 +783,16 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
 /// one as the centre (with `n` ranges, `n` even, the centre once more makes the
 /// middle of `n + 1` the centre clamped into the middle two).
 #[inline(never)]
-fn median5_exact(w: &mut [Reading], x2: u32, x1: u32, slow: &mut (usize, u32)) -> u32 {
+fn median5_exact(w: &mut [Reading], x2: u32, x1: u32, slow: &mut (usize, u32)) -> (u32, usize) {
+    let centres = w.len().saturating_sub(2);
     let [o, a1, a2, ..] = w else {
-        return 0;
+        return (0, 1);
     };
     let c = o.distance;
     let mut nb = [x2, x1, a1.distance, a2.distance];
     if (nb[0] | nb[1] | c | nb[2] | nb[3]) >= SMALL {
         if c == NONE {
-            o.distance = no_range(&mut slow.0, slow.1);
-            return 0;
+            return (0, none_run(w, centres, slow));
         }
         let missing = nb.iter().filter(|&&v| v == NONE).count();
         let mut fill = if missing % 2 == 1 { c } else { 0 };
@@ -798,7 +808,36 @@ fn median5_exact(w: &mut [Reading], x2: u32, x1: u32, slow: &mut (usize, u32)) -
     let (u, w) = (x1.min(c).max(a1.min(a2)), x1.max(c).min(a1.max(a2)));
     let x = u.max(w).min(x2).max(u.min(w));
     o.distance = x;
-    x ^ c
+    (x ^ c, 1)
+}
+
+/// The cells of [`median5`] after a run of `n` missing centres, and the distance of
+/// the first.
+#[cold]
+#[inline(never)]
+fn after_run(rest: &mut [Reading], n: usize) -> (&mut [Reading], u32) {
+    let rest = rest.get_mut(n..).unwrap_or_default();
+    let v = rest.first().map_or(NONE, |r| r.distance);
+    (rest, v)
+}
+
+/// A run of missing centres for [`median5_exact`]: the first `centres` cells of `w`
+/// (at least one, the first missing) up to the first range each stay missing, written
+/// as `slow.1` and counted in `slow.0`. Returns their number.
+#[cold]
+#[inline(never)]
+fn none_run(w: &mut [Reading], centres: usize, slow: &mut (usize, u32)) -> usize {
+    let mut n = 0usize;
+    for o in w.iter_mut().take(centres) {
+        if o.distance != NONE {
+            break;
+        }
+        o.distance = slow.1;
+        // At most the line's points: no wrap.
+        n = n.wrapping_add(1);
+    }
+    slow.0 = slow.0.wrapping_add(n);
+    n
 }
 
 /// The output points into the encoder's form: no range as `out_none`, a range of 0 as
@@ -957,7 +996,8 @@ mod tests {
             let want = median_reference(&w, 2);
             let mut s = cells(&w[2..]);
             let mut slow = (3usize, OUT_NONE);
-            let changed = median5_exact(&mut s, w[0], w[1], &mut slow);
+            let (changed, n) = median5_exact(&mut s, w[0], w[1], &mut slow);
+            assert_eq!(n, 1, "{w:?}");
             let shown = if want == NONE { OUT_NONE } else { want };
             // The centre's cell only.
             assert_eq!(dist(&s), [shown, w[3], w[4]], "{w:?}");
@@ -1132,6 +1172,8 @@ mod tests {
                 let r = next();
                 match (quick, r % 16) {
                     (true, 0) => NONE,
+                    // Runs of missing points in a quarter of the rounds.
+                    (true, 2..=6) if round % 4 == 0 => NONE,
                     (true, 1) => (1 << 31) - 1 - next() % 3,
                     (true, _) => 1000 + next() % 50,
                     (false, 0..=5) => edges[next() as usize % edges.len()],
