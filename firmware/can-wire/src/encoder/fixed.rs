@@ -288,7 +288,7 @@ fn checked_block<T, F: Fn(&T) -> (u32, u16)>(
 }
 
 /// The distances of a whole checked run ([`ScanEncoder::push_checked_run`]: the rule
-/// [`RangeRule::at_least(1)`]) without intensities into `codes` in 1 mm units, each as
+/// [`RangeRule::at_least`]`(1)`) without intensities into `codes` in 1 mm units, each as
 /// its own code, no test per point; returns their OR. When that is below the
 /// out-of-range code, so is every distance: each point's code is then right (a range
 /// as itself, 0 as no range); otherwise (a range may be at or past the out-of-range

@@ -441,7 +441,7 @@ impl ScanEncoder {
         self.push_run_with(points, rule, None, point, sink)
     }
 
-    /// [`ScanEncoder::push_run`] with the rule [`RangeRule::at_least(1)`] for points
+    /// [`ScanEncoder::push_run`] with the rule [`RangeRule::at_least`]`(1)` for points
     /// already checked (a filter's output): each point's distance is 0 for no range or
     /// a range (any other value but `u32::MAX`, which no rule takes for a range), and
     /// `no_range` is the number of points whose distance is 0. The frames, counts and
@@ -469,7 +469,7 @@ impl ScanEncoder {
 
     /// [`ScanEncoder::push_run`] (`checked` `None`) or
     /// [`ScanEncoder::push_checked_run`] (`checked` its `no_range`; `rule` must then be
-    /// [`RangeRule::at_least(1)`] for a fixed-width scan) by a value: a caller that
+    /// [`RangeRule::at_least`]`(1)` for a fixed-width scan) by a value: a caller that
     /// takes both kinds of run has one copy of the dispatch. A lossless scan codes by
     /// `rule` either way (`checked` is not used).
     #[inline]
