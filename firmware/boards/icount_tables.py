@@ -121,17 +121,44 @@ CHECKS = [
     ("median of 5 (issue 13, held at 41)", "d16", "median=5", 41.0),
 ]
 
+# The intensity threshold on a stream that carries intensities (the simulated models'
+# streams do not): the UTM-30LX capture (ME, I16). Once, a merge sent every point of a
+# thresholded line through the out-of-line rule (37.6 / 39.5 / 42.4 per UART byte on
+# these rows) unseen by the rows above; each is held about 3 above the seventh round's
+# 32.1 / 33.1 / 35.9, below the issue's 40.
+CAPTURE_CHECKS = [
+    ("intensity threshold and speckle removal (issue 13, held at 35)", "d16",
+     "intensity=500,speckle", 35.0),
+    ("intensity threshold and median of 3 (issue 13, held at 36)", "d16",
+     "intensity=500,median=3", 36.0),
+    ("intensity threshold and decimation by 2, mean (issue 13, held at 38.5)", "d16",
+     "intensity=500,decimate=2:mean", 38.5),
+]
+INTENSITY_CAPTURE = CAPTURES[1]
+
 
 def check():
     failed = []
+
+    def row(what, name, args, enc, pipeline, bound):
+        m = icount(args, enc, pipeline)
+        got = m["instructions_per_byte"]
+        verdict = "ok" if got <= bound else "OVER"
+        print(f"{verdict:>4}  {what}, {name}: {got:.1f} per UART byte (at most {bound})", flush=True)
+        if got > bound:
+            failed.append(f"{what}, {name}: {got:.1f} > {bound}")
+
     for what, enc, pipeline, bound in CHECKS:
         for name, args, _, scans in MODELS:
-            m = icount([*args, "--scans", str(scans)], enc, pipeline)
-            got = m["instructions_per_byte"]
-            verdict = "ok" if got <= bound else "OVER"
-            print(f"{verdict:>4}  {what}, {name}: {got:.1f} per UART byte (at most {bound})", flush=True)
-            if got > bound:
-                failed.append(f"{what}, {name}: {got:.1f} > {bound}")
+            row(what, name, [*args, "--scans", str(scans)], enc, pipeline, bound)
+    name, path = INTENSITY_CAPTURE
+    if os.path.exists(path):
+        for what, enc, pipeline, bound in CAPTURE_CHECKS:
+            row(what, name, ["--stream", path], enc, pipeline, bound)
+    elif os.environ.get("CI") == "true":
+        failed.append(f"{path} is missing (the recordings beside the repository)")
+    else:
+        print(f"skipped: {path} is missing (the intensity threshold's rows)", flush=True)
     if failed:
         sys.exit("instruction-count targets lost:\n  " + "\n  ".join(failed))
 
