@@ -1,6 +1,8 @@
-//! The main loop (`sensor::run`) on a simulated board, in real time (embassy-time's std
-//! driver): what it writes to the sensor and at which bit rate, the frames a sensor
-//! stream produces, the watchdog, and bus-off recovery with its rate limit.
+//! The main loop (`sensor::run`) on a simulated board, on virtual time (embassy-time's
+//! mock driver, moved forward by [`run_virtual`] whenever the main loop waits, so that
+//! every time below is exact on any host): what it writes to the sensor and at which
+//! bit rate, the frames a sensor stream produces, the watchdog, and bus-off recovery
+//! with its rate limit.
 
 use std::cell::RefCell;
 use std::collections::VecDeque;
@@ -12,7 +14,40 @@ use board_common::sensor::{self, Board, Uart as Link};
 use board_common::Shared;
 use can_wire::{BusState, Kind};
 use embassy_futures::select::{select, Either};
-use embassy_time::{Duration, Instant, Timer};
+use embassy_time::{Duration, Instant, MockDriver, Timer};
+
+/// The one virtual clock of this test binary, for one test at a time.
+static CLOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// The virtual clock for one test: held (the tests run one at a time), at 0.
+fn virtual_clock() -> std::sync::MutexGuard<'static, ()> {
+    let guard = CLOCK
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner);
+    MockDriver::get().reset();
+    guard
+}
+
+/// The virtual clock's step: whenever `fut` waits, the clock moves by this much (the
+/// main loop's times are whole milliseconds, so every deadline is met on time).
+const STEP: Duration = Duration::from_micros(250);
+
+/// Runs `fut` to completion on the virtual clock: polled, and whenever it waits, the
+/// clock moved forward by [`STEP`] (waking the timers that are due) and polled again.
+/// `limit_ms` of virtual time at most (a main loop that never ends fails the test).
+fn run_virtual<F: std::future::Future>(fut: F, limit_ms: u64) -> F::Output {
+    let waker = std::task::Waker::noop();
+    let mut cx = std::task::Context::from_waker(waker);
+    let mut fut = std::pin::pin!(fut);
+    let end = Instant::now() + Duration::from_millis(limit_ms);
+    loop {
+        if let std::task::Poll::Ready(out) = fut.as_mut().poll(&mut cx) {
+            return out;
+        }
+        assert!(Instant::now() < end, "still running after {limit_ms} ms");
+        MockDriver::get().advance(STEP);
+    }
+}
 
 /// What happened on the simulated sensor UART, in order.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -133,12 +168,15 @@ impl Board for SimBoard {
     }
 }
 
-/// Runs the main loop on `board` for `ms` milliseconds of real time.
+/// Runs the main loop on `board` for `ms` milliseconds of virtual time.
 fn run_for(shared: &Shared, board: &mut SimBoard, ms: u64) {
-    let outcome = embassy_futures::block_on(select(
-        sensor::run(shared, board),
-        Timer::after(Duration::from_millis(ms)),
-    ));
+    let outcome = run_virtual(
+        select(
+            sensor::run(shared, board),
+            Timer::after(Duration::from_millis(ms)),
+        ),
+        ms + 1,
+    );
     assert!(matches!(outcome, Either::Second(())));
 }
 
@@ -166,6 +204,7 @@ fn drain(shared: &Shared) -> Vec<can_wire::Frame> {
 
 #[test]
 fn boot_resets_the_sensor_rate_then_the_session_probes_at_the_power_up_rate() {
+    let _clock = virtual_clock();
     let shared = Shared::new(config::bridge(CanBus::CLASSIC_1M).expect("bridge"));
     let mut board = SimBoard::new(&[], None);
     run_for(&shared, &mut board, 150);
@@ -184,14 +223,14 @@ fn boot_resets_the_sensor_rate_then_the_session_probes_at_the_power_up_rate() {
         ),
         "{log:?}"
     );
-    // Fed on every 5 ms tick once the 100 ms of the rate reset are over: at most 11 in
-    // the remaining 50 ms (ticks at both of its ends, depending on the phase of the
-    // host's timer; fewer if the host is slow).
-    assert!((1..=11).contains(&board.feeds), "{} feeds", board.feeds);
+    // Fed on every 5 ms tick once the 100 ms of the rate reset are over: the ticker
+    // starts at 100 ms, so 105, 110, ..., 150 (the main loop is polled before the end).
+    assert_eq!(board.feeds, 10);
 }
 
 #[test]
 fn a_sensor_scan_becomes_frames_in_order_behind_the_status_pages() {
+    let _clock = virtual_clock();
     let shared = Shared::new(config::bridge(CanBus::CLASSIC_1M).expect("bridge"));
     let mut board = SimBoard::new(&scan_response(40), None);
     run_for(&shared, &mut board, 200);
@@ -215,19 +254,14 @@ fn a_sensor_scan_becomes_frames_in_order_behind_the_status_pages() {
 
 #[test]
 fn bus_off_is_recovered_after_100_ms_and_at_most_every_100_ms() {
+    let _clock = virtual_clock();
     let shared = Shared::new(config::bridge(CanBus::FD_1M_5M).expect("bridge"));
     // The rate reset takes the first 100 ms; the bus goes off at 150 ms.
     let mut board = SimBoard::new(&[], Some(150));
     run_for(&shared, &mut board, 520);
-    let r = &board.recoveries_ms;
-    // Off seen at the first tick at or after 150 ms; attempts 100 ms after that, and
-    // then every 100 ms while it stays off: 250, 350, 450, each a tick late at most on
-    // an idle host (allow more on a busy one, never earlier).
-    assert!(!r.is_empty() && (250..=300).contains(&r[0]), "{r:?}");
-    // (The board's clock starts a moment before the loop's and both truncate to whole
-    // ms, so a 100 ms spacing may read as 99.)
-    assert!(r.windows(2).all(|w| w[1] - w[0] >= 99), "{r:?}");
-    assert!(r.len() <= 3, "{r:?}");
+    // The bus is seen off at the tick at 150 ms (the ticker runs from 100 ms, every 5
+    // ms); a recovery 100 ms after that, and then every 100 ms while it stays off.
+    assert_eq!(board.recoveries_ms, [250, 350, 450]);
     let health = shared.with(|b| *b.health());
     assert_eq!(health.bus_state, u8::from(BusState::BusOff));
     assert_eq!(health.bus_off_events, 1);
@@ -386,36 +420,19 @@ impl Board for TcpBoard {
     }
 }
 
-/// Runs `fut` to completion, the thread parked between wake-ups (embassy-futures'
-/// `block_on` spins, which on a small machine starves the other tests' real-time loops
-/// during this test's 2.6 s).
-fn block_on_parked<F: std::future::Future>(fut: F) -> F::Output {
-    struct Unpark(std::thread::Thread);
-    impl std::task::Wake for Unpark {
-        fn wake(self: std::sync::Arc<Self>) {
-            self.0.unpark();
-        }
-    }
-    let waker = std::task::Waker::from(std::sync::Arc::new(Unpark(std::thread::current())));
-    let mut cx = std::task::Context::from_waker(&waker);
-    let mut fut = std::pin::pin!(fut);
-    loop {
-        if let std::task::Poll::Ready(out) = fut.as_mut().poll(&mut cx) {
-            return out;
-        }
-        std::thread::park();
-    }
-}
-
 #[test]
 fn a_tcp_sensor_is_connected_with_back_off_and_reconnected_after_a_reset() {
+    let _clock = virtual_clock();
     let shared = Shared::new(config::ethernet_bridge(CanBus::FD_1M_5M).expect("bridge"));
     // Two refused attempts, then a connection that the sensor resets 300 ms later.
     let mut board = TcpBoard::new(2, Some(300));
-    let outcome = block_on_parked(select(
-        sensor::run(&shared, &mut board),
-        Timer::after(Duration::from_millis(2600)),
-    ));
+    let outcome = run_virtual(
+        select(
+            sensor::run(&shared, &mut board),
+            Timer::after(Duration::from_millis(2600)),
+        ),
+        2601,
+    );
     assert!(matches!(outcome, Either::Second(())));
     let log = board.log.borrow().clone();
     let opens: Vec<u64> = log
@@ -432,27 +449,23 @@ fn a_tcp_sensor_is_connected_with_back_off_and_reconnected_after_a_reset() {
             _ => None,
         })
         .collect();
-    // The schedule (link.rs): at once; the refusal is seen a tick later and the next
-    // attempt waits 250 ms; refused again, it waits 500 ms; connected. The reset 300 ms
-    // later closes the link; the wait is back to 250 ms; connected again. Never early;
-    // late by up to 400 ms on a loaded host (the lower bounds carry the schedule: 500
-    // ms shows the doubling, and under 650 ms after the reset shows it was reset).
-    assert_eq!(opens.len(), 4, "{log:?}");
-    assert!(opens[0] <= 200, "{opens:?}");
-    assert!((250..=650).contains(&(opens[1] - opens[0])), "{opens:?}");
-    assert!((500..=900).contains(&(opens[2] - opens[1])), "{opens:?}");
-    assert_eq!(changes.len(), 3, "{log:?}");
-    let [(true, up1), (false, down), (true, up2)] = changes[..] else {
-        panic!("up, down, up: {log:?}");
-    };
-    assert!(up1 >= opens[2] && up1 - opens[2] <= 300, "{log:?}");
-    assert!((300..=700).contains(&(down - opens[2])), "{log:?}");
+    // The schedule (link.rs), with the 5 ms ticker from 0: the first attempt at once;
+    // the refusal seen at the tick at 5 ms, the next attempt 250 ms later (255);
+    // refused again, seen at 260, and 500 ms later (760); connected, the handshake seen
+    // at the next tick and the link up at the one after (770). The sensor resets it 300
+    // ms after the attempt (1060): closed, and the wait back to 250 ms (1310), up at
+    // 1320.
+    assert_eq!(opens, [0, 255, 760, 1310], "{log:?}");
+    assert_eq!(
+        changes,
+        [(true, 770), (false, 1060), (true, 1320)],
+        "{log:?}"
+    );
+    let (up1, down, up2) = (770, 1060, 1320);
     assert!(
         log.contains(&Net::Close(down)),
         "the reset link is closed: {log:?}"
     );
-    assert!((250..=650).contains(&(opens[3] - down)), "{log:?}");
-    assert!(up2 >= opens[3] && up2 - opens[3] <= 300, "{log:?}");
     // The session ran on each connection (it probes with QT first), wrote nothing while
     // the link was down, and never asked for a bit rate.
     let writes: Vec<(Vec<u8>, u64)> = log
