@@ -115,6 +115,10 @@ def annotate(elf, name, counts):
     on = False
     for line in dis.splitlines():
         if line.endswith(">:"):
+            # ARM mapping symbols (`<$t>`, `<$d.1>`: code and literal pools inside a
+            # function) do not end it.
+            if "<$" in line:
+                continue
             on = name in line
             if on:
                 print(f"--- {line}")
