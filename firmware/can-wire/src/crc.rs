@@ -155,6 +155,22 @@ impl ScanCrc {
         self.reg = r as u16;
     }
 
+    /// [`ScanCrc::point_codes`] of points with a 16-bit distance code alone (each of
+    /// `codes` below 2^16), each code also written into `out` as two bytes, little
+    /// endian, in the same pass (a frame's point fields; as many as both hold).
+    #[inline(always)]
+    pub fn codes16_into(&mut self, codes: &[u32], out: &mut [u8]) {
+        let mut r = u32::from(self.reg);
+        for (&code, field) in codes.iter().zip(out.chunks_exact_mut(2)) {
+            let x = r ^ code;
+            r = entry(x) ^ (entry(x >> 8) >> 16);
+            if let Some(field) = field.first_chunk_mut::<2>() {
+                *field = (code as u16).to_le_bytes();
+            }
+        }
+        self.reg = r as u16;
+    }
+
     /// Add one point's codes (`intensity` only if the channel is present).
     #[inline]
     pub fn point(&mut self, distance: u16, intensity: Option<u16>) {
@@ -233,6 +249,26 @@ mod tests {
                 }
             }
             prop_assert_eq!(c.value(), reference(&bytes));
+        }
+
+        /// 16-bit distance codes alone, CRC and fields in one pass: the CRC of their
+        /// bytes by the `crc` crate, and the bytes themselves, each code little endian;
+        /// a field area shorter than the codes takes as many as it holds.
+        #[test]
+        fn codes_into_fields_equal_the_crc_crate(
+            head in proptest::collection::vec(any::<u8>(), 0..6),
+            codes in proptest::collection::vec(any::<u16>(), 0..40),
+            short in 0usize..3,
+        ) {
+            let words: Vec<u32> = codes.iter().map(|&c| u32::from(c)).collect();
+            let mut c = ScanCrc::new(&head, &[]);
+            let mut out = vec![0xEE; 2 * codes.len().saturating_sub(short)];
+            c.codes16_into(&words, &mut out);
+            let fields: Vec<u8> = codes.iter().take(out.len() / 2).flat_map(|c| c.to_le_bytes()).collect();
+            prop_assert_eq!(&out, &fields);
+            let mut all = head.clone();
+            all.extend(&fields);
+            prop_assert_eq!(c.value(), reference(&all));
         }
 
         #[test]

@@ -88,8 +88,13 @@ impl ScanEncoder {
                     .min(count.saturating_sub(s.pushed));
                 let k = usize::from(room).min(block.wrapping_sub(j));
                 let codes = codes_buf.get(j..j.wrapping_add(k)).unwrap_or(&[]);
-                s.crc.point_codes(codes, ib > 0);
                 let whole = (bits / 8) as usize;
+                // 16-bit distances alone (a 16-bit field has no other): the CRC and the
+                // bytes in one pass.
+                let d16 = whole == 2 && db == 16;
+                if !d16 {
+                    s.crc.point_codes(codes, ib > 0);
+                }
                 if bits % 8 == 0 {
                     // Whole bytes per point: straight into their place, no bit position.
                     let Some(bytes) = s.packer.take_bytes(k.saturating_mul(whole)) else {
@@ -98,14 +103,7 @@ impl ScanEncoder {
                     // A field's length known at compile time: a store or two per
                     // point, not a `memcpy` call of a length known at run time.
                     match whole {
-                        // 16-bit distances alone (a 16-bit field has no other).
-                        2 if db == 16 => {
-                            for (&code, out) in codes.iter().zip(bytes.chunks_exact_mut(2)) {
-                                if let Some(out) = out.first_chunk_mut::<2>() {
-                                    *out = (code as u16).to_le_bytes();
-                                }
-                            }
-                        }
+                        2 if d16 => s.crc.codes16_into(codes, bytes),
                         2 => put_fields::<2>(codes, bytes, db),
                         3 => put_fields::<3>(codes, bytes, db),
                         4 => put_fields::<4>(codes, bytes, db),
