@@ -5,11 +5,12 @@
 
 use bridge::engine::{Bridge, BridgeConfig};
 use bridge::pipeline::{
-    Decimation, DecimationMode, Pipeline, PipelineConfig, Point, RawPoint, ScanInfo,
+    Decimation, DecimationMode, MedianWidth, Pipeline, PipelineConfig, Point, RangeWindow,
+    RawPoint, ScanInfo, SpeckleFilter, StepWindow,
 };
 use can_wire::bandwidth::BitRates;
 use can_wire::reassembly::{Decoder as CanDecoder, Event as CanEvent};
-use can_wire::{Distance, Encoding, FrameFormat, IdWindow};
+use can_wire::{Distance, DistanceEncoding, Encoding, Frame, FrameFormat, IdWindow};
 use scip::{
     Command, ModelFamily, Range, RangeLimits, Request, ResponseWriter, ScanMode, ScanRequest,
 };
@@ -159,6 +160,90 @@ fn direct_paths_publish_what_the_pipeline_gives_point_by_point() {
                     assert_eq!(g.len(), w.len(), "{what}: scan {k}");
                     let first = g.iter().zip(w).position(|(a, b)| a != b);
                     assert_eq!(first, None, "{what}: scan {k}, first difference");
+                }
+            }
+        }
+    }
+}
+
+/// Every frame the bridge sends for `bytes` fed in pieces of `chunk` bytes, in order.
+fn bridge_frames(cfg: BridgeConfig, bytes: &[u8], chunk: usize) -> Vec<Frame> {
+    let mut b: Box<Bridge<Q>> = Box::new(Bridge::new(cfg).unwrap());
+    b.set_auto_decimation(false);
+    let mut out = Vec::new();
+    let mut at = 0u64;
+    for piece in bytes.chunks(chunk) {
+        at += piece.len() as u64;
+        b.on_uart(piece, at * 10 * 1000 / 115_200);
+        while let Some(f) = b.pop_frame() {
+            out.push(f);
+        }
+    }
+    assert_eq!(b.stats().queue_overflows, 0);
+    assert_eq!(b.stats().scans_dropped, 0, "chunks of {chunk}");
+    out
+}
+
+/// The filtered lines that end in one `on_uart` chunk go into the encoder as one run:
+/// the frames, byte for byte and in order, are those of a chunk a byte long (a line at a
+/// time: no two lines end in one chunk), for any chunking, every encoding and frame
+/// kind; and the scans are what the pipeline gives point by point.
+#[test]
+fn filtered_lines_batched_per_chunk_send_the_frames_of_a_line_at_a_time() {
+    let bytes = stream(3);
+    let typical = PipelineConfig {
+        range_window: Some(RangeWindow {
+            min_mm: 100,
+            max_mm: 30_000,
+        }),
+        speckle: Some(SpeckleFilter { max_jump_mm: 200 }),
+        median: Some(MedianWidth::Three),
+        ..PipelineConfig::default()
+    };
+    let every = PipelineConfig {
+        roi: Some(StepWindow {
+            first: 100,
+            last: 900,
+        }),
+        median: Some(MedianWidth::Five),
+        decimation: Some(Decimation {
+            factor: 3,
+            mode: DecimationMode::Mean,
+        }),
+        ..typical
+    };
+    let median5 = PipelineConfig {
+        median: Some(MedianWidth::Five),
+        ..PipelineConfig::default()
+    };
+    let lossless = Encoding {
+        distance: DistanceEncoding::Lossless,
+        ..Encoding::PLAIN_MM
+    };
+    for pipeline in [typical, every, median5] {
+        let want = expected(pipeline, 3);
+        for format in [FrameFormat::Classic, FrameFormat::FD64] {
+            for encoding in [Encoding::PLAIN_MM, lossless] {
+                let cfg = BridgeConfig {
+                    encoding,
+                    ..config(pipeline, format)
+                };
+                let one = bridge_frames(cfg, &bytes, 1);
+                // A scan is at least its two headers, a data frame and its trailer.
+                assert!(one.len() >= 3 * 4, "{pipeline:?} {format:?} {encoding:?}");
+                for chunk in [7, 64, 128, 1000] {
+                    let got = bridge_frames(cfg, &bytes, chunk);
+                    let what = format!("{pipeline:?} {format:?} {encoding:?} chunks of {chunk}");
+                    assert_eq!(got.len(), one.len(), "{what}");
+                    let first = got.iter().zip(&one).position(|(a, b)| a != b);
+                    assert_eq!(first, None, "{what}: first differing frame");
+                }
+                // Three intact scans (`bridge_scans` checks); in 16-bit millimetres
+                // (the lossless coding keeps ranges past 65534), the pipeline's.
+                let got = bridge_scans(cfg, &bytes, 1000);
+                assert_eq!(got.len(), 3, "{pipeline:?} {format:?} {encoding:?}");
+                if encoding == Encoding::PLAIN_MM {
+                    assert_eq!(got, want, "{pipeline:?} {format:?}");
                 }
             }
         }

@@ -1,17 +1,20 @@
 //! Data lines: a line's readings through the pipeline into the encoder, in one run where
-//! it can (every stage off, or every stage in one loop), point by point otherwise.
+//! it can (every stage off, or every stage in one loop: the filtered lines that end in
+//! one UART chunk go into the encoder as one run), point by point otherwise.
 
 use scip::{DataLine, ScanRequest};
 
-use super::Core;
+use super::{Core, BATCH_CELLS};
 use crate::pipeline::{Point, RawPoint};
 
 impl<const Q: usize> Core<Q> {
     /// One data line of the scan being published. With every pipeline stage off, the
     /// line's readings go straight to the encoder in one run (the pipeline only counts
     /// them); otherwise they go through every stage in one loop
-    /// ([`Pipeline::filter_run`]) and the line's output points into the encoder in one
-    /// run. Only multi-echo lines and lines out of sequence go point by point.
+    /// ([`Pipeline::filter_run`]) and the line's output points onto the batch of the
+    /// chunk's filtered lines, which goes into the encoder as one run
+    /// ([`Core::flush_batch`]: the encoder's set-up once per chunk, not per line). Only
+    /// multi-echo lines and lines out of sequence go point by point.
     ///
     /// [`Pipeline::filter_run`]: crate::pipeline::Pipeline::filter_run
     pub(super) fn data_line(&mut self, line: &DataLine<'_>, s: &ScanRequest) {
@@ -42,6 +45,7 @@ impl<const Q: usize> Core<Q> {
         };
         if let Some(first) = first.filter(|_| !s.multi_echo) {
             if let Some(run) = self.pipeline.pass_run(first, line.readings.len(), has_aux) {
+                self.flush_batch();
                 let readings = line.readings.get(run.lo..run.hi).unwrap_or_default();
                 let rule = can_wire::RangeRule {
                     window: run.window,
@@ -51,39 +55,75 @@ impl<const Q: usize> Core<Q> {
                 return;
             }
             // Any other stages: the line's readings, a range or none each, through the
-            // stages in place, then the output points into the encoder in one run, as
-            // readings so that the encoder runs the same code as for a line's readings.
-            // A point without a range: 0 for the fixed-width encodings (invalid to the
-            // rule "at least 1"), a value no sensor sends for the lossless coding (coded
-            // invalid, not as the sensor's error code 0).
-            let lossless = self.encoder.lossless_progress().is_some();
-            let (none, rule) = if lossless {
-                let no_value = can_wire::lossless::code::NO_SENSOR_VALUE;
-                let rule = can_wire::RangeRule {
-                    band: Some(no_value),
-                    ..can_wire::RangeRule::at_least(1)
-                };
-                (no_value, rule)
-            } else {
-                (0, can_wire::RangeRule::at_least(1))
-            };
-            let (pipeline, cells, mut out) = self.split();
+            // stages in place, and the output points, as readings so that the encoder
+            // runs the same code as for a line's readings, onto the batch that goes into
+            // the encoder as one run ([`Core::flush_batch`]).
+            let none = self.checked_none();
+            // The line's cells after the batch's points (the batch goes first when they
+            // would not hold the line and the windows' headroom).
+            let room = line
+                .readings
+                .len()
+                .wrapping_add(crate::pipeline::LINE_HEADROOM);
+            if self.batch.0.saturating_add(room) > BATCH_CELLS {
+                self.flush_batch();
+            }
+            let at = self.batch.0;
+            let (pipeline, cells, _) = self.split();
+            let cells = cells.get_mut(at..).unwrap_or_default();
             let k = pipeline.filter_line(first, line.readings, cells, sensor, has_aux, none);
             if let Some((k, no_range)) = k {
-                if !*out.overflow {
-                    let points = cells.get(..k).unwrap_or_default();
-                    // As checked points (0 no range, any other value a range, as the
-                    // fixed-width encodings' rule says: no coding test per point; the
-                    // lossless coding takes them by its rule). At most the line's
-                    // points: no truncation.
-                    out.encode_run(points, rule, Some(no_range as u32));
-                }
+                // At most the cells: no wrap.
+                self.batch = (at.wrapping_add(k), self.batch.1.wrapping_add(no_range));
                 return;
             }
         }
+        // Point by point, after the batch.
+        self.flush_batch();
         let points = line.readings.iter().filter(|r| r.echo == 0).map(raw);
         let (pipeline, _, mut out) = self.split();
         pipeline.push_iter(points, &mut |p: Point| out.emit(p));
+    }
+
+    /// The encoder's value for a filtered point without a range: 0 for the fixed-width
+    /// encodings (invalid to the rule "at least 1"), a value no sensor sends for the
+    /// lossless coding (coded invalid, not as the sensor's error code 0).
+    fn checked_none(&self) -> u32 {
+        if self.encoder.lossless_progress().is_some() {
+            can_wire::lossless::code::NO_SENSOR_VALUE
+        } else {
+            0
+        }
+    }
+
+    /// The filtered lines' output points waiting at the front of the output buffer into
+    /// the encoder, as one run of checked points (0 or the lossless coding's no-value
+    /// for no range, any other value a range: no coding test per point for the
+    /// fixed-width encodings, the lossless coding takes them by its rule). Called before
+    /// anything else reaches the encoder and at the end of each `on_uart` chunk, so
+    /// that the frames and their order are those of a run per line.
+    #[inline(always)]
+    pub(super) fn flush_batch(&mut self) {
+        if self.batch.0 != 0 {
+            self.encode_batch();
+        }
+    }
+
+    /// [`Core::flush_batch`] of a batch of points.
+    #[inline(never)]
+    fn encode_batch(&mut self) {
+        let (n, no_range) = core::mem::take(&mut self.batch);
+        let none = self.checked_none();
+        let rule = can_wire::RangeRule {
+            band: (none != 0).then_some(none),
+            ..can_wire::RangeRule::at_least(1)
+        };
+        let (_, cells, mut out) = self.split();
+        if !*out.overflow {
+            let points = cells.get(..n).unwrap_or_default();
+            // At most the buffer's cells: no truncation.
+            out.encode_run(points, rule, Some(no_range as u32));
+        }
     }
 
     /// The `readings` of a line that [`Pipeline::pass_run`] accepted (the region of

@@ -41,6 +41,10 @@ use crate::pipeline::{Pipeline, PipelineConfig};
 use crate::queue::FrameQueue;
 use crate::session::{Action, Notice, Session, SessionConfig, SessionError};
 
+/// Cells of the filtered lines' output buffer: two data lines' output points waiting for
+/// the encoder as one run, and a line's cells with the windows' headroom after them.
+const BATCH_CELLS: usize = 2 * scip::MAX_READINGS + crate::pipeline::LINE_HEADROOM;
+
 mod control;
 mod line;
 mod notice;
@@ -238,8 +242,13 @@ struct Core<const Q: usize> {
     plan: Option<crate::governor::Plan>,
     /// The cost the scan being published was admitted with.
     admitted: Option<can_wire::bandwidth::ScanCost>,
-    /// A data line's points out of [`Pipeline::filter_run`], as readings.
-    decimated: [scip::Reading; scip::MAX_READINGS + crate::pipeline::LINE_HEADROOM],
+    /// The filtered data lines' output points, as readings: the batch not yet encoded
+    /// at the front ([`Core::batch`]), the next line's cells after it.
+    decimated: [scip::Reading; BATCH_CELLS],
+    /// The output points at the front of `decimated` waiting for the encoder, and how
+    /// many of them have no range: the filtered lines of one `on_uart` chunk go into
+    /// the encoder as one run ([`Core::flush_batch`]).
+    batch: (usize, usize),
     /// The sensor's 24-bit ms clock, extended (SPEC 3.1); reset when the sensor restarts.
     clock: scip::TimestampUnwrapper,
     /// Bridge ms minus extended sensor ms at the last TM sync, while it holds.
@@ -316,8 +325,8 @@ impl<const Q: usize> Bridge<Q> {
                 auto_decimation: true,
                 plan: None,
                 admitted: None,
-                decimated: [scip::Reading::default();
-                    scip::MAX_READINGS + crate::pipeline::LINE_HEADROOM],
+                decimated: [scip::Reading::default(); BATCH_CELLS],
+                batch: (0, 0),
                 clock: scip::TimestampUnwrapper::new(),
                 sync_offset: None,
                 sync_asked: false,
@@ -461,6 +470,8 @@ impl<const Q: usize> Bridge<Q> {
                 self.core.event(&event, now_ms);
             }
         }
+        // The chunk's filtered lines leave before it returns.
+        self.core.flush_batch();
     }
 
     /// [`Bridge::poll`] with the time in µs: a command it returns is taken as sent

@@ -15,7 +15,7 @@ impl<const Q: usize> Core<Q> {
         &mut self,
     ) -> (
         &mut Pipeline,
-        &mut [scip::Reading; scip::MAX_READINGS + crate::pipeline::LINE_HEADROOM],
+        &mut [scip::Reading; super::BATCH_CELLS],
         Output<'_, Q>,
     ) {
         let Self {

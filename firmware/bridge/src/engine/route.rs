@@ -17,6 +17,8 @@ impl<const Q: usize> Core<Q> {
             }
             return;
         }
+        // Every other event after the filtered lines before it.
+        self.flush_batch();
         if let Some(n) = self.session.on_event(event, now) {
             self.notice(n);
         }

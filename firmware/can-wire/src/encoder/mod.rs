@@ -105,8 +105,10 @@ struct InProgress {
     checked: (usize, Option<u32>),
 }
 
-/// Points a run codes at a time: a data line's worth.
-const BLOCK: usize = 36;
+/// Points a run codes at a time: two data lines' worth (a SCIP line holds at most 33
+/// values; a bridge hands the filtered lines of a UART chunk over as one run, and a
+/// checked run of one block is coded without a test per point).
+const BLOCK: usize = 66;
 
 /// The code buffer: a block and the codes pending before it (fewer than a classic
 /// frame's 4 points at most).
