@@ -721,7 +721,7 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32, diff0: u32) -> (u32,
             }
             // Then (or with a change already made) four centres a turn, the changes
             // no longer tracked.
-            if diff != 0 {
+            if diff != 0 && rest.len() >= 3 {
                 (rest, e, pl, ph) = median5_quads(core::mem::take(&mut rest), e, pl, ph);
             }
         }
@@ -810,6 +810,19 @@ fn median5_quads(
         (o2.distance, o3.distance) = (s3.min(c0).max(s2), s3.min(v5).max(s2));
         (e, pl, ph) = (c2, rl, rh);
         rest = core::mem::take(&mut rest).get_mut(4..).unwrap_or_default();
+    }
+    // An odd last centre: the same network for one centre, `Q` the two distances
+    // after it.
+    if let [o0, o1, o2] = rest {
+        let (c, v1, v2) = (o0.distance, o1.distance, o2.distance);
+        let (ql, qh) = (v1.min(v2), v1.max(v2));
+        if qh < SMALL {
+            let (u, w) = (pl.max(ql), ph.min(qh));
+            let (s2, s3) = (u.min(w), u.max(w));
+            o0.distance = s3.min(e).max(s2);
+            (e, pl, ph) = (pl ^ ph ^ c, c.min(v1), c.max(v1));
+            rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
+        }
     }
     (rest, e, pl, ph)
 }
