@@ -725,35 +725,23 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32, diff0: u32) -> (u32,
                 (rest, e, pl, ph) = median5_quads(core::mem::take(&mut rest), e, pl, ph);
             }
         }
-        // One centre alone: an odd last centre, or a window the quick rule does not
-        // cover.
-        let [o0, o1, o2, ..] = rest else {
+        // One centre alone by the general rule: a window the quick rule does not
+        // cover (or an odd last centre before the first change).
+        let [o0, o1, _, ..] = rest else {
             break;
         };
-        let (c, v1, v2) = (o0.distance, o1.distance, o2.distance);
-        // v(k - 1).
-        let x1 = pl ^ ph ^ c;
-        if (e | ph | v1 | v2) < SMALL {
-            // The quick rule's network for one centre.
-            let (ql, qh) = (v1.min(v2), v1.max(v2));
-            let (u, w) = (pl.max(ql), ph.min(qh));
-            let (s2, s3) = (u.min(w), u.max(w));
-            let x = s3.min(e).max(s2);
-            diff |= x ^ c;
-            o0.distance = x;
-        } else {
-            // `n` centres: more than one only for a run of missing centres.
-            let (d, n) = median5_exact(rest, e, x1, &mut slow);
-            diff |= d;
-            if n > 1 {
-                // After the run: no range before the centre, v(k - 1) the run's last.
-                let v;
-                (rest, v) = after_run(core::mem::take(&mut rest), n);
-                (e, pl, ph) = (NONE, v, NONE);
-                continue;
-            }
-        }
+        let (c, v1, x1) = (o0.distance, o1.distance, pl ^ ph ^ o0.distance);
+        // `n` centres: more than one only for a run of missing centres.
+        let (d, n) = median5_exact(rest, e, x1, &mut slow);
+        diff |= d;
         (e, pl, ph) = (x1, c.min(v1), c.max(v1));
+        if n > 1 {
+            // After the run: no range before the centre, v(k - 1) the run's last.
+            let v;
+            (rest, v) = after_run(core::mem::take(&mut rest), n);
+            (e, pl, ph) = (NONE, v, NONE);
+            continue;
+        }
         rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
     }
     // The cells after the centres held for the next line, and v(k - 1) and v(k - 2).
