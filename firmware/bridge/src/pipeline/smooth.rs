@@ -763,7 +763,7 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32, diff0: u32) -> (u32,
 /// ranges below [`SMALL`] as [`median5`] holds them: up to the first window with a
 /// distance not below [`SMALL`], or to fewer than two centres left. Returns the cells
 /// from the next centre on and its `e` and `P`.
-#[inline(never)]
+#[inline(always)]
 fn median5_quads(
     mut rest: &mut [Reading],
     mut e: u32,
