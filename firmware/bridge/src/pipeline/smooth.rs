@@ -11,9 +11,10 @@
 //! four centres at a time, [`median3_pairs`]). Each stage first tries a
 //! quick test: a centre within the threshold of the point before it stays, a centre
 //! between its neighbours is their median. The median of 5 runs a loop of its own,
-//! two or four centres a turn (one sorted pair of new distances per two outputs when
-//! all six are ranges below 2^31, the general rule otherwise: the same network with the
-//! missing neighbours filled in), after speckle removal's loop.
+//! two centres a turn until its first change, then four (one sorted pair of new
+//! distances per two outputs when all six are ranges below 2^31, the general rule
+//! otherwise: the same network with the missing neighbours filled in), after speckle
+//! removal's loop.
 
 use scip::Reading;
 
@@ -667,8 +668,10 @@ fn classify_point(k: &LineConsts, d: u32, aux: u32, c: &mut Tally) -> u32 {
 /// last two is a centre, `md.b1` and `md.b2` the distances before the first (nearest
 /// first). No range is written as `out_none` ([`NONE`] to leave it). Leaves in `md`
 /// the cells after the centres (held for the next line) and the two distances before
-/// them. Returns the OR of every changed range with its new value (0: none changed)
-/// and the number of outputs without a range.
+/// them. Returns `diff0` ORed with every changed range's new value and old (0: none
+/// changed); a `diff0` not 0 (the caller has a change already, e.g. the scan is
+/// already filtered) lets the quick loop skip tracking the changes.
+/// Also returns the number of outputs without a range.
 ///
 /// Two centres at a time: the centres `k` and `k + 1` share the four distances
 /// `v(k - 1) ..= v(k + 2)`. With `P` and `Q` those as two sorted pairs, the middle two
@@ -681,8 +684,10 @@ fn classify_point(k: &LineConsts, d: u32, aux: u32, c: &mut Tally) -> u32 {
 /// (no range, [`NONE`], is then the only value with the top bit set): `e` and `P` are
 /// tested once on entering the loop, and each step tests only what it adds (the OR of
 /// `Q`'s high and `v(k + 3)`), since it leaves `e` and `P` among the distances tested.
-/// Otherwise, and for an odd last centre, one centre at a time by [`median5_exact`].
-/// The quick rule's outputs are ranges: only [`median5_exact`] counts no range.
+/// Until the first change the loop takes one such step a turn (tracking the changes),
+/// then [`median5_quads`] two a turn (and an odd last centre by the same network).
+/// Otherwise one centre at a time by [`median5_exact`]. The quick rule's outputs are
+/// ranges: only [`median5_exact`] counts no range.
 #[inline(never)]
 fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32, diff0: u32) -> (u32, usize) {
     // Written by the single centres' rule only (out of the loop's registers).
@@ -758,11 +763,12 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32, diff0: u32) -> (u32,
     (diff, slow.0)
 }
 
-/// The quick rule of [`median5`] without tracking changes, four centres a turn (two at
-/// the end of the line), from the first centre of `rest` with `e` and `P = (pl, ph)`
-/// ranges below [`SMALL`] as [`median5`] holds them: up to the first window with a
-/// distance not below [`SMALL`], or to fewer than two centres left. Returns the cells
-/// from the next centre on and its `e` and `P`.
+/// The quick rule of [`median5`] without tracking changes, four centres a turn (two,
+/// then one, at the end of the line), from the first centre of `rest` with `e` and
+/// `P = (pl, ph)` ranges below [`SMALL`] as [`median5`] holds them: up to the first
+/// window with a distance not below [`SMALL`], or to the last centre. Returns the
+/// cells from the next centre on and its `e` and `P`. Inlined: its call and the
+/// state it returns cost more than a line's worth of turns saves.
 #[inline(always)]
 fn median5_quads(
     mut rest: &mut [Reading],
