@@ -726,7 +726,7 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32, diff0: u32) -> (u32,
             }
             // Then (or with a change already made) four centres a turn, the changes
             // no longer tracked.
-            if diff != 0 && rest.len() >= 3 {
+            if diff != 0 {
                 (rest, e, pl, ph) = median5_quads(core::mem::take(&mut rest), e, pl, ph);
             }
         }
