@@ -998,12 +998,18 @@ mod tests {
     /// `median5` with the two distances before the first centre `b` (nearest first;
     /// updated likewise) as its only state.
     fn median5_b(s: &mut [Reading], b: &mut [u32; 2], none: u32) -> (u32, usize) {
+        median5_made(s, b, none, 0)
+    }
+
+    /// [`median5_b`] with `made` as the change already made (not 0: the changes not
+    /// tracked).
+    fn median5_made(s: &mut [Reading], b: &mut [u32; 2], none: u32, made: u32) -> (u32, usize) {
         let mut md = Regs {
             b1: b[0],
             b2: b[1],
             ..Regs::default()
         };
-        let r = median5(s, &mut md, none, 0);
+        let r = median5(s, &mut md, none, made);
         *b = [md.b1, md.b2];
         r
     }
@@ -1170,14 +1176,18 @@ mod tests {
         // the two distances before them: every output against the rule.
         let vals = [0, 1, 7, 7, 1000, (1 << 31) - 1, 1 << 31, u32::MAX - 1, NONE];
         let mut next = xorshift(0x9e37_79b9_u32);
-        for _ in 0..20000 {
-            let len = next() as usize % 10;
+        for round in 0..40000 {
+            // Lines up to 9 points and now and then up to 19 (more than one turn of
+            // four centres, and the last one to three centres after them); in half
+            // the rounds a change already made (the changes untracked).
+            let len = next() as usize % if round % 8 == 0 { 20 } else { 10 };
+            let made = u32::from(round % 2 == 1);
             let mut pick = || vals[next() as usize % vals.len()];
             let stream: Vec<u32> = (0..len + 2).map(|_| pick()).collect();
             // stream[0] is the older of the two distances before the line.
             let mut s = cells(&stream[2..]);
             let mut b = [stream[1], stream[0]];
-            let (diff, invalid) = median5_b(&mut s, &mut b, 9);
+            let (diff, invalid) = median5_made(&mut s, &mut b, 9, made);
             let outs = len.saturating_sub(2);
             let want: Vec<u32> = (0..outs)
                 .map(|i| median_reference(&stream[i..i + 5], 2))
@@ -1190,11 +1200,51 @@ mod tests {
             assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
             assert_eq!(
                 diff != 0,
-                want.iter().zip(&stream[2..]).any(|(x, c)| x != c)
+                made != 0 || want.iter().zip(&stream[2..]).any(|(x, c)| x != c)
             );
             // The cells after the outputs stay; the two before the next centre move on.
             assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
             assert_eq!(b, [stream[outs + 1], stream[outs]]);
+        }
+    }
+
+    #[test]
+    fn median5_turns_and_odd_last_centre_follow_the_rule_written_plainly() {
+        // Lines of 3 to 18 cells (1 to 16 centres: whole turns of four centres, then
+        // none, one, two or three more), ranges below 2^31 with ties, and in turn each
+        // distance (the two before the line included) replaced by no range, 0,
+        // 2^31 - 1 or 2^31 (the quick loop left at every place of a turn and at the
+        // odd last centre); with a change already made (the changes untracked) and
+        // without: every output against the rule written plainly.
+        let mut next = xorshift(0x2545_f491_u32);
+        for n in 3..=18usize {
+            for spot in 0..=n + 2 {
+                for odd in [NONE, 0, (1 << 31) - 1, 1 << 31] {
+                    for made in [0u32, 1] {
+                        let mut stream: Vec<u32> = (0..n + 2).map(|_| 1000 + next() % 8).collect();
+                        if let Some(v) = stream.get_mut(spot) {
+                            *v = odd;
+                        }
+                        let mut s = cells(&stream[2..]);
+                        let mut b = [stream[1], stream[0]];
+                        let (diff, invalid) = median5_made(&mut s, &mut b, 9, made);
+                        let outs = n - 2;
+                        let want: Vec<u32> = (0..outs)
+                            .map(|i| median_reference(&stream[i..i + 5], 2))
+                            .collect();
+                        let shown: Vec<u32> = want
+                            .iter()
+                            .map(|&x| if x == NONE { 9 } else { x })
+                            .collect();
+                        assert_eq!(dist(&s[..outs]), shown, "{stream:?} {made}");
+                        assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
+                        let any = want.iter().zip(&stream[2..]).any(|(x, c)| x != c);
+                        assert_eq!(diff != 0, made != 0 || any, "{stream:?} {made}");
+                        assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
+                        assert_eq!(b, [stream[outs + 1], stream[outs]], "{stream:?}");
+                    }
+                }
+            }
         }
     }
 
