@@ -581,8 +581,10 @@ impl Pipeline {
         }
         let (sp, md) = (&mut h.speckle, &mut h.median);
         // The output is converted after decimation, or in the loops.
-        // The OR of every range the median changed with its new value (0: none).
-        let mut changed = 0u32;
+        // The OR of every range the median changed with its new value (0: none), not 0
+        // from the start when the scan is already filtered (the median then need not
+        // track its changes).
+        let mut changed = u32::from(self.filtered);
         let (w, mut invalid) = smooth::line(input, buf, line, sp, md, &mut t, &mut changed);
         (h.live, h.last_step, h.cluster, h.intensity) = (true, last_step, cluster, intensity);
         let mut m = w;

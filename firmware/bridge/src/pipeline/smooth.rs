@@ -11,9 +11,10 @@
 //! four centres at a time, [`median3_pairs`]). Each stage first tries a
 //! quick test: a centre within the threshold of the point before it stays, a centre
 //! between its neighbours is their median. The median of 5 runs a loop of its own,
-//! two or four centres a turn (one sorted pair of new distances per two outputs when
-//! all six are ranges below 2^31, the general rule otherwise: the same network with the
-//! missing neighbours filled in), after speckle removal's loop.
+//! two centres a turn until its first change, then four (one sorted pair of new
+//! distances per two outputs when all six are ranges below 2^31, the general rule
+//! otherwise: the same network with the missing neighbours filled in), after speckle
+//! removal's loop.
 
 use scip::Reading;
 
@@ -135,7 +136,7 @@ pub(super) fn line(
         } else {
             out = l2.saturating_sub(half2);
             let diff;
-            (diff, invalid) = median5(region, md, none);
+            (diff, invalid) = median5(region, md, none, *changed);
             *changed |= diff;
         }
     }
@@ -667,8 +668,10 @@ fn classify_point(k: &LineConsts, d: u32, aux: u32, c: &mut Tally) -> u32 {
 /// last two is a centre, `md.b1` and `md.b2` the distances before the first (nearest
 /// first). No range is written as `out_none` ([`NONE`] to leave it). Leaves in `md`
 /// the cells after the centres (held for the next line) and the two distances before
-/// them. Returns the OR of every changed range with its new value (0: none changed)
-/// and the number of outputs without a range.
+/// them. Returns, for `diff0` 0, the OR of every changed range with its new value (0:
+/// none changed), and otherwise a value not 0 (the caller has a change already, e.g.
+/// the scan is filtered: the quick loop then does not track the changes); and the
+/// number of outputs without a range.
 ///
 /// Two centres at a time: the centres `k` and `k + 1` share the four distances
 /// `v(k - 1) ..= v(k + 2)`. With `P` and `Q` those as two sorted pairs, the middle two
@@ -681,10 +684,12 @@ fn classify_point(k: &LineConsts, d: u32, aux: u32, c: &mut Tally) -> u32 {
 /// (no range, [`NONE`], is then the only value with the top bit set): `e` and `P` are
 /// tested once on entering the loop, and each step tests only what it adds (the OR of
 /// `Q`'s high and `v(k + 3)`), since it leaves `e` and `P` among the distances tested.
-/// Otherwise, and for an odd last centre, one centre at a time by [`median5_exact`].
-/// The quick rule's outputs are ranges: only [`median5_exact`] counts no range.
+/// Until the first change the loop takes one such step a turn (tracking the changes),
+/// then [`median5_quads`] two a turn (and an odd last centre by the same network).
+/// Otherwise one centre at a time by [`median5_exact`]. The quick rule's outputs are
+/// ranges: only [`median5_exact`] counts no range.
 #[inline(never)]
-fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
+fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32, diff0: u32) -> (u32, usize) {
     // Written by the single centres' rule only (out of the loop's registers).
     let mut slow = (0usize, out_none);
     // v(k - 2) and P = v(k - 1) and v(k) sorted (v(k) and v(k + 1) still in their
@@ -693,50 +698,40 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
     let c = rest.first().map_or(NONE, |r| r.distance);
     let mut e = md.b2;
     let (mut pl, mut ph) = (md.b1.min(c), md.b1.max(c));
-    let mut diff = 0u32;
+    let mut diff = diff0;
     loop {
         // `e` and `P` ranges below SMALL: the loops test only the distances they add
         // (each step leaves `e` and `P` among the distances it tested).
         if (e | ph) < SMALL {
-            // Two centres at a time, and two more when the line holds them and their
-            // window passes (the second step's `P` the first's `Q`, its `e` the first
-            // centre).
-            while let [o0, o1, o2, o3, tail @ ..] = rest {
-                let (c0, c1, c2, c3) = (o0.distance, o1.distance, o2.distance, o3.distance);
-                let (ql, qh) = (c1.min(c2), c1.max(c2));
-                if (qh | c3) >= SMALL {
-                    break;
-                }
-                let (u, w) = (pl.max(ql), ph.min(qh));
-                let (s2, s3) = (u.min(w), u.max(w));
-                let (x0, x1) = (s3.min(e).max(s2), s3.min(c3).max(s2));
-                diff |= (x0 ^ c0) | (x1 ^ c1);
-                (o0.distance, o1.distance) = (x0, x1);
-                (e, pl, ph) = (c0, ql, qh);
-                let pass = match tail {
-                    [r4, r5, ..] => Some((r4.distance, r5.distance)),
-                    _ => None,
-                };
-                let Some((v4, v5)) = pass else {
+            // Until the first change (when the caller has none yet): two centres a
+            // turn, the changes tracked.
+            if diff == 0 {
+                while let [o0, o1, o2, o3, ..] = rest {
+                    let (c0, c1, c2, c3) = (o0.distance, o1.distance, o2.distance, o3.distance);
+                    let (ql, qh) = (c1.min(c2), c1.max(c2));
+                    if (qh | c3) >= SMALL {
+                        break;
+                    }
+                    let (u, w) = (pl.max(ql), ph.min(qh));
+                    let (s2, s3) = (u.min(w), u.max(w));
+                    let (x0, x1) = (s3.min(e).max(s2), s3.min(c3).max(s2));
+                    diff = (x0 ^ c0) | (x1 ^ c1);
+                    (o0.distance, o1.distance) = (x0, x1);
+                    (e, pl, ph) = (c0, ql, qh);
                     rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
-                    break;
-                };
-                let (rl, rh) = (c3.min(v4), c3.max(v4));
-                if (rh | v5) >= SMALL {
-                    rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
-                    break;
+                    if diff != 0 {
+                        break;
+                    }
                 }
-                let (u, w) = (ql.max(rl), qh.min(rh));
-                let (s2, s3) = (u.min(w), u.max(w));
-                let (x2, x3) = (s3.min(c0).max(s2), s3.min(v5).max(s2));
-                diff |= (x2 ^ c2) | (x3 ^ c3);
-                (o2.distance, o3.distance) = (x2, x3);
-                (e, pl, ph) = (c2, rl, rh);
-                rest = core::mem::take(&mut rest).get_mut(4..).unwrap_or_default();
+            }
+            // Then (or with a change already made) four centres a turn, the changes
+            // no longer tracked.
+            if diff != 0 {
+                (rest, e, pl, ph) = median5_quads(core::mem::take(&mut rest), e, pl, ph);
             }
         }
-        // One centre alone: a window the quick rule does not cover, or an odd last
-        // centre.
+        // One centre alone by the general rule: a window the quick rule does not
+        // cover (or an odd last centre before the first change).
         let [o0, o1, _, ..] = rest else {
             break;
         };
@@ -766,6 +761,64 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32) -> (u32, usize) {
     }
     (md.b1, md.b2) = (pl ^ ph ^ c, e);
     (diff, slow.0)
+}
+
+/// The quick rule of [`median5`] without tracking changes, four centres a turn (two,
+/// then one, at the end of the line), from the first centre of `rest` with `e` and
+/// `P = (pl, ph)` ranges below [`SMALL`] as [`median5`] holds them: up to the first
+/// window with a distance not below [`SMALL`], or to the last centre. Returns the
+/// cells from the next centre on and its `e` and `P`. Inlined into [`median5`]: a call
+/// and the state returned through memory cost about 35 instructions a line.
+#[inline(always)]
+fn median5_quads(
+    mut rest: &mut [Reading],
+    mut e: u32,
+    mut pl: u32,
+    mut ph: u32,
+) -> (&mut [Reading], u32, u32, u32) {
+    while let [o0, o1, o2, o3, tail @ ..] = rest {
+        let (c0, c1, c2, c3) = (o0.distance, o1.distance, o2.distance, o3.distance);
+        let (ql, qh) = (c1.min(c2), c1.max(c2));
+        if (qh | c3) >= SMALL {
+            break;
+        }
+        let (u, w) = (pl.max(ql), ph.min(qh));
+        let (s2, s3) = (u.min(w), u.max(w));
+        (o0.distance, o1.distance) = (s3.min(e).max(s2), s3.min(c3).max(s2));
+        (e, pl, ph) = (c0, ql, qh);
+        let pass = match tail {
+            [r4, r5, ..] => Some((r4.distance, r5.distance)),
+            _ => None,
+        };
+        let Some((v4, v5)) = pass else {
+            rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
+            break;
+        };
+        let (rl, rh) = (c3.min(v4), c3.max(v4));
+        if (rh | v5) >= SMALL {
+            rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
+            break;
+        }
+        let (u, w) = (ql.max(rl), qh.min(rh));
+        let (s2, s3) = (u.min(w), u.max(w));
+        (o2.distance, o3.distance) = (s3.min(c0).max(s2), s3.min(v5).max(s2));
+        (e, pl, ph) = (c2, rl, rh);
+        rest = core::mem::take(&mut rest).get_mut(4..).unwrap_or_default();
+    }
+    // An odd last centre: the same network for one centre, `Q` the two distances
+    // after it.
+    if let [o0, o1, o2] = rest {
+        let (c, v1, v2) = (o0.distance, o1.distance, o2.distance);
+        let (ql, qh) = (v1.min(v2), v1.max(v2));
+        if qh < SMALL {
+            let (u, w) = (pl.max(ql), ph.min(qh));
+            let (s2, s3) = (u.min(w), u.max(w));
+            o0.distance = s3.min(e).max(s2);
+            (e, pl, ph) = (pl ^ ph ^ c, c.min(v1), c.max(v1));
+            rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
+        }
+    }
+    (rest, e, pl, ph)
 }
 
 /// The median of 5 for one centre of [`median5`], out of its loop (a window with no
@@ -945,12 +998,18 @@ mod tests {
     /// `median5` with the two distances before the first centre `b` (nearest first;
     /// updated likewise) as its only state.
     fn median5_b(s: &mut [Reading], b: &mut [u32; 2], none: u32) -> (u32, usize) {
+        median5_made(s, b, none, 0)
+    }
+
+    /// [`median5_b`] with `made` as the change already made (not 0: the changes not
+    /// tracked).
+    fn median5_made(s: &mut [Reading], b: &mut [u32; 2], none: u32, made: u32) -> (u32, usize) {
         let mut md = Regs {
             b1: b[0],
             b2: b[1],
             ..Regs::default()
         };
-        let r = median5(s, &mut md, none);
+        let r = median5(s, &mut md, none, made);
         *b = [md.b1, md.b2];
         r
     }
@@ -1117,14 +1176,18 @@ mod tests {
         // the two distances before them: every output against the rule.
         let vals = [0, 1, 7, 7, 1000, (1 << 31) - 1, 1 << 31, u32::MAX - 1, NONE];
         let mut next = xorshift(0x9e37_79b9_u32);
-        for _ in 0..20000 {
-            let len = next() as usize % 10;
+        for round in 0..40000 {
+            // Lines up to 9 points and now and then up to 19 (more than one turn of
+            // four centres, and the last one to three centres after them); in half
+            // the rounds a change already made (the changes untracked).
+            let len = next() as usize % if round % 8 == 0 { 20 } else { 10 };
+            let made = u32::from(round % 2 == 1);
             let mut pick = || vals[next() as usize % vals.len()];
             let stream: Vec<u32> = (0..len + 2).map(|_| pick()).collect();
             // stream[0] is the older of the two distances before the line.
             let mut s = cells(&stream[2..]);
             let mut b = [stream[1], stream[0]];
-            let (diff, invalid) = median5_b(&mut s, &mut b, 9);
+            let (diff, invalid) = median5_made(&mut s, &mut b, 9, made);
             let outs = len.saturating_sub(2);
             let want: Vec<u32> = (0..outs)
                 .map(|i| median_reference(&stream[i..i + 5], 2))
@@ -1137,11 +1200,51 @@ mod tests {
             assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
             assert_eq!(
                 diff != 0,
-                want.iter().zip(&stream[2..]).any(|(x, c)| x != c)
+                made != 0 || want.iter().zip(&stream[2..]).any(|(x, c)| x != c)
             );
             // The cells after the outputs stay; the two before the next centre move on.
             assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
             assert_eq!(b, [stream[outs + 1], stream[outs]]);
+        }
+    }
+
+    #[test]
+    fn median5_turns_and_odd_last_centre_follow_the_rule_written_plainly() {
+        // Lines of 3 to 18 cells (1 to 16 centres: whole turns of four centres, then
+        // none, one, two or three more), ranges below 2^31 with ties, and in turn each
+        // distance (the two before the line included) replaced by no range, 0,
+        // 2^31 - 1 or 2^31 (the quick loop left at every place of a turn and at the
+        // odd last centre); with a change already made (the changes untracked) and
+        // without: every output against the rule written plainly.
+        let mut next = xorshift(0x2545_f491_u32);
+        for n in 3..=18usize {
+            for spot in 0..=n + 2 {
+                for odd in [NONE, 0, (1 << 31) - 1, 1 << 31] {
+                    for made in [0u32, 1] {
+                        let mut stream: Vec<u32> = (0..n + 2).map(|_| 1000 + next() % 8).collect();
+                        if let Some(v) = stream.get_mut(spot) {
+                            *v = odd;
+                        }
+                        let mut s = cells(&stream[2..]);
+                        let mut b = [stream[1], stream[0]];
+                        let (diff, invalid) = median5_made(&mut s, &mut b, 9, made);
+                        let outs = n - 2;
+                        let want: Vec<u32> = (0..outs)
+                            .map(|i| median_reference(&stream[i..i + 5], 2))
+                            .collect();
+                        let shown: Vec<u32> = want
+                            .iter()
+                            .map(|&x| if x == NONE { 9 } else { x })
+                            .collect();
+                        assert_eq!(dist(&s[..outs]), shown, "{stream:?} {made}");
+                        assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
+                        let any = want.iter().zip(&stream[2..]).any(|(x, c)| x != c);
+                        assert_eq!(diff != 0, made != 0 || any, "{stream:?} {made}");
+                        assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
+                        assert_eq!(b, [stream[outs + 1], stream[outs]], "{stream:?}");
+                    }
+                }
+            }
         }
     }
 
@@ -1209,7 +1312,9 @@ mod tests {
                 let region: Vec<u32> = held.iter().chain(line).copied().collect();
                 let mut s = cells(&region);
                 let out = region.len().saturating_sub(2);
-                let (diff, invalid) = median5(&mut s, &mut md, OUT_NONE);
+                // A change already made (every third round): the changes untracked.
+                let made = u32::from(round % 3 == 1) << 4;
+                let (diff, invalid) = median5(&mut s, &mut md, OUT_NONE, made);
                 // This line's outputs against the rule: centres outs.len()..
                 let first = outs.len();
                 let want: Vec<u32> = (first..first + out)
@@ -1227,7 +1332,8 @@ mod tests {
                 assert_eq!(dist(&s[..out]), shown, "{before:?} {lines:?}");
                 assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
                 let centres = &v[first + 2..first + 2 + out];
-                assert_eq!(diff != 0, want.iter().zip(centres).any(|(x, c)| x != c));
+                let any = want.iter().zip(centres).any(|(x, c)| x != c);
+                assert_eq!(diff != 0, made != 0 || any);
                 // The cells after the outputs stay as they came.
                 assert_eq!(dist(&s[out..]), region[out..]);
                 outs.extend(&shown);
