@@ -693,6 +693,11 @@ fn put_step_at<
             distance: decode_valid(d),
             aux: decode_valid(a),
         };
+        // No instruction: it keeps the unrolled steps' stores apart, so that LLVM's SLP
+        // vectorizer does not pack two steps' distances and second values (adjacent in
+        // the 8-byte readings) into vector stores, whose byte shuffles cost more than
+        // the scalar steps (callgrind, UTM-30LX ME stream: 7.71 -> 6.92 per byte).
+        core::sync::atomic::compiler_fence(core::sync::atomic::Ordering::SeqCst);
     }
 }
 
