@@ -284,7 +284,7 @@ struct Shape {
     expected: u16,
 }
 
-/// The streaming SCIP 2.x response decoder. About 560 bytes of RAM; no allocation.
+/// The streaming SCIP 2.x response decoder. About 460 bytes of RAM; no allocation.
 #[derive(Debug, Clone)]
 pub struct Decoder {
     buf: [u8; LINE_CAP],
