@@ -757,9 +757,12 @@ fn put_step_run<const D: usize, const A: usize, const PLAIN: bool>(
 /// `PLAIN`): the same distances. The chars' `0x30` offsets are taken off
 /// by starting each step's value from `-0x30·(64² + 64 + 1)`, held in a register (its
 /// value hidden from the optimiser, which would otherwise add it last, after an extra
-/// shift): three shifted adds a step instead of four instructions (11 a step on a
-/// Cortex-M4, was 12). Two steps a round was slower: LLVM unrolled the pairs and
-/// spilled their registers (URG-04LX D16 28.5 -> 29.5 per UART byte).
+/// shift): three shifted adds a step instead of four instructions (9 a step on a
+/// Cortex-M4: three loads, three adds, the store and the loop's two; 11 while each
+/// reading had its index stored too). Two steps a round was slower, twice: LLVM
+/// unrolled the pairs and spilled their registers (URG-04LX D16 28.5 -> 29.5 per UART
+/// byte), and with the 8-byte readings it took the steps' count by a division by 3
+/// (26.6 -> 27.6).
 #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
 #[inline(always)]
 fn put_plain3(slots: &mut [Reading], mid: &[u8]) {
