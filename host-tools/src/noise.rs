@@ -90,8 +90,8 @@ pub fn scans_of_stream(stream: &[u8]) -> Vec<Scan> {
             Some(Event::Data(line)) => {
                 let scan = cur.get_or_insert_with(Scan::default);
                 scan.has_aux |= line.data.aux_width() > 0;
-                for r in line.readings.iter().filter(|r| r.echo == 0) {
-                    let range = match line.range(r) {
+                for r in line.indexed().filter(|r| r.echo == 0) {
+                    let range = match line.range(&r.reading()) {
                         Range::Mm(mm) => Some(mm),
                         Range::Error(_) => None,
                     };

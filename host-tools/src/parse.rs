@@ -121,9 +121,9 @@ impl Collector {
                 let has_aux = line.data.aux_width() > 0;
                 let multi = self.multi_echo;
                 let cur = self.cur();
-                for r in line.readings {
+                for r in line.indexed() {
                     if r.echo == 0 {
-                        if let Range::Error(e) = line.range(r) {
+                        if let Range::Error(e) = line.range(&r.reading()) {
                             cur.errors.push(serde_json::json!({
                                 "index": r.index, "code": r.distance, "meaning": e.name()
                             }));

@@ -172,7 +172,7 @@ fn read(bytes: &[u8], chunk: usize) -> Result<Vec<Decoded>, String> {
                 Some(Event::Timestamp(t)) => cur.as_mut().ok_or("ts")?.1 = t,
                 Some(Event::Data(line)) => {
                     let steps = &mut cur.as_mut().ok_or("data")?.2;
-                    for r in line.readings {
+                    for r in line.indexed() {
                         if r.echo == 0 {
                             if usize::from(r.index) != steps.len() {
                                 return Err(format!("index {} at {}", r.index, steps.len()));

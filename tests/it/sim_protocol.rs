@@ -52,11 +52,8 @@ fn decode(bytes: &[u8]) -> (Vec<Resp>, scip::DecoderStats) {
             Some(Event::Timestamp(t)) => cur.get_or_insert_with(Resp::default).timestamp = Some(t),
             Some(Event::Data(line)) => {
                 let c = cur.get_or_insert_with(Resp::default);
-                c.values.extend(
-                    line.readings
-                        .iter()
-                        .map(|r| (r.index, r.echo, r.distance, r.aux)),
-                );
+                c.values
+                    .extend(line.indexed().map(|r| (r.index, r.echo, r.distance, r.aux)));
             }
             Some(Event::End(summary)) => {
                 let mut c = cur.take().unwrap_or_default();

@@ -51,8 +51,7 @@ fn recorded_frame() -> (Request, u32, Vec<(u32, u32)>) {
             }
             Some(Event::Timestamp(t)) if in_frame => stamp = t,
             Some(Event::Data(line)) if in_frame => steps.extend(
-                line.readings
-                    .iter()
+                line.indexed()
                     .filter(|r| r.echo == 0)
                     .map(|r| (r.distance, r.aux)),
             ),

@@ -249,3 +249,56 @@ fn filtered_lines_batched_per_chunk_send_the_frames_of_a_line_at_a_time() {
         }
     }
 }
+
+/// A continuous multi-echo stream of `scans` frames over steps 0..STEPS-1: each step's
+/// first echo is its distance of [`distances`], and one or two extra echoes (other
+/// distances) follow on some steps, so that some data lines begin with an extra echo.
+fn multi_echo_stream(scans: u32) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+    let mut s = ScanRequest::distance(ScanMode::Continuous, 0, STEPS - 1);
+    s.count = 0;
+    s.multi_echo = true;
+    for k in 0..scans {
+        w.echo(&Request::new(Command::Scan(s)));
+        w.status(*b"99");
+        w.timestamp(1000 + 25 * k);
+        for (i, d) in distances(k).into_iter().enumerate() {
+            w.step(d, 0);
+            for e in 0..(i as u32 * 7 + k) % 5 / 2 {
+                w.extra_echo(d / 2 + 100 * e + 21, 0);
+            }
+        }
+        w.end();
+    }
+    let _ = w.into_inner();
+    out
+}
+
+/// Multi-echo lines go point by point: the bridge publishes each step's first echo, at
+/// its step, as the pipeline gives the single-echo scan of those first echoes.
+#[test]
+fn multi_echo_lines_publish_their_first_echoes_at_their_steps() {
+    let bytes = multi_echo_stream(3);
+    // Some data line begins with an extra echo: a line's first char is `&`.
+    let lines_with_echo_first = bytes
+        .split(|&b| b == b'\n')
+        .filter(|l| l.first() == Some(&b'&'))
+        .count();
+    assert!(lines_with_echo_first > 0);
+    let decimated = PipelineConfig {
+        decimation: Some(Decimation {
+            factor: 3,
+            mode: DecimationMode::Min,
+        }),
+        ..PipelineConfig::default()
+    };
+    for pipeline in [PipelineConfig::default(), decimated] {
+        let want = expected(pipeline, 3);
+        for chunk in [64, 1000] {
+            let got = bridge_scans(config(pipeline, FrameFormat::Classic), &bytes, chunk);
+            let what = format!("{pipeline:?} chunks of {chunk}");
+            assert_eq!(got, want, "{what}");
+        }
+    }
+}

@@ -30,7 +30,8 @@ pub use command::{
     TimeMode, BIT_RATES, REQUEST_MAX, TAG_MAX,
 };
 pub use decoder::{
-    DataLine, Decoder, DecoderStats, Event, Field, Reading, Summary, LINE_CAP, MAX_READINGS,
+    DataLine, Decoder, DecoderStats, Event, Field, Indexed, IndexedReading, Reading, Summary,
+    LINE_CAP, MAX_READINGS,
 };
 pub use error::{Error, ErrorKind};
 pub use info::{

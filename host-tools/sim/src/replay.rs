@@ -64,7 +64,7 @@ impl Recording {
                 Some(Event::Field(f)) => fields.push((text(f.name), text(f.value))),
                 Some(Event::Data(line)) => {
                     if let Some(s) = scan.as_mut() {
-                        for r in line.readings {
+                        for r in line.indexed() {
                             if r.echo == 0 {
                                 s.values.push(vec![(r.distance, r.aux)]);
                             } else if let Some(v) = s.values.last_mut() {

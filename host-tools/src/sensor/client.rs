@@ -6,7 +6,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context};
-use scip::{Command, Decoder, Event, Reading, Request, SensorParams, Status, REQUEST_MAX};
+use scip::{Command, Decoder, Event, IndexedReading, Request, SensorParams, Status, REQUEST_MAX};
 
 use super::link::{self, Link};
 use super::spec::SensorSpec;
@@ -25,7 +25,7 @@ pub struct Response {
     /// Scan timestamp or TM1 time, ms.
     pub timestamp: Option<u32>,
     /// Every reading (all echoes) of a measurement.
-    pub readings: Vec<Reading>,
+    pub readings: Vec<IndexedReading>,
     /// Other payload lines (`%ST`).
     pub payload: Vec<Vec<u8>>,
     /// Decode errors; non-empty means damaged.
@@ -188,7 +188,7 @@ impl Client {
                     String::from_utf8_lossy(f.value).into_owned(),
                 )),
                 Event::Timestamp(t) => cur.timestamp = Some(t),
-                Event::Data(line) => cur.readings.extend_from_slice(line.readings),
+                Event::Data(line) => cur.readings.extend(line.indexed()),
                 Event::Payload(p) => cur.payload.push(p.to_vec()),
                 Event::End(_) => done = true,
                 Event::Error(e) => cur.errors.push(e),

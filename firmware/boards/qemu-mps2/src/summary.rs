@@ -47,8 +47,8 @@ impl Summariser {
                 self.codes = 0;
             }
             Event::Data(line) => {
-                for r in line.readings.iter().filter(|r| r.echo == 0) {
-                    match line.range(r) {
+                for r in line.indexed().filter(|r| r.echo == 0) {
+                    match line.range(&r.reading()) {
                         Range::Mm(_) => self.ranges += 1,
                         Range::Error(_) => self.codes += 1,
                     }

@@ -28,7 +28,7 @@ impl<const Q: usize> Core<Q> {
             u16::try_from(step).unwrap_or(u16::MAX)
         };
         // Without multi-echo every reading is a first echo, the next step of the scan.
-        let first = line.readings.first().map(|r| step(r.index));
+        let first = (!line.readings.is_empty()).then(|| step(line.first));
         let test = line.limits.range_test(width);
         // The sensor's rule for its ranges: the same for each of the line's paths.
         let sensor = can_wire::RangeRule {
@@ -37,7 +37,7 @@ impl<const Q: usize> Core<Q> {
             band: test.band(),
             window: [0, u32::MAX],
         };
-        let raw = move |r: &scip::Reading| RawPoint {
+        let raw = move |r: scip::IndexedReading| RawPoint {
             step: step(r.index),
             distance: r.distance,
             intensity: has_aux.then_some(r.aux),
@@ -80,7 +80,7 @@ impl<const Q: usize> Core<Q> {
         }
         // Point by point, after the batch.
         self.flush_batch();
-        let points = line.readings.iter().filter(|r| r.echo == 0).map(raw);
+        let points = line.indexed().filter(|r| r.echo == 0).map(raw);
         let (pipeline, _, mut out) = self.split();
         pipeline.push_iter(points, &mut |p: Point| out.emit(p));
     }

@@ -2097,7 +2097,6 @@ mod tests {
                     .map(|r| scip::Reading {
                         distance: r.distance,
                         aux: r.intensity.unwrap_or(0),
-                        ..scip::Reading::default()
                     })
                     .collect();
                 let mut cells = std::vec![scip::Reading::default(); len + LINE_HEADROOM];
@@ -2203,7 +2202,6 @@ mod tests {
                         .map(|r| scip::Reading {
                             distance: r.distance,
                             aux: r.intensity.unwrap_or(0),
-                            ..scip::Reading::default()
                         })
                         .collect();
                     let mut cells = std::vec![scip::Reading::default(); len + LINE_HEADROOM];
@@ -2351,7 +2349,7 @@ mod tests {
                         _ => {
                             let input: Vec<scip::Reading> = a
                                 .iter()
-                                .map(|r| scip::Reading { index: 0, echo: 0, distance: r.distance, aux: r.intensity.unwrap_or(0) })
+                                .map(|r| scip::Reading { distance: r.distance, aux: r.intensity.unwrap_or(0) })
                                 .collect();
                             let mut cells = input.clone();
                             cells.extend([scip::Reading::default(); LINE_HEADROOM]);

@@ -443,12 +443,7 @@ mod tests {
     use std::vec::Vec;
 
     fn reading(distance: u32, aux: u32) -> scip::Reading {
-        scip::Reading {
-            index: 0,
-            echo: 0,
-            distance,
-            aux,
-        }
+        scip::Reading { distance, aux }
     }
 
     /// The scan of `lines` (distances; each reading's aux is its position in the scan

@@ -1402,7 +1402,6 @@ mod tests {
                     .map(|(i, &distance)| Reading {
                         distance,
                         aux: (i as u32 * 37) % 100,
-                        ..Reading::default()
                     })
                     .collect();
                 let mut k = LineConsts::of(&crate::pipeline::PipelineConfig::default());

@@ -43,11 +43,23 @@ pub const MAX_ECHOES: u8 = 3;
 /// one good frame (the next one is checked against nothing).
 pub const STREAM_GAP_MAX_MS: u32 = 10_000;
 
-/// One decoded step value (or one extra echo of a step).
+/// One decoded value of a step (or one extra echo of a step): its distance and its
+/// second value. Which step and echo it is follows from its place in its
+/// [`DataLine`] ([`DataLine::indexed`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Reading {
-    /// Index of the value in the scan (0 = `start` step; with clustering, one index
+    /// Distance as sent: mm, or an error code below DMIN (see [`DataLine::range`]).
+    pub distance: u32,
+    /// Intensity, reflectance or aux value; 0 when the command has none.
+    pub aux: u32,
+}
+
+/// A reading with its place in the scan, as [`DataLine::indexed`] gives it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct IndexedReading {
+    /// Index of the step in the scan (0 = `start` step; with clustering, one index
     /// covers `cluster` steps).
     pub index: u16,
     /// 0 for the first echo, 1 and 2 for extra echoes of multi-echo commands.
@@ -58,11 +70,35 @@ pub struct Reading {
     pub aux: u32,
 }
 
+impl IndexedReading {
+    /// The reading without its place in the scan (e.g. for [`DataLine::range`]).
+    pub fn reading(&self) -> Reading {
+        Reading {
+            distance: self.distance,
+            aux: self.aux,
+        }
+    }
+}
+
 /// The readings completed by one data line.
+///
+/// In a single-echo line (`echoes` empty) reading `i` is the first (only) echo of step
+/// `first + i`. In a multi-echo line `echoes` has one entry per reading: a reading of
+/// echo 0 begins the next step, an extra echo (1 or 2) belongs to the step of the reading
+/// before it, and the first reading, whatever its echo, is of step `first` (a line may
+/// begin with an extra echo of the step the previous line ended with).
+/// [`DataLine::indexed`] gives every reading with its step and echo.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DataLine<'a> {
     /// The readings, in order.
     pub readings: &'a [Reading],
+    /// Index in the scan of the step of the first reading; for a line without
+    /// readings, the index of the next step.
+    pub first: u16,
+    /// Multi-echo lines: the echo number of each reading (0 for a step's first echo, 1
+    /// and 2 for its extra echoes), as many as `readings`. Empty for single-echo lines,
+    /// whose readings are all first echoes.
+    pub echoes: &'a [u8],
     /// What each step carries.
     pub data: DataSet,
     /// DMIN and model family in force, to tell ranges from error codes.
@@ -71,13 +107,63 @@ pub struct DataLine<'a> {
     pub line: u16,
 }
 
-impl DataLine<'_> {
+impl<'a> DataLine<'a> {
     /// The distance of `reading` as a range or an error code.
     pub fn range(&self, reading: &Reading) -> Range {
         self.limits
             .classify(reading.distance, self.data.distance_width())
     }
+
+    /// Every reading with its step index and echo number, in order.
+    pub fn indexed(&self) -> Indexed<'a> {
+        Indexed {
+            readings: self.readings.iter(),
+            echoes: self.echoes.iter(),
+            index: self.first,
+            started: false,
+        }
+    }
 }
+
+/// The readings of a [`DataLine`] with their step index and echo number
+/// ([`DataLine::indexed`]).
+#[derive(Debug, Clone)]
+pub struct Indexed<'a> {
+    readings: core::slice::Iter<'a, Reading>,
+    echoes: core::slice::Iter<'a, u8>,
+    /// The step of the reading given last (of the first reading, before it).
+    index: u16,
+    started: bool,
+}
+
+impl Iterator for Indexed<'_> {
+    type Item = IndexedReading;
+
+    #[inline]
+    fn next(&mut self) -> Option<IndexedReading> {
+        let r = self.readings.next()?;
+        let echo = self.echoes.next().copied().unwrap_or(0);
+        // A first echo after the line's first reading begins the next step; the indices
+        // of one scan fit in u16 (the decoder checks the count), so this does not wrap.
+        if self.started && echo == 0 {
+            self.index = self.index.wrapping_add(1);
+        }
+        self.started = true;
+        Some(IndexedReading {
+            index: self.index,
+            echo,
+            distance: r.distance,
+            aux: r.aux,
+        })
+    }
+
+    #[inline]
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        self.readings.size_hint()
+    }
+}
+
+impl ExactSizeIterator for Indexed<'_> {}
 
 /// A `NAME:VALUE` line of VV / PP / II.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -198,7 +284,7 @@ struct Shape {
     expected: u16,
 }
 
-/// The streaming SCIP 2.x response decoder. About 560 bytes of RAM; no allocation.
+/// The streaming SCIP 2.x response decoder. About 460 bytes of RAM; no allocation.
 #[derive(Debug, Clone)]
 pub struct Decoder {
     buf: [u8; LINE_CAP],
@@ -237,7 +323,9 @@ pub struct Decoder {
     extra_echoes: u16,
     short_line_seen: bool,
     readings: [Reading; MAX_READINGS],
-    /// Every reading slot has echo 0 and aux 0 (see [`Self::decode_steps`]).
+    /// The echo number of each reading of a multi-echo line (unused otherwise).
+    echoes: [u8; MAX_READINGS],
+    /// Every reading slot has aux 0 (see [`Self::decode_steps`]).
     readings_plain: bool,
     n_readings: usize,
     /// The last intact frame of a continuous stream (its echo's request, the count =
@@ -303,11 +391,10 @@ impl Decoder {
             extra_echoes: 0,
             short_line_seen: false,
             readings: [Reading {
-                index: 0,
-                echo: 0,
                 distance: 0,
                 aux: 0,
             }; MAX_READINGS],
+            echoes: [0; MAX_READINGS],
             readings_plain: true,
             n_readings: 0,
             last_frame: None,

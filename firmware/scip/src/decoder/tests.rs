@@ -372,7 +372,7 @@ fn scan(data: DataSet, n: u16) -> (Vec<u8>, Vec<(u32, u32)>) {
 }
 
 /// Every event of `stream` fed in `chunk`-byte pieces, as text, and every reading.
-fn decode(dec: Decoder, stream: &[u8], chunk: usize) -> (Vec<String>, Vec<Reading>) {
+fn decode(dec: Decoder, stream: &[u8], chunk: usize) -> (Vec<String>, Vec<IndexedReading>) {
     decode_pieces(dec, stream.chunks(chunk))
 }
 
@@ -381,7 +381,7 @@ fn decode(dec: Decoder, stream: &[u8], chunk: usize) -> (Vec<String>, Vec<Readin
 fn decode_pieces<'a>(
     mut dec: Decoder,
     pieces: impl IntoIterator<Item = &'a [u8]>,
-) -> (Vec<String>, Vec<Reading>) {
+) -> (Vec<String>, Vec<IndexedReading>) {
     let mut log = Vec::new();
     let mut readings = Vec::new();
     for piece in pieces {
@@ -392,7 +392,7 @@ fn decode_pieces<'a>(
             rest = &rest[used..];
             if let Some(ev) = ev {
                 if let Event::Data(line) = &ev {
-                    readings.extend_from_slice(line.readings);
+                    readings.extend(line.indexed());
                 }
                 log.push(format!("{ev:?}"));
             }
@@ -430,7 +430,7 @@ fn assert_same(stream: &[u8]) -> Vec<String> {
 }
 
 /// Every event of `stream` fed to `dec` in two pieces, split at `at`.
-fn decode_split(dec: Decoder, stream: &[u8], at: usize) -> (Vec<String>, Vec<Reading>) {
+fn decode_split(dec: Decoder, stream: &[u8], at: usize) -> (Vec<String>, Vec<IndexedReading>) {
     decode_pieces(dec, [&stream[..at], &stream[at..]])
 }
 
@@ -529,13 +529,13 @@ fn golden_ge_intensity_split_across_lines() {
         rest = &rest[used..];
         match ev {
             Some(Event::Timestamp(t)) => assert_eq!(t, 0xAB_CDEF),
-            Some(Event::Data(line)) => lines.push((line.line, line.readings.to_vec())),
+            Some(Event::Data(line)) => lines.push((line.line, line.indexed().collect::<Vec<_>>())),
             Some(Event::End(summary)) => end = Some(summary),
             Some(Event::Error(e)) => panic!("{e}"),
             _ => {}
         }
     }
-    let expected = |i: u16| Reading {
+    let expected = |i: u16| IndexedReading {
         index: i,
         echo: 0,
         distance: 1000 + u32::from(i),
@@ -815,4 +815,142 @@ fn full_line_shortcut_leaves_damaged_framing_to_the_line_rules() {
             assert_eq!(m4, reference, "{what}, m4 paths, chunk {chunk}");
         }
     }
+}
+
+/// A multi-echo scan over steps `0..n` whose step `i` has `echoes(i)` extra echoes,
+/// and every reading written, as (index, echo, distance, intensity).
+fn multi_echo_scan(
+    data: DataSet,
+    n: u16,
+    echoes: impl Fn(u16) -> u8,
+) -> (Vec<u8>, Vec<IndexedReading>) {
+    let request = Request::new(Command::Scan(ScanRequest {
+        data,
+        multi_echo: true,
+        ..ScanRequest::distance(ScanMode::Single, 0, n - 1)
+    }));
+    let mut written = Vec::new();
+    let mut out = Vec::new();
+    let mut w = ResponseWriter::new(|b: &[u8]| out.extend_from_slice(b));
+    w.echo(&request);
+    w.status(*b"00");
+    w.timestamp(0x0012_3456);
+    for index in 0..n {
+        for echo in 0..=echoes(index) {
+            let distance = 1000 + 10 * u32::from(index) + u32::from(echo);
+            let aux = if data == DataSet::Distance {
+                0
+            } else {
+                7 * u32::from(index) + u32::from(echo)
+            };
+            if echo == 0 {
+                w.step(distance, aux);
+            } else {
+                w.extra_echo(distance, aux);
+            }
+            written.push(IndexedReading {
+                index,
+                echo,
+                distance,
+                aux,
+            });
+        }
+    }
+    w.end();
+    (out, written)
+}
+
+/// Multi-echo lines: every reading's step and echo as the writer wrote them, through
+/// [`DataLine::indexed`], in any chunking; the patterns of echoes put every phase of
+/// steps and `&` at the lines' ends and starts, lines that begin with an extra echo
+/// among them.
+#[test]
+fn multi_echo_lines_give_every_reading_its_step_and_echo() {
+    let mut began_with_extra = 0;
+    for data in [DataSet::Distance, DataSet::DistanceIntensity] {
+        for pattern in 0..6u16 {
+            let echoes = move |i: u16| ((i / 3 + i * pattern) % 3) as u8;
+            let (stream, written) = multi_echo_scan(data, 97, echoes);
+            for chunk in [1, 7, 64, 65, 66, stream.len()] {
+                for make in [Decoder::new, Decoder::m4_paths, Decoder::char_by_char] {
+                    let mut dec = make();
+                    let mut got = Vec::new();
+                    let mut ended = false;
+                    for piece in stream.chunks(chunk) {
+                        let mut rest = piece;
+                        while !rest.is_empty() {
+                            let (used, ev) = dec.feed(rest);
+                            rest = &rest[used..];
+                            match ev {
+                                Some(Event::Data(line)) => {
+                                    assert_eq!(line.echoes.len(), line.readings.len());
+                                    if line.echoes.first().is_some_and(|&e| e > 0) {
+                                        began_with_extra += 1;
+                                    }
+                                    got.extend(line.indexed());
+                                }
+                                Some(Event::End(_)) => ended = true,
+                                Some(Event::Error(e)) => panic!("{e}"),
+                                _ => {}
+                            }
+                        }
+                    }
+                    assert!(ended);
+                    assert_eq!(got, written, "{data:?} pattern {pattern} chunk {chunk}");
+                }
+            }
+        }
+    }
+    assert!(began_with_extra > 0);
+}
+
+/// [`DataLine::indexed`] on lines made by hand: single-echo lines count up from
+/// `first`; a multi-echo line's first reading is of step `first` whatever its echo, and
+/// each later first echo begins the next step; no readings, nothing.
+#[test]
+fn indexed_follows_first_and_the_echo_table() {
+    let r = |distance| Reading { distance, aux: 3 };
+    let readings = [r(10), r(11), r(12), r(13), r(14)];
+    let line = |first, echoes| DataLine {
+        readings: &readings,
+        first,
+        echoes,
+        data: DataSet::Distance,
+        limits: RangeLimits::default(),
+        line: 3,
+    };
+    let view = |l: DataLine<'_>| -> Vec<(u16, u8, u32)> {
+        l.indexed().map(|x| (x.index, x.echo, x.distance)).collect()
+    };
+    assert_eq!(
+        view(line(9998, &[])),
+        [
+            (9998, 0, 10),
+            (9999, 0, 11),
+            (10000, 0, 12),
+            (10001, 0, 13),
+            (10002, 0, 14)
+        ]
+    );
+    assert_eq!(
+        view(line(40, &[2, 0, 1, 0, 0])),
+        [
+            (40, 2, 10),
+            (41, 0, 11),
+            (41, 1, 12),
+            (42, 0, 13),
+            (43, 0, 14)
+        ]
+    );
+    assert_eq!(
+        view(line(0, &[0, 1, 2, 0, 1])),
+        [(0, 0, 10), (0, 1, 11), (0, 2, 12), (1, 0, 13), (1, 1, 14)]
+    );
+    assert!(line(0, &[]).indexed().all(|x| x.aux == 3));
+    assert_eq!(line(7, &[]).indexed().len(), 5);
+    let empty = DataLine {
+        readings: &[],
+        ..line(7, &[])
+    };
+    assert_eq!(empty.indexed().count(), 0);
 }

@@ -80,7 +80,7 @@ impl Decoder {
     }
 
     /// [`Self::decode_steps`] for 3-char distances on a full line of valid value chars
-    /// in the line buffer, the readings plain (echo 0 and aux 0 in every slot): the
+    /// in the line buffer, the readings plain (aux 0 in every slot): the
     /// step begun on the previous line (0, 1 or 2 chars carried) completed, the 20 or
     /// 21 whole steps after it, the 0 to 2 chars left carried: every length follows
     /// from the chars carried. Same readings, state and errors.
@@ -114,12 +114,9 @@ impl Decoder {
         if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
             return Err(self.too_many());
         }
-        let mut index = self.values;
         let (first, slots) = self.readings.split_at_mut(usize::from(head.is_some()));
         if let (Some(slot), Some(distance)) = (first.first_mut(), head) {
             slot.distance = distance;
-            slot.index = index;
-            index = index.wrapping_add(1);
         }
         // `off + 3 * 21` is at most 64: within the line.
         let mid = chars.get(off..).unwrap_or(&[]);
@@ -131,9 +128,10 @@ impl Decoder {
         // division by 3.
         let mid = core::hint::black_box(mid);
         let mid = mid.get(..whole.wrapping_mul(D)).unwrap_or(&[]);
-        index = put_plain3(slots, mid, index);
+        put_plain3(slots, mid);
         self.echo_no = 0;
-        self.values = index;
+        // At most `expected` (checked above): no wrap.
+        self.values = self.values.wrapping_add(total as u16);
         self.n_readings = total;
         self.carry = carry;
         self.carry_n = carry_n;
@@ -157,12 +155,38 @@ impl Decoder {
     /// The readings of the data line just decoded, as an event.
     #[inline]
     pub(super) fn data_event(&self) -> Event<'_> {
+        let n = self.n_readings;
+        let readings = self.readings.get(..n).unwrap_or(&[]);
+        let (first, echoes) = if self.shape.multi_echo {
+            self.multi_echo_line()
+        } else {
+            // Every reading began a step, the last of them `values - 1`: at most
+            // MAX_READINGS of at most `values`, no wrap.
+            (self.values.wrapping_sub(n as u16), &[][..])
+        };
         Event::Data(DataLine {
-            readings: self.readings.get(..self.n_readings).unwrap_or(&[]),
+            readings,
+            first,
+            echoes,
             data: self.shape.data,
             limits: self.limits,
             line: self.line_no,
         })
+    }
+
+    /// The first step index and the echo table of the multi-echo line just decoded:
+    /// `values` counts the steps begun so far, one for each first echo of the line; a
+    /// line that begins with an extra echo begins in the step before its first first
+    /// echo (the decoder accepts an extra echo only after a step, so `values` is then
+    /// above the line's first echoes).
+    #[cold]
+    #[inline(never)]
+    fn multi_echo_line(&self) -> (u16, &[u8]) {
+        let echoes = self.echoes.get(..self.n_readings).unwrap_or(&[]);
+        let begun = echoes.iter().filter(|&&e| e == 0).count() as u16;
+        let before = u16::from(echoes.first().is_some_and(|&e| e != 0));
+        let first = self.values.wrapping_sub(begun).wrapping_sub(before);
+        (first, echoes)
     }
 
     /// The fast path of [`Self::feed`] on 64-bit hosts for a full data line (64 value
@@ -319,16 +343,9 @@ impl Decoder {
         let Some(slots) = self.readings.get_mut(..total) else {
             return Err(too_many);
         };
-        let mut index = self.values;
         let (head_slot, mid_slots) = slots.split_at_mut(usize::from(OFF > 0));
         if let (Some((distance, aux)), [slot]) = (head, head_slot) {
-            *slot = Reading {
-                index,
-                echo: 0,
-                distance,
-                aux,
-            };
-            index = index.wrapping_add(1);
+            *slot = Reading { distance, aux };
         }
         // `whole` steps from `OFF` on, `W` chars each, within the line, unrolled (see
         // `put_full_steps`): written out apart for the line in `input` (which has its
@@ -337,24 +354,17 @@ impl Decoder {
         let from_input = input.and_then(|c| c.first_chunk::<DATA_CHARS>());
         let from_buf = self.buf.first_chunk::<DATA_CHARS>();
         match (plain, from_input, from_buf) {
-            (true, Some(c), _) => put_full_steps::<D, A, W, OFF, true>(mid_slots, c, whole, index),
-            (true, None, Some(c)) => {
-                put_full_steps::<D, A, W, OFF, true>(mid_slots, c, whole, index)
-            }
-            (false, Some(c), _) => {
-                put_full_steps::<D, A, W, OFF, false>(mid_slots, c, whole, index)
-            }
-            (false, None, Some(c)) => {
-                put_full_steps::<D, A, W, OFF, false>(mid_slots, c, whole, index)
-            }
+            (true, Some(c), _) => put_full_steps::<D, A, W, OFF, true>(mid_slots, c, whole),
+            (true, None, Some(c)) => put_full_steps::<D, A, W, OFF, true>(mid_slots, c, whole),
+            (false, Some(c), _) => put_full_steps::<D, A, W, OFF, false>(mid_slots, c, whole),
+            (false, None, Some(c)) => put_full_steps::<D, A, W, OFF, false>(mid_slots, c, whole),
             _ => {}
         }
-        // `whole` is at most DATA_CHARS: fits in u16.
-        index = index.wrapping_add(whole as u16);
         if total > 0 {
             self.echo_no = 0;
         }
-        self.values = index;
+        // `total` is at most `expected - values` (checked above): no wrap.
+        self.values = self.values.wrapping_add(total as u16);
         self.n_readings = total;
         let tail = chars.get(tail_at..).unwrap_or(&[]);
         self.set_carry(Carry::of::<D, A>(tail));
@@ -471,30 +481,24 @@ impl Decoder {
         let end = first.wrapping_add(total);
         let too_many = self.too_many();
         let slots = self.readings.get_mut(first..end).ok_or(too_many)?;
-        let mut index = self.values;
         let mut slots = slots.iter_mut();
         if let Some((distance, aux)) = head {
             if let Some(slot) = slots.next() {
-                *slot = Reading {
-                    index,
-                    echo: 0,
-                    distance,
-                    aux,
-                };
-                index = index.wrapping_add(1);
+                *slot = Reading { distance, aux };
             }
         }
         let slots = slots.into_slice();
-        index = if A == 0 && self.readings_plain {
-            // Every slot already has echo 0 and aux 0: the distance and index will do.
-            put_steps::<D, A, true>(slots, mid, index)
+        if A == 0 && self.readings_plain {
+            // Every slot already has aux 0: the distance will do.
+            put_steps::<D, A, true>(slots, mid);
         } else {
-            put_steps::<D, A, false>(slots, mid, index)
-        };
+            put_steps::<D, A, false>(slots, mid);
+        }
         if total > 0 {
             self.echo_no = 0;
         }
-        self.values = index;
+        // `total` is at most `expected - values` (checked above): no wrap.
+        self.values = self.values.wrapping_add(total as u16);
         self.n_readings = end;
         self.set_carry(Carry::of::<D, A>(tail));
         Ok(())
@@ -568,10 +572,10 @@ impl Decoder {
             (value, 0)
         };
         self.in_aux = false;
-        let (index, echo) = if self.next_is_echo {
+        let echo = if self.next_is_echo {
             self.next_is_echo = false;
             self.extra_echoes = self.extra_echoes.saturating_add(1);
-            (self.values.saturating_sub(1), self.echo_no)
+            self.echo_no
         } else {
             if self.values >= self.shape.expected {
                 return Err(ErrorKind::TooManyValues {
@@ -580,9 +584,8 @@ impl Decoder {
             }
             self.echo_no = 0;
             // Below `expected` (checked above), so `+ 1` fits.
-            let index = self.values;
-            self.values = index.wrapping_add(1);
-            (index, 0)
+            self.values = self.values.wrapping_add(1);
+            0
         };
         let slot = self
             .readings
@@ -590,13 +593,11 @@ impl Decoder {
             .ok_or(ErrorKind::TooManyValues {
                 expected: self.shape.expected,
             })?;
-        self.readings_plain &= echo == 0 && aux == 0;
-        *slot = Reading {
-            index,
-            echo,
-            distance,
-            aux,
-        };
+        self.readings_plain &= aux == 0;
+        *slot = Reading { distance, aux };
+        if let Some(e) = self.echoes.get_mut(self.n_readings) {
+            *e = echo;
+        }
         // The slot at `n_readings` exists (above): below MAX_READINGS, no wrap.
         self.n_readings = self.n_readings.wrapping_add(1);
         Ok(self.shape.dist_width)
@@ -629,7 +630,7 @@ fn begin_steps<const A: usize>(
 }
 
 /// Writes the `whole` steps of a full line from char `OFF` on (`W = D + A` chars each,
-/// valid value chars) into `slots`, with indices from `index`, four per round: with
+/// valid value chars) into `slots`, four per round: with
 /// `whole` a constant the rounds unroll fully, so no loop instruction is left per step
 /// and every offset is a constant. `PLAIN`: as in [`put_steps`].
 #[cfg(not(target_pointer_width = "32"))]
@@ -644,24 +645,23 @@ fn put_full_steps<
     slots: &mut [Reading],
     chars: &[u8; DATA_CHARS],
     whole: usize,
-    index: u16,
 ) {
     let rounds = whole / 4;
     for r in 0..rounds {
         // Below `whole`: no wrap.
         let j = r.wrapping_mul(4);
         for k in 0..4 {
-            put_step_at::<D, A, W, OFF, PLAIN>(slots, chars, j.wrapping_add(k), index);
+            put_step_at::<D, A, W, OFF, PLAIN>(slots, chars, j.wrapping_add(k));
         }
     }
     for j in rounds.wrapping_mul(4)..whole {
-        put_step_at::<D, A, W, OFF, PLAIN>(slots, chars, j, index);
+        put_step_at::<D, A, W, OFF, PLAIN>(slots, chars, j);
     }
 }
 
 /// Writes step `j` of a full line's whole steps from char `OFF` on (`W = D + A` chars
-/// each, valid value chars) into `slots[j]`, with index `index + j`; nothing when
-/// either is out of range. `PLAIN`: as in [`put_steps`].
+/// each, valid value chars) into `slots[j]`; nothing when either is out of range.
+/// `PLAIN`: as in [`put_steps`].
 #[cfg(not(target_pointer_width = "32"))]
 #[inline(always)]
 fn put_step_at<
@@ -674,9 +674,8 @@ fn put_step_at<
     slots: &mut [Reading],
     chars: &[u8; DATA_CHARS],
     j: usize,
-    index: u16,
 ) {
-    // Within one line: none of these wraps, and `j` fits in u16.
+    // Within one line: none of these wraps.
     let at = OFF.wrapping_add(j.wrapping_mul(W));
     let (Some(slot), Some(step)) = (
         slots.get_mut(j),
@@ -687,47 +686,43 @@ fn put_step_at<
     let Some((d, a)) = step.split_first_chunk::<D>() else {
         return;
     };
-    let index = index.wrapping_add(j as u16);
     if PLAIN {
         slot.distance = decode_valid(d);
-        slot.index = index;
     } else if let Some(a) = a.first_chunk::<A>() {
         *slot = Reading {
-            index,
-            echo: 0,
             distance: decode_valid(d),
             aux: decode_valid(a),
         };
+        // No instruction: it keeps the unrolled steps' stores apart, so that LLVM's SLP
+        // vectorizer does not pack two steps' distances and second values (adjacent in
+        // the 8-byte readings) into vector stores, whose byte shuffles cost more than
+        // the scalar steps (callgrind, UTM-30LX ME stream: 7.71 -> 6.92 per byte).
+        core::sync::atomic::compiler_fence(core::sync::atomic::Ordering::SeqCst);
     }
 }
 
 /// Writes the whole steps of `mid` (valid value chars, `D`-char distances and `A`-char
-/// second values) into `slots` with indices from `index`; returns the index after the
-/// last. `PLAIN`: every slot has echo 0 and aux 0 already (`A == 0`), so only the
-/// distance and the index are written. On 64-bit hosts four steps at a time, unrolled
-/// (fewer loop instructions per step); 32-bit targets keep the smaller plain loop.
+/// second values) into `slots`, as many as both have. `PLAIN`: every slot has aux 0
+/// already (`A == 0`), so only the distance is written. On 64-bit hosts four steps at a
+/// time, unrolled (fewer loop instructions per step); 32-bit targets keep the smaller
+/// plain loop.
 #[inline(always)]
-fn put_steps<const D: usize, const A: usize, const PLAIN: bool>(
-    slots: &mut [Reading],
-    mid: &[u8],
-    index: u16,
-) -> u16 {
+fn put_steps<const D: usize, const A: usize, const PLAIN: bool>(slots: &mut [Reading], mid: &[u8]) {
     // 2..=7: the `D + A` of the data sets `decode_values` dispatches; no wrap.
     let width = D.wrapping_add(A);
     #[cfg(not(target_pointer_width = "32"))]
     {
-        let mut index = index;
         let mut slots4 = slots.chunks_exact_mut(4);
         let mut mid4 = mid.chunks_exact(width.wrapping_mul(4));
         for (s, m) in (&mut slots4).zip(&mut mid4) {
-            index = put_step_run::<D, A, PLAIN>(s, m, index);
+            put_step_run::<D, A, PLAIN>(s, m);
         }
-        put_step_run::<D, A, PLAIN>(slots4.into_remainder(), mid4.remainder(), index)
+        put_step_run::<D, A, PLAIN>(slots4.into_remainder(), mid4.remainder());
     }
     #[cfg(target_pointer_width = "32")]
     {
         let _ = width;
-        put_step_run::<D, A, PLAIN>(slots, mid, index)
+        put_step_run::<D, A, PLAIN>(slots, mid);
     }
 }
 
@@ -736,14 +731,12 @@ fn put_steps<const D: usize, const A: usize, const PLAIN: bool>(
 fn put_step_run<const D: usize, const A: usize, const PLAIN: bool>(
     slots: &mut [Reading],
     mid: &[u8],
-    mut index: u16,
-) -> u16 {
+) {
     let width = D.wrapping_add(A);
     for (slot, step) in slots.iter_mut().zip(mid.chunks_exact(width)) {
         if PLAIN {
             if let Some(d) = step.first_chunk::<D>() {
                 slot.distance = decode_valid(d);
-                slot.index = index;
             }
         } else {
             let Some((d, a)) = step.split_first_chunk::<D>() else {
@@ -753,27 +746,26 @@ fn put_step_run<const D: usize, const A: usize, const PLAIN: bool>(
                 continue;
             };
             *slot = Reading {
-                index,
-                echo: 0,
                 distance: decode_valid(d),
                 aux: decode_valid(a),
             };
         }
-        index = index.wrapping_add(1);
     }
-    index
 }
 
 /// [`put_step_run`] for plain readings of 3-char distances (`D = 3`, `A = 0`,
-/// `PLAIN`): the same distances and indices. The chars' `0x30` offsets are taken off
+/// `PLAIN`): the same distances. The chars' `0x30` offsets are taken off
 /// by starting each step's value from `-0x30·(64² + 64 + 1)`, held in a register (its
 /// value hidden from the optimiser, which would otherwise add it last, after an extra
-/// shift): three shifted adds a step instead of four instructions (11 a step on a
-/// Cortex-M4, was 12). Two steps a round was slower: LLVM unrolled the pairs and
-/// spilled their registers (URG-04LX D16 28.5 -> 29.5 per UART byte).
+/// shift): three shifted adds a step instead of four instructions (9 a step on a
+/// Cortex-M4: three loads, three adds, the store and the loop's two; 11 while each
+/// reading had its index stored too). Two steps a round was slower, twice: LLVM
+/// unrolled the pairs and spilled their registers (URG-04LX D16 28.5 -> 29.5 per UART
+/// byte), and with the 8-byte readings it took the steps' count by a division by 3
+/// (26.6 -> 27.6).
 #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
 #[inline(always)]
-fn put_plain3(slots: &mut [Reading], mid: &[u8], mut index: u16) -> u16 {
+fn put_plain3(slots: &mut [Reading], mid: &[u8]) {
     const OFFSETS: u32 = CHAR_MIN as u32 * (64 * 64 + 64 + 1);
     let base = core::hint::black_box(0u32.wrapping_sub(OFFSETS));
     for (slot, step) in slots.iter_mut().zip(mid.chunks_exact(3)) {
@@ -782,11 +774,8 @@ fn put_plain3(slots: &mut [Reading], mid: &[u8], mut index: u16) -> u16 {
                 .wrapping_add(u32::from(a) << 12)
                 .wrapping_add(u32::from(b) << 6)
                 .wrapping_add(u32::from(c));
-            slot.index = index;
         }
-        index = index.wrapping_add(1);
     }
-    index
 }
 
 /// The value of `N` valid value chars (see [`sum_and_check`]), most significant first.
@@ -862,57 +851,51 @@ mod plain3_tests {
     #[test]
     fn every_three_chars_decode_as_the_rule_says() {
         // Every value of three chars, 21 steps (a full line's) at a time, each slot
-        // starting from garbage that must not survive in the fields written.
+        // starting from garbage that must not survive in the distance, nor change the
+        // aux (the plain path writes the distance only).
         let all: Vec<[u8; 3]> = (0x30..=0x6Fu8)
             .flat_map(|a| {
                 (0x30..=0x6Fu8).flat_map(move |b| (0x30..=0x6Fu8).map(move |c| [a, b, c]))
             })
             .collect();
         assert_eq!(all.len(), 1 << 18);
-        let mut index: u16 = 0;
         for group in all.chunks(21) {
             let mid: Vec<u8> = group.iter().flatten().copied().collect();
             let mut slots = [Reading {
-                index: 0xBEEF,
-                echo: 0,
                 distance: 0xDEAD_BEEF,
                 aux: 0,
             }; 21];
-            let next = put_plain3(&mut slots[..group.len()], &mid, index);
-            assert_eq!(next, index.wrapping_add(group.len() as u16));
-            for (k, (slot, &[a, b, c])) in slots.iter().zip(group).enumerate() {
+            put_plain3(&mut slots[..group.len()], &mid);
+            for (slot, &[a, b, c]) in slots.iter().zip(group) {
                 assert_eq!(slot.distance, reference(a, b, c), "{:?}", [a, b, c]);
-                assert_eq!(slot.index, index.wrapping_add(k as u16));
+                assert_eq!(slot.aux, 0);
             }
-            index = next;
         }
         // The extremes by hand: "000" is 0, "ooo" is 2^18 - 1, "0o0" is 63 * 64.
         assert_eq!(reference(b'0', b'0', b'0'), 0);
         assert_eq!(reference(b'o', b'o', b'o'), 262_143);
         let mut slots = [Reading::default(); 3];
-        let next = put_plain3(&mut slots, b"000ooo0o0", u16::MAX - 1);
-        assert_eq!(next, 1);
-        let got: Vec<(u16, u32)> = slots.iter().map(|r| (r.index, r.distance)).collect();
-        assert_eq!(got, [(u16::MAX - 1, 0), (u16::MAX, 262_143), (0, 4032)]);
+        put_plain3(&mut slots, b"000ooo0o0");
+        assert_eq!(slots.map(|r| r.distance), [0, 262_143, 4032]);
     }
 
     #[test]
     fn the_shorter_of_slots_and_steps_is_written() {
         // Fewer slots than steps, fewer whole steps than slots (a partial step left),
         // and nothing at all: only what both have is written.
-        let mut slots = [Reading::default(); 4];
-        assert_eq!(put_plain3(&mut slots[..2], b"001002003", 7), 9);
-        assert_eq!(
-            slots.map(|r| (r.index, r.distance)),
-            [(7, 1), (8, 2), (0, 0), (0, 0)]
-        );
-        let mut slots = [Reading::default(); 4];
-        assert_eq!(put_plain3(&mut slots, b"0010020", 0), 2);
-        assert_eq!(
-            slots.map(|r| (r.index, r.distance)),
-            [(0, 1), (1, 2), (0, 0), (0, 0)]
-        );
-        assert_eq!(put_plain3(&mut [], b"001", 5), 5);
-        assert_eq!(put_plain3(&mut slots, b"", 5), 5);
+        let untouched = Reading {
+            distance: 77,
+            aux: 5,
+        };
+        let mut slots = [untouched; 4];
+        put_plain3(&mut slots[..2], b"001002003");
+        assert_eq!(slots.map(|r| r.distance), [1, 2, 77, 77]);
+        let mut slots = [untouched; 4];
+        put_plain3(&mut slots, b"0010020");
+        assert_eq!(slots.map(|r| r.distance), [1, 2, 77, 77]);
+        assert!(slots.iter().all(|r| r.aux == 5));
+        put_plain3(&mut [], b"001");
+        put_plain3(&mut slots, b"");
+        assert_eq!(slots.map(|r| r.distance), [1, 2, 77, 77]);
     }
 }

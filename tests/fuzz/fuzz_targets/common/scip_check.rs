@@ -40,7 +40,7 @@ fn digest(ev: &Event<'_>) -> u64 {
         Event::Data(line) => {
             h.word(0xDA7A);
             let _ = write!(h, "{:?}{:?}{}", line.data, line.limits, line.line);
-            for r in line.readings {
+            for r in line.indexed() {
                 h.word(u64::from(r.index) | u64::from(r.echo) << 16);
                 h.word(u64::from(r.distance) | u64::from(r.aux) << 32);
             }
@@ -93,7 +93,7 @@ impl Checker {
             }
             Event::Data(line) => {
                 assert!(live, "Data outside a live response (or after its Error)");
-                for r in line.readings {
+                for r in line.indexed() {
                     if r.echo == 0 {
                         assert_eq!(u32::from(r.index), self.values, "value index");
                         self.values += 1;
