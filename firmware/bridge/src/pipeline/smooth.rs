@@ -154,9 +154,10 @@ pub(super) fn line(
 /// centre stays missing (its output is `none`, counted in `invalid`), else `c` when a
 /// neighbour is no range, else the median. `exact` (`SMALL` when a range may be at or
 /// above it, else 0) takes the general rule; without it every range is below
-/// [`SMALL`] (no range the only value with the top bit set) and a range `c` not
-/// between its neighbours: the median is the neighbour nearest `c`. Sets `diff` when
-/// it changes the centre.
+/// [`SMALL`] (no range the only value with the top bit set: one test of the OR of the
+/// three finds any no range) and a range `c` not between its neighbours: the median is
+/// the neighbour nearest `c`, picked by one sign test. ORs into `diff` the change of a
+/// range.
 #[inline(always)]
 fn median3_off(
     (b, c, s): (u32, u32, u32),
@@ -165,17 +166,20 @@ fn median3_off(
     invalid: &mut usize,
     none: u32,
 ) -> u32 {
-    if c == NONE {
-        return no_range(invalid, none);
-    }
-    let x = if (b | s | exact) >= SMALL {
-        median3_exact(b, c, s)
-    } else if c >= b {
-        // `c - b` at least 0: `c` is at least `b` and above `s`.
-        b.max(s)
+    let x = if (b | c | s | exact) >= SMALL {
+        // A value is no range (or `exact`): the general rule, a missing centre
+        // counted.
+        let x = median3_exact(b, c, s);
+        if x == NONE {
+            return no_range(invalid, none);
+        }
+        x
+    } else if (b.wrapping_sub(s) ^ c.wrapping_sub(b)) < SMALL {
+        // `c` above both or below both: the median is the neighbour nearest it, `b`
+        // when `b` is between `s` and `c` (`b - s` and `c - b` of the same sign).
+        b
     } else {
-        // Below `b`, at most `s`.
-        b.min(s)
+        s
     };
     *diff |= x ^ c;
     x
