@@ -169,11 +169,10 @@ fn median3_off(
     let x = if (b | c | s | exact) >= SMALL {
         // A value is no range (or `exact`): the general rule, a missing centre
         // counted.
-        let x = median3_exact(b, c, s);
-        if x == NONE {
+        if c == NONE {
             return no_range(invalid, none);
         }
-        x
+        median3_exact(b, c, s)
     } else if (b.wrapping_sub(s) ^ c.wrapping_sub(b)) < SMALL {
         // `c` above both or below both: the median is the neighbour nearest it, `b`
         // when `b` is between `s` and `c` (`b - s` and `c - b` of the same sign).
@@ -205,6 +204,21 @@ fn speckle_exact(c: u32, b: u32, a: u32, jump: u32, removed: &mut usize) -> u32 
     let (x, gone) = speckle3_line(c, b, a, NONE, jump);
     *removed = removed.wrapping_add(usize::from(gone));
     x
+}
+
+/// Speckle removal's output `s` for a centre whose quick test in [`stages`] may have
+/// passed without support: with `c`, the point before it, no range, a range `s` below
+/// `jump` is decided by the rule (support from `a` after it, a removal counted in
+/// `removed`); otherwise `s` is right as it is (the test passed by support, or failed
+/// and the rule gave `s`: a range at least `jump`, or no range).
+#[cold]
+#[inline(never)]
+fn speckle_unheld(c: u32, s: u32, a: u32, jump: u32, removed: &mut usize) -> u32 {
+    if c == NONE && s < jump {
+        speckle_exact(s, c, a, jump, removed)
+    } else {
+        s
+    }
 }
 
 /// Counts one output without a range (at most the line's points: no wrap); returns the
@@ -290,7 +304,21 @@ fn stages<const MD: bool>(
                 }
             };
             out(d, cs);
-            if b.abs_diff(cs) | guard > quick_jump {
+            // With the median on (the threshold below SMALL), on the difference
+            // `ds = cs - b` (32-bit): `b` is within `jump` of `cs` when `ds` is at
+            // most `jump` or `ds + jump` carries (`-ds` at most `jump`): two compares
+            // instead of the absolute difference's four instructions. Exact for `b`
+            // and `cs` below SMALL, and for `cs` no range (which stays whatever the
+            // test says), but it passes a range `cs` below `jump` after no range
+            // (`ds = cs + 1`): `b` is then the median's centre, whose no-range path
+            // decides `cs` by the rule ([`speckle_unheld`]).
+            let ds = cs.wrapping_sub(b);
+            let far = if MD {
+                ds > jump && ds.wrapping_add(jump) >= jump
+            } else {
+                b.abs_diff(cs) | guard > quick_jump
+            };
+            if far {
                 let x = speckle_exact(cs, b, dist(d, j), jump, &mut removed);
                 cs = if !MD && x == NONE {
                     no_range(&mut invalid, none)
@@ -302,15 +330,27 @@ fn stages<const MD: bool>(
             cs
         };
         if MD {
+            let (c, mut s) = (cm, s);
             // The centre stays (written first, the other cases write over it) when
             // the test passes: only for a range `c` (its top bit clear) between its
             // neighbours.
-            let c = cm;
-            if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
-                o.distance = c;
-                if ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | c) >= SMALL {
-                    o.distance = median3_off((bm, c, s), 0, &mut diff, &mut invalid, none);
+            let out = |d: &mut [Reading], x: u32| {
+                if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
+                    o.distance = x;
                 }
+            };
+            out(d, c);
+            if ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | c) >= SMALL {
+                let x = if (bm | c | s) < SMALL {
+                    median3_off((bm, c, s), 0, &mut diff, &mut invalid, none)
+                } else {
+                    // A no range among the three (rare): speckle removal's rule for
+                    // `s` after a centre without a range, then the median's general
+                    // rule.
+                    s = speckle_unheld(c, s, dist(d, j), jump, &mut removed);
+                    median3_off((bm, c, s), SMALL, &mut diff, &mut invalid, none)
+                };
+                out(d, x);
             }
             (bm, cm) = (c, s);
         }
@@ -1580,6 +1620,121 @@ mod tests {
                         b1
                     };
                     assert_eq!((md.np, md.p0.0, md.b1), (1, last, before));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn median3_off_follows_the_rule_written_plainly() {
+        // Every triple over edge values (0, 1, ties, ranges near 2^31, no range, and
+        // with `exact` ranges at and above 2^31) whose centre the quick test does not
+        // pass, against the plain rule: the output, the change ORed, the count.
+        let small = [0, 1, 2, 40, SMALL - 2, SMALL - 1, NONE];
+        let all = [
+            0,
+            1,
+            2,
+            40,
+            SMALL - 2,
+            SMALL - 1,
+            SMALL,
+            SMALL + 1,
+            NONE - 1,
+            NONE,
+        ];
+        for (vals, exact) in [(&small[..], 0), (&all[..], SMALL)] {
+            for &b in vals {
+                for &c in vals {
+                    for &s in vals {
+                        let quick = ((c.wrapping_sub(b) ^ s.wrapping_sub(c)) | c | exact) < SMALL;
+                        if quick {
+                            // The quick test passes only for the centre as the median.
+                            assert_eq!(median3_reference(b, c, s), c, "{b} {c} {s}");
+                            continue;
+                        }
+                        let (mut diff, mut invalid) = (0, 0);
+                        let x = median3_off((b, c, s), exact, &mut diff, &mut invalid, 9);
+                        let want = median3_reference(b, c, s);
+                        let shown = if want == NONE { 9 } else { want };
+                        assert_eq!(x, shown, "{b} {c} {s} {exact}");
+                        assert_eq!(invalid, usize::from(want == NONE));
+                        let change = if c == NONE { 0 } else { want ^ c };
+                        assert_eq!(diff, change, "{b} {c} {s} {exact}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn stages_follow_the_rules_over_every_short_line() {
+        // Speckle removal then the median of 3 over every line of three points (the
+        // speckle centre held, two more) with every held state, over values around
+        // each threshold, 0, ranges just below 2^31 and no range: in particular a
+        // range below the threshold after no range (which speckle removal's quick
+        // test passes and the median's no-range path decides), against the plain
+        // rules.
+        for jump in [0, 1, 40, SMALL - 1] {
+            let vals = [
+                0,
+                1,
+                jump.saturating_sub(1),
+                jump,
+                (jump + 1).min(SMALL - 1),
+                SMALL - 2,
+                NONE,
+            ];
+            for &b0 in &vals {
+                for &b1 in &vals {
+                    for &c0 in &vals {
+                        for &l0 in &vals {
+                            for &l1 in &vals {
+                                let s = [c0, l0, l1];
+                                let want: Vec<u32> = (0..2)
+                                    .map(|i| {
+                                        let b = if i == 0 { b0 } else { s[i - 1] };
+                                        speckle_reference(b, s[i], s[i + 1], jump)
+                                    })
+                                    .collect();
+                                let gone = (0..2).filter(|&i| want[i] == NONE && s[i] != NONE);
+                                let gone = gone.count();
+                                // The median's held centre: speckle removal's output for
+                                // b0 (b0, or no range when b0 had no support from c0).
+                                let unsupported =
+                                    b0 == NONE || c0 == NONE || c0.abs_diff(b0) > jump;
+                                let held = if unsupported {
+                                    vec![b0, NONE]
+                                } else {
+                                    vec![b0]
+                                };
+                                for c1 in held {
+                                    let m = [c1, want[0], want[1]];
+                                    let want2: Vec<u32> = (0..2)
+                                        .map(|i| {
+                                            let b = if i == 0 { b1 } else { m[i - 1] };
+                                            median3_reference(b, m[i], m[i + 1])
+                                        })
+                                        .collect();
+                                    let both = [c1, c0, l0, l1];
+                                    let (got, invalid, _, removed, r) =
+                                        run::<true, true>(&both, (b0, b1), jump, false, 9);
+                                    let shown: Vec<u32> = want2
+                                        .iter()
+                                        .map(|&x| if x == NONE { 9 } else { x })
+                                        .collect();
+                                    let case = (jump, b0, b1, c1, s);
+                                    assert_eq!(got, shown, "{case:?}");
+                                    assert_eq!(
+                                        invalid,
+                                        want2.iter().filter(|&&x| x == NONE).count()
+                                    );
+                                    assert_eq!(removed, gone, "{case:?}");
+                                    assert_eq!(r, [l0, l1, m[1], m[2]], "{case:?}");
+                                }
+                            }
+                        }
+                    }
                 }
             }
         }
