@@ -206,21 +206,6 @@ fn speckle_exact(c: u32, b: u32, a: u32, jump: u32, removed: &mut usize) -> u32 
     x
 }
 
-/// Speckle removal's output `s` for a centre whose quick test in [`stages`] may have
-/// passed without support: with `c`, the point before it, no range, a range `s` below
-/// `jump` is decided by the rule (support from `a` after it, a removal counted in
-/// `removed`); otherwise `s` is right as it is (the test passed by support, or failed
-/// and the rule gave `s`: a range at least `jump`, or no range).
-#[cold]
-#[inline(never)]
-fn speckle_unheld(c: u32, s: u32, a: u32, jump: u32, removed: &mut usize) -> u32 {
-    if c == NONE && s < jump {
-        speckle_exact(s, c, a, jump, removed)
-    } else {
-        s
-    }
-}
-
 /// Counts one output without a range (at most the line's points: no wrap); returns the
 /// encoder's value for it.
 #[cold]
@@ -304,21 +289,7 @@ fn stages<const MD: bool>(
                 }
             };
             out(d, cs);
-            // With the median on (the threshold below SMALL), on the difference
-            // `ds = cs - b` (32-bit): `b` is within `jump` of `cs` when `ds` is at
-            // most `jump` or `ds + jump` carries (`-ds` at most `jump`): two compares
-            // instead of the absolute difference's four instructions. Exact for `b`
-            // and `cs` below SMALL, and for `cs` no range (which stays whatever the
-            // test says), but it passes a range `cs` below `jump` after no range
-            // (`ds = cs + 1`): `b` is then the median's centre, whose no-range path
-            // decides `cs` by the rule ([`speckle_unheld`]).
-            let ds = cs.wrapping_sub(b);
-            let far = if MD {
-                ds > jump && ds.wrapping_add(jump) >= jump
-            } else {
-                b.abs_diff(cs) | guard > quick_jump
-            };
-            if far {
+            if b.abs_diff(cs) | guard > quick_jump {
                 let x = speckle_exact(cs, b, dist(d, j), jump, &mut removed);
                 cs = if !MD && x == NONE {
                     no_range(&mut invalid, none)
@@ -330,27 +301,15 @@ fn stages<const MD: bool>(
             cs
         };
         if MD {
-            let (c, mut s) = (cm, s);
             // The centre stays (written first, the other cases write over it) when
             // the test passes: only for a range `c` (its top bit clear) between its
             // neighbours.
-            let out = |d: &mut [Reading], x: u32| {
-                if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
-                    o.distance = x;
+            let c = cm;
+            if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
+                o.distance = c;
+                if ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | c) >= SMALL {
+                    o.distance = median3_off((bm, c, s), 0, &mut diff, &mut invalid, none);
                 }
-            };
-            out(d, c);
-            if ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | c) >= SMALL {
-                let x = if (bm | c | s) < SMALL {
-                    median3_off((bm, c, s), 0, &mut diff, &mut invalid, none)
-                } else {
-                    // A no range among the three (rare): speckle removal's rule for
-                    // `s` after a centre without a range, then the median's general
-                    // rule.
-                    s = speckle_unheld(c, s, dist(d, j), jump, &mut removed);
-                    median3_off((bm, c, s), SMALL, &mut diff, &mut invalid, none)
-                };
-                out(d, x);
             }
             (bm, cm) = (c, s);
         }
@@ -1671,10 +1630,9 @@ mod tests {
     fn stages_follow_the_rules_over_every_short_line() {
         // Speckle removal then the median of 3 over every line of three points (the
         // speckle centre held, two more) with every held state, over values around
-        // each threshold, 0, ranges just below 2^31 and no range: in particular a
-        // range below the threshold after no range (which speckle removal's quick
-        // test passes and the median's no-range path decides), against the plain
-        // rules.
+        // each threshold, 0, ranges just below 2^31 and no range (a range below the
+        // threshold after no range among them: a difference test on 32-bit wrapping
+        // differences would pass it), against the plain rules.
         for jump in [0, 1, 40, SMALL - 1] {
             let vals = [
                 0,
