@@ -155,28 +155,51 @@ pub(super) fn line(
 /// centre stays missing (its output is `none`, counted in `invalid`), else `c` when a
 /// neighbour is no range, else the median. `exact` (`SMALL` when a range may be at or
 /// above it, else 0) takes the general rule; without it every range is below
-/// [`SMALL`] (no range the only value with the top bit set) and a range `c` not
-/// between its neighbours: the median is the neighbour nearest `c`. Sets `diff` when
-/// it changes the centre.
+/// [`SMALL`] (no range the only value with the top bit set: one test of the OR of the
+/// three finds any no range) and a range `c` not between its neighbours: the median is
+/// the neighbour nearest `c`, picked by one sign test. ORs into `diff` the change of a
+/// range.
 #[inline(always)]
-fn median3_off(
+fn median3_off<const NONE_FIRST: bool>(
     (b, c, s): (u32, u32, u32),
     exact: u32,
     diff: &mut u32,
     invalid: &mut usize,
     none: u32,
 ) -> u32 {
-    if c == NONE {
-        return no_range(invalid, none);
+    // `NONE_FIRST`: a missing centre tested first by itself, then the neighbours, and
+    // the nearest neighbour by `c >= b`: the form [`median3_pairs`] keeps (its
+    // one-centre path meets the missing centres; with the one-test form LLVM laid it
+    // out longer: median of 3 on URG-04LX, 3 scans, 246 953 -> 247 420 `on_uart`).
+    if NONE_FIRST {
+        if c == NONE {
+            return no_range(invalid, none);
+        }
+        let x = if (b | s | exact) >= SMALL {
+            median3_exact(b, c, s)
+        } else if c >= b {
+            // `c - b` at least 0: `c` is at least `b` and above `s`.
+            b.max(s)
+        } else {
+            // Below `b`, at most `s`.
+            b.min(s)
+        };
+        *diff |= x ^ c;
+        return x;
     }
-    let x = if (b | s | exact) >= SMALL {
+    let x = if (b | c | s | exact) >= SMALL {
+        // A value is no range (or `exact`): the general rule, a missing centre
+        // counted.
+        if c == NONE {
+            return no_range(invalid, none);
+        }
         median3_exact(b, c, s)
-    } else if c >= b {
-        // `c - b` at least 0: `c` is at least `b` and above `s`.
-        b.max(s)
+    } else if (b.wrapping_sub(s) ^ c.wrapping_sub(b)) < SMALL {
+        // `c` above both or below both: the median is the neighbour nearest it, `b`
+        // when `b` is between `s` and `c` (`b - s` and `c - b` of the same sign).
+        b
     } else {
-        // Below `b`, at most `s`.
-        b.min(s)
+        s
     };
     *diff |= x ^ c;
     x
@@ -306,7 +329,7 @@ fn stages<const MD: bool>(
             if let Some(o) = d.get_mut(j.wrapping_sub(lag)) {
                 o.distance = c;
                 if ((c.wrapping_sub(bm) ^ s.wrapping_sub(c)) | c) >= SMALL {
-                    o.distance = median3_off((bm, c, s), 0, &mut diff, &mut invalid, none);
+                    o.distance = median3_off::<false>((bm, c, s), 0, &mut diff, &mut invalid, none);
                 }
             }
             (bm, cm) = (c, s);
@@ -502,7 +525,7 @@ fn median3_pairs(
             };
             let (c, s) = (c0, r1.distance);
             if ((c.wrapping_sub(b) ^ s.wrapping_sub(c)) | c | exact) >= SMALL {
-                o0.distance = median3_off((b, c, s), exact, &mut diff, &mut invalid, none);
+                o0.distance = median3_off::<true>((b, c, s), exact, &mut diff, &mut invalid, none);
             }
             (b, c0) = (c, s);
             rest = core::mem::take(&mut rest).get_mut(1..).unwrap_or_default();
@@ -1681,6 +1704,124 @@ mod tests {
                         b1
                     };
                     assert_eq!((md.np, md.p0.0, md.b1), (1, last, before));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn median3_off_follows_the_rule_written_plainly() {
+        // Every triple over edge values (0, 1, ties, ranges near 2^31, no range, and
+        // with `exact` ranges at and above 2^31) whose centre the quick test does not
+        // pass, against the plain rule: the output, the change ORed, the count.
+        let small = [0, 1, 2, 40, SMALL - 2, SMALL - 1, NONE];
+        let all = [
+            0,
+            1,
+            2,
+            40,
+            SMALL - 2,
+            SMALL - 1,
+            SMALL,
+            SMALL + 1,
+            NONE - 1,
+            NONE,
+        ];
+        for (vals, exact) in [(&small[..], 0), (&all[..], SMALL)] {
+            for &b in vals {
+                for &c in vals {
+                    for &s in vals {
+                        let quick = ((c.wrapping_sub(b) ^ s.wrapping_sub(c)) | c | exact) < SMALL;
+                        if quick {
+                            // The quick test passes only for the centre as the median.
+                            assert_eq!(median3_reference(b, c, s), c, "{b} {c} {s}");
+                            continue;
+                        }
+                        let (mut diff, mut invalid) = (0, 0);
+                        let x = median3_off::<false>((b, c, s), exact, &mut diff, &mut invalid, 9);
+                        let (mut diff2, mut invalid2) = (0, 0);
+                        let x2 =
+                            median3_off::<true>((b, c, s), exact, &mut diff2, &mut invalid2, 9);
+                        assert_eq!((x2, diff2, invalid2), (x, diff, invalid));
+                        let want = median3_reference(b, c, s);
+                        let shown = if want == NONE { 9 } else { want };
+                        assert_eq!(x, shown, "{b} {c} {s} {exact}");
+                        assert_eq!(invalid, usize::from(want == NONE));
+                        let change = if c == NONE { 0 } else { want ^ c };
+                        assert_eq!(diff, change, "{b} {c} {s} {exact}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn stages_follow_the_rules_over_every_short_line() {
+        // Speckle removal then the median of 3 over every line of three points (the
+        // speckle centre held, two more) with every held state, over values around
+        // each threshold, 0, ranges just below 2^31 and no range (a range below the
+        // threshold after no range among them: a difference test on 32-bit wrapping
+        // differences would pass it), against the plain rules.
+        for jump in [0, 1, 40, SMALL - 1] {
+            let vals = [
+                0,
+                1,
+                jump.saturating_sub(1),
+                jump,
+                (jump + 1).min(SMALL - 1),
+                SMALL - 2,
+                NONE,
+            ];
+            for &b0 in &vals {
+                for &b1 in &vals {
+                    for &c0 in &vals {
+                        for &l0 in &vals {
+                            for &l1 in &vals {
+                                let s = [c0, l0, l1];
+                                let want: Vec<u32> = (0..2)
+                                    .map(|i| {
+                                        let b = if i == 0 { b0 } else { s[i - 1] };
+                                        speckle_reference(b, s[i], s[i + 1], jump)
+                                    })
+                                    .collect();
+                                let gone = (0..2).filter(|&i| want[i] == NONE && s[i] != NONE);
+                                let gone = gone.count();
+                                // The median's held centre: speckle removal's output for
+                                // b0 (b0, or no range when b0 had no support from c0).
+                                let unsupported =
+                                    b0 == NONE || c0 == NONE || c0.abs_diff(b0) > jump;
+                                let held = if unsupported {
+                                    vec![b0, NONE]
+                                } else {
+                                    vec![b0]
+                                };
+                                for c1 in held {
+                                    let m = [c1, want[0], want[1]];
+                                    let want2: Vec<u32> = (0..2)
+                                        .map(|i| {
+                                            let b = if i == 0 { b1 } else { m[i - 1] };
+                                            median3_reference(b, m[i], m[i + 1])
+                                        })
+                                        .collect();
+                                    let both = [c1, c0, l0, l1];
+                                    let (got, invalid, _, removed, r) =
+                                        run::<true, true>(&both, (b0, b1), jump, false, 9);
+                                    let shown: Vec<u32> = want2
+                                        .iter()
+                                        .map(|&x| if x == NONE { 9 } else { x })
+                                        .collect();
+                                    let case = (jump, b0, b1, c1, s);
+                                    assert_eq!(got, shown, "{case:?}");
+                                    assert_eq!(
+                                        invalid,
+                                        want2.iter().filter(|&&x| x == NONE).count()
+                                    );
+                                    assert_eq!(removed, gone, "{case:?}");
+                                    assert_eq!(r, [l0, l1, m[1], m[2]], "{case:?}");
+                                }
+                            }
+                        }
+                    }
                 }
             }
         }
