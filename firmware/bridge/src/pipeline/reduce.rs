@@ -244,43 +244,78 @@ impl Sums {
     }
 }
 
-/// `Mean` over the line (see [`reduce_line`]): the open group's `have` points (below
-/// `k`) and their sums in, the same of the group left open out. `aux_mask` is
-/// `u32::MAX` when the points carry intensities, 0 otherwise.
+/// The valid ranges of `cells` added to `(sum, valid)` (the open group's: at most the
+/// factor's points, so no wrap).
 #[inline(always)]
-fn mean_line(
+fn range_sums(cells: &[Cell<Reading>], (mut sum, mut valid): (u64, u32)) -> (u64, u32) {
+    for c in cells {
+        let d = c.get().distance;
+        if d != NONE {
+            sum = sum.wrapping_add(u64::from(d));
+            valid = valid.wrapping_add(1);
+        }
+    }
+    (sum, valid)
+}
+
+/// [`reduce_line`] for `Mean` of points without intensities (the common case), the
+/// whole line in one call: the open group's rest, then the whole groups in a loop of
+/// their own ([`whole_groups`]), then the points left over into a new open group.
+#[inline(never)]
+fn mean_plain(
+    dec: &mut Decimator,
     cells: &[Cell<Reading>],
-    k: usize,
-    open: (usize, Sums),
-    aux_mask: u32,
-    o: &mut Written<'_>,
-) -> (usize, Sums) {
-    // Points without intensities (the common case): whole groups in a loop of their
-    // own, a quick one for pairs.
-    if aux_mask != 0 || open.1.auxes != 0 {
-        return mean_count(cells, k, open, aux_mask, o);
-    }
-    // The open group's rest first (`have` is below `k`).
-    let rest = if open.0 == 0 {
-        0
-    } else {
-        k.wrapping_sub(open.0)
+    (step, cluster): (u32, u32),
+    out_none: u32,
+) -> (usize, usize) {
+    let n = cells.len();
+    let k = usize::from(dec.factor.max(1));
+    let have = usize::from(dec.count);
+    let mut o = Written {
+        slots: cells.iter(),
+        out_none,
+        invalid: 0,
     };
-    let (head, rest) = cells.split_at(rest.min(cells.len()));
-    let open = mean_count(head, k, open, aux_mask, o);
-    if open.0 > 0 {
-        // (The line ended in the open group.)
-        return open;
+    // The open group's rest (`have` is below `k`: no wrap).
+    let need = if have == 0 { 0 } else { k.wrapping_sub(have) };
+    let (head, body) = cells.split_at(need.min(n));
+    let (sum, valid) = range_sums(head, (dec.sum, dec.valid));
+    if head.len() < need {
+        // The line ended in the open group (`have + n` below `k`: no wrap).
+        (dec.sum, dec.valid) = (sum, valid);
+        dec.count = u16::try_from(have.wrapping_add(n)).unwrap_or(0);
+        return (0, 0);
     }
-    let left = whole_groups(rest, k, o);
-    let s = left.iter().fold(Sums::EMPTY, |s, c| s.add(value(c), 0));
-    (left.len(), s)
+    if need > 0 {
+        o.emit(if valid == 0 {
+            EMPTY
+        } else {
+            (mean(sum, valid), 0)
+        });
+    }
+    let left = if k == 3 {
+        mean_threes(body, &mut o)
+    } else {
+        whole_groups(body, k, &mut o)
+    };
+    (dec.sum, dec.valid) = range_sums(left, (0, 0));
+    let pos = left.len();
+    // Fewer than `k` points: fits.
+    dec.count = u16::try_from(pos).unwrap_or(0);
+    if pos > 0 {
+        // The open group's first point is in this line (`pos` is at most `n`).
+        let at = u32::try_from(n.wrapping_sub(pos)).unwrap_or(0);
+        let first = step.wrapping_add(at.wrapping_mul(cluster));
+        dec.first_step = u16::try_from(first).unwrap_or(u16::MAX);
+    }
+    // The outputs written: the cells the writer took.
+    (n.wrapping_sub(o.slots.len()), o.invalid)
 }
 
 /// The whole groups of `k` of `cells` (a group beginning at the first), the points
 /// without intensities: their `Mean`, in a loop writing the output points behind them
-/// (pairs in one of their own, without a division; threes unrolled). Returns the points
-/// left over.
+/// (pairs in one of their own, without a division; threes take [`mean_threes`]).
+/// Returns the points left over.
 #[inline(never)]
 fn whole_groups<'c>(
     cells: &'c [Cell<Reading>],
@@ -300,46 +335,72 @@ fn whole_groups<'c>(
             _ => EMPTY,
         });
     }
-    o.groups(cells, k, |g| match g {
-        [a, b, c] => {
-            let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
-            // Three ranges below 2^30 (the usual group; no range is not): the rounded
-            // mean `(sum + 1) / 3` in 32 bits, a multiply by the reciprocal, no call.
-            if (a | b | c) < 1 << 30 {
-                // Below 3 × 2^30 + 1: no wrap.
-                return (a.wrapping_add(b).wrapping_add(c).wrapping_add(1) / 3, 0);
-            }
-            // Threes unrolled: the ranges (0 for none) and their count, the sum in 64
-            // bits (three u32s: no wrap).
-            let valid = u32::from(a != NONE)
-                .wrapping_add(u32::from(b != NONE))
-                .wrapping_add(u32::from(c != NONE));
-            let r = |d: u32| u64::from(if d == NONE { 0 } else { d });
-            if valid == 0 {
-                EMPTY
-            } else {
-                (mean(r(a).wrapping_add(r(b)).wrapping_add(r(c)), valid), 0)
-            }
-        }
-        g => {
-            let (mut sum, mut valid) = (0u64, 0u32);
-            for c in g {
-                let d = c.get().distance;
-                let range = d != NONE;
-                // At most the factor's u32s: no wrap.
-                sum = sum.wrapping_add(u64::from(if range { d } else { 0 }));
-                valid = valid.wrapping_add(u32::from(range));
-            }
-            if valid == 0 {
-                EMPTY
-            } else {
-                (mean(sum, valid), 0)
-            }
-        }
+    o.groups(cells, k, |g| match range_sums(g, (0, 0)) {
+        (_, 0) => EMPTY,
+        (sum, valid) => (mean(sum, valid), 0),
     })
 }
 
-/// [`mean_line`]'s loop for any factor, counting each group's points down.
+/// The whole threes of `cells` (a group beginning at the first), the points without
+/// intensities: their `Mean`, in one loop writing the output points behind them (no
+/// check per output). Three ranges below 2^30 (the usual group; no range is not) take
+/// the rounded mean `(sum + 1) / 3` in 32 bits, a multiply by the reciprocal; other
+/// groups [`mean3_wide`]. Returns the points left over.
+#[inline(always)]
+fn mean_threes<'c>(cells: &'c [Cell<Reading>], o: &mut Written<'_>) -> &'c [Cell<Reading>] {
+    let groups = cells.chunks_exact(3);
+    let left = groups.remainder();
+    let slots = o.slots.as_slice();
+    let (mut invalid, out_none) = (o.invalid, o.out_none);
+    let mut taken = 0usize;
+    for (slot, g) in slots.iter().zip(groups) {
+        let [a, b, c] = g else { break };
+        let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
+        let mut r = slot.get();
+        r.aux = 0;
+        r.distance = if (a | b | c) < 1 << 30 {
+            // Below 3 × 2^30 + 1: no wrap; a range of 0 as 1.
+            (a.wrapping_add(b).wrapping_add(c).wrapping_add(1) / 3).max(1)
+        } else {
+            match mean3_wide(a, b, c) {
+                NONE => {
+                    // At most the line's points.
+                    invalid = invalid.wrapping_add(1);
+                    out_none
+                }
+                d => d.max(1),
+            }
+        };
+        slot.set(r);
+        // At most the line's points.
+        taken = taken.wrapping_add(1);
+    }
+    o.invalid = invalid;
+    o.slots = slots.get(taken..).unwrap_or_default().iter();
+    left
+}
+
+/// The rounded mean of the valid ones of three distances (no range as [`NONE`]), some
+/// of them from 2^30 (or no range): [`NONE`] when none is valid, else the sum in 64
+/// bits (three u32s: no wrap) over their count.
+#[cold]
+#[inline(never)]
+fn mean3_wide(a: u32, b: u32, c: u32) -> u32 {
+    let valid = u32::from(a != NONE)
+        .wrapping_add(u32::from(b != NONE))
+        .wrapping_add(u32::from(c != NONE));
+    let r = |d: u32| u64::from(if d == NONE { 0 } else { d });
+    if valid == 0 {
+        NONE
+    } else {
+        mean(r(a).wrapping_add(r(b)).wrapping_add(r(c)), valid)
+    }
+}
+
+/// `Mean` over the line (see [`reduce_line`]) for any factor, counting each group's
+/// points down: the open group's `have` points (below `k`) and their sums in, the same
+/// of the group left open out. `aux_mask` is `u32::MAX` when the points carry
+/// intensities, 0 otherwise.
 #[inline(never)]
 fn mean_count(
     cells: &[Cell<Reading>],
@@ -370,15 +431,31 @@ fn mean_count(
 /// [`Decimator::push`] gives point by point. `step` is the step of the first point,
 /// the next ones `cluster` apart, `intensity` whether they carry intensities. Returns
 /// the number of output points and how many of them have no range.
-#[inline(never)]
+/// `Mean` of points without intensities takes [`mean_plain`] straight from the caller.
+#[inline(always)]
 pub(super) fn reduce_line(
     dec: &mut Decimator,
     cells: &mut [Reading],
     (step, cluster, intensity): (u32, u32, bool),
     out_none: u32,
 ) -> (usize, usize) {
-    let n = cells.len();
     let cells = Cell::from_mut(cells).as_slice_of_cells();
+    if dec.mode == DecimationMode::Mean && !intensity && dec.intensities == 0 {
+        mean_plain(dec, cells, (step, cluster), out_none)
+    } else {
+        reduce_any(dec, cells, (step, cluster, intensity), out_none)
+    }
+}
+
+/// [`reduce_line`] but for `Mean` of points without intensities.
+#[inline(never)]
+fn reduce_any(
+    dec: &mut Decimator,
+    cells: &[Cell<Reading>],
+    (step, cluster, intensity): (u32, u32, bool),
+    out_none: u32,
+) -> (usize, usize) {
+    let n = cells.len();
     let k = usize::from(dec.factor.max(1));
     let mut o = Written {
         slots: cells.iter(),
@@ -418,7 +495,7 @@ pub(super) fn reduce_line(
                 aux_sum: dec.intensity_sum,
                 auxes: dec.intensities,
             };
-            let (have, s) = mean_line(cells, k, (have, open), aux_mask, &mut o);
+            let (have, s) = mean_count(cells, k, (have, open), aux_mask, &mut o);
             (dec.sum, dec.valid) = (s.sum, s.valid);
             (dec.intensity_sum, dec.intensities) = (s.aux_sum, s.auxes);
             have
