@@ -871,4 +871,101 @@ mod tests {
             assert_eq!(run(&lines), want(&all));
         }
     }
+
+    /// Mean of 2 to 5, with and without intensities, against the 64-bit rounded means
+    /// computed here (of the valid ranges, and of their intensities), through lines of
+    /// 1 to 8 points (groups across lines, open groups carried): every triple of edge
+    /// values (no range in each position, 1, ranges near 2^30, 2^31 and u32::MAX - 1),
+    /// then random groups of them and of real ranges.
+    #[test]
+    fn means_against_the_64_bit_reference() {
+        const NO: u32 = 0; // an error code (the rule's minimum is 1)
+        const Q: u32 = 1 << 30;
+        const HALF: u32 = 1 << 31;
+        const TOP: u32 = u32::MAX - 1;
+        let edges = [
+            NO,
+            1,
+            2,
+            Q - 2,
+            Q - 1,
+            Q,
+            Q + 1,
+            HALF - 1,
+            HALF,
+            TOP - 1,
+            TOP,
+        ];
+        // Each reading's intensity is its position in the scan plus 1 (decimate_lines).
+        let want = |k: usize, intensity: bool, all: &[u32]| -> Vec<(Option<u32>, u32)> {
+            let mean = |v: &[u64]| {
+                let n = v.len() as u64;
+                ((v.iter().sum::<u64>() + n / 2) / n) as u32
+            };
+            all.chunks(k)
+                .enumerate()
+                .map(|(g, group)| {
+                    let at = |j: usize| (g * k + j + 1) as u64;
+                    let valid: Vec<usize> = (0..group.len()).filter(|&j| group[j] != NO).collect();
+                    if valid.is_empty() {
+                        return (None, 0);
+                    }
+                    let r: Vec<u64> = valid.iter().map(|&j| group[j].into()).collect();
+                    let i: Vec<u64> = valid.iter().map(|&j| at(j)).collect();
+                    (Some(mean(&r)), if intensity { mean(&i) } else { 0 })
+                })
+                .collect()
+        };
+        let check = |k: usize, all: &[u32], len: usize| {
+            let lines: Vec<&[u32]> = all.chunks(len).collect();
+            for intensity in [false, true] {
+                let (out, invalid) =
+                    decimate_lines(k as u16, DecimationMode::Mean, intensity, &lines);
+                let w = want(k, intensity, all);
+                assert_eq!(out, w, "k {k}, lines of {len}, intensity {intensity}");
+                let none = w.iter().filter(|p| p.0.is_none()).count() as u32;
+                assert_eq!(invalid, none);
+            }
+        };
+        // Every triple of edge values, one scan, as groups of three (aligned) and of
+        // two, four and five (across the triples).
+        let mut all = Vec::new();
+        for a in edges {
+            for b in edges {
+                for c in edges {
+                    all.extend([a, b, c]);
+                }
+            }
+        }
+        for k in 2..=5 {
+            for len in [1, 2, 3, 5, 7, 8, 64] {
+                check(k, &all, len);
+            }
+        }
+        // A fixed-seed xorshift: edge values and real ranges, lines of 1 to 8 points,
+        // scans of 1 to 40 points (short last groups).
+        let mut r = 0x5DEE_CE66_D1B5_4A32u64;
+        let mut next = || {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            r
+        };
+        for _ in 0..500 {
+            let n = (next() % 40 + 1) as usize;
+            let all: Vec<u32> = (0..n)
+                .map(|_| {
+                    let x = next();
+                    if x % 2 == 0 {
+                        edges[(x >> 8) as usize % edges.len()]
+                    } else {
+                        ((x >> 8) as u32 % 60_000).max(1)
+                    }
+                })
+                .collect();
+            let k = (next() % 4 + 2) as usize;
+            let len = (next() % 8 + 1) as usize;
+            check(k, &all, len);
+        }
+    }
 }
