@@ -258,9 +258,19 @@ fn range_sums(cells: &[Cell<Reading>], (mut sum, mut valid): (u64, u32)) -> (u64
     (sum, valid)
 }
 
+/// A cell's range set to `d` (in the encoder's form) and its intensity to 0.
+#[inline(always)]
+fn put(slot: &Cell<Reading>, d: u32) {
+    let mut r = slot.get();
+    r.distance = d;
+    r.aux = 0;
+    slot.set(r);
+}
+
 /// [`reduce_line`] for `Mean` of points without intensities (the common case), the
 /// whole line in one call: the open group's rest, then the whole groups in a loop of
-/// their own ([`whole_groups`]), then the points left over into a new open group.
+/// their own ([`mean_threes`], [`whole_groups`]), then the points left over into a new
+/// open group.
 #[inline(never)]
 fn mean_plain(
     dec: &mut Decimator,
@@ -271,32 +281,45 @@ fn mean_plain(
     let n = cells.len();
     let k = usize::from(dec.factor.max(1));
     let have = usize::from(dec.count);
-    let mut o = Written {
-        slots: cells.iter(),
-        out_none,
-        invalid: 0,
-    };
-    // The open group's rest (`have` is below `k`: no wrap).
-    let need = if have == 0 { 0 } else { k.wrapping_sub(have) };
-    let (head, body) = cells.split_at(need.min(n));
-    let (sum, valid) = range_sums(head, (dec.sum, dec.valid));
-    if head.len() < need {
-        // The line ended in the open group (`have + n` below `k`: no wrap).
-        (dec.sum, dec.valid) = (sum, valid);
-        dec.count = u16::try_from(have.wrapping_add(n)).unwrap_or(0);
-        return (0, 0);
+    // The outputs written, and how many of them have no range (at most the line's
+    // points: no wrap).
+    let (mut w, mut invalid) = (0usize, 0usize);
+    let mut body = cells;
+    if have > 0 {
+        // The open group's rest (`have` is below `k`: no wrap).
+        let need = k.wrapping_sub(have);
+        let (head, rest) = cells.split_at(need.min(n));
+        let (sum, valid) = range_sums(head, (dec.sum, dec.valid));
+        if head.len() < need {
+            // The line ended in the open group (`have + n` below `k`: no wrap).
+            (dec.sum, dec.valid) = (sum, valid);
+            dec.count = u16::try_from(have.wrapping_add(n)).unwrap_or(0);
+            return (0, 0);
+        }
+        // Its output over the line's first cell (read).
+        if let Some(slot) = cells.first() {
+            let d = if valid == 0 {
+                invalid = 1;
+                out_none
+            } else {
+                mean(sum, valid).max(1)
+            };
+            put(slot, d);
+            w = 1;
+        }
+        body = rest;
     }
-    if need > 0 {
-        o.emit(if valid == 0 {
-            EMPTY
-        } else {
-            (mean(sum, valid), 0)
-        });
-    }
-    let left = if k == 3 {
-        mean_threes(body, &mut o)
+    let slots = cells.get(w..).unwrap_or_default();
+    let (taken, none, left) = if k == 3 {
+        mean_threes(body, slots, out_none)
     } else {
-        whole_groups(body, k, &mut o)
+        let mut o = Written {
+            slots: slots.iter(),
+            out_none,
+            invalid: 0,
+        };
+        let left = whole_groups(body, k, &mut o);
+        (slots.len().wrapping_sub(o.slots.len()), o.invalid, left)
     };
     (dec.sum, dec.valid) = range_sums(left, (0, 0));
     let pos = left.len();
@@ -308,8 +331,7 @@ fn mean_plain(
         let first = step.wrapping_add(at.wrapping_mul(cluster));
         dec.first_step = u16::try_from(first).unwrap_or(u16::MAX);
     }
-    // The outputs written: the cells the writer took.
-    (n.wrapping_sub(o.slots.len()), o.invalid)
+    (w.wrapping_add(taken), invalid.wrapping_add(none))
 }
 
 /// The whole groups of `k` of `cells` (a group beginning at the first), the points
@@ -342,23 +364,25 @@ fn whole_groups<'c>(
 }
 
 /// The whole threes of `cells` (a group beginning at the first), the points without
-/// intensities: their `Mean`, in one loop writing the output points behind them (no
-/// check per output). Three ranges below 2^30 (the usual group; no range is not) take
-/// the rounded mean `(sum + 1) / 3` in 32 bits, a multiply by the reciprocal; other
-/// groups [`mean3_wide`]. Returns the points left over.
+/// intensities: their `Mean` into `slots` in the encoder's form (no range as
+/// `out_none`, a range of 0 as 1), in one loop without a check per output (each slot
+/// behind its group: `slots` begin at most one cell before `cells`). Three ranges
+/// below 2^30 (the usual group; no range is not) take the rounded mean `(sum + 1) / 3`
+/// in 32 bits, a multiply by the reciprocal; other groups [`mean3_wide`]. Returns the
+/// outputs written, how many of them have no range, and the points left over.
 #[inline(always)]
-fn mean_threes<'c>(cells: &'c [Cell<Reading>], o: &mut Written<'_>) -> &'c [Cell<Reading>] {
+fn mean_threes<'c>(
+    cells: &'c [Cell<Reading>],
+    slots: &[Cell<Reading>],
+    out_none: u32,
+) -> (usize, usize, &'c [Cell<Reading>]) {
     let groups = cells.chunks_exact(3);
     let left = groups.remainder();
-    let slots = o.slots.as_slice();
-    let (mut invalid, out_none) = (o.invalid, o.out_none);
-    let mut taken = 0usize;
+    let (mut taken, mut invalid) = (0usize, 0usize);
     for (slot, g) in slots.iter().zip(groups) {
         let [a, b, c] = g else { break };
         let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
-        let mut r = slot.get();
-        r.aux = 0;
-        r.distance = if (a | b | c) < 1 << 30 {
+        let d = if (a | b | c) < 1 << 30 {
             // Below 3 × 2^30 + 1: no wrap; a range of 0 as 1.
             (a.wrapping_add(b).wrapping_add(c).wrapping_add(1) / 3).max(1)
         } else {
@@ -371,13 +395,11 @@ fn mean_threes<'c>(cells: &'c [Cell<Reading>], o: &mut Written<'_>) -> &'c [Cell
                 d => d.max(1),
             }
         };
-        slot.set(r);
+        put(slot, d);
         // At most the line's points.
         taken = taken.wrapping_add(1);
     }
-    o.invalid = invalid;
-    o.slots = slots.get(taken..).unwrap_or_default().iter();
-    left
+    (taken, invalid, left)
 }
 
 /// The rounded mean of the valid ones of three distances (no range as [`NONE`]), some
