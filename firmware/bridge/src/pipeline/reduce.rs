@@ -115,6 +115,29 @@ impl Written<'_> {
     }
 }
 
+/// `First` over the line (see [`reduce_line`]): the points of `cells` from the `i`-th,
+/// every `k`-th (`k` at least 1), to the front in the encoder's form (no range as
+/// `out_none`, a range of 0 as 1), intensity kept. Returns the outputs written and
+/// how many of them have no range.
+#[inline(never)]
+fn firsts(cells: &[Cell<Reading>], mut i: usize, k: usize, out_none: u32) -> (usize, usize) {
+    let (mut taken, mut invalid) = (0usize, 0usize);
+    // Each output's slot is at or before its point (`i` is at least `taken`).
+    while let (Some(c), Some(slot)) = (cells.get(i), cells.get(taken)) {
+        let p = c.get();
+        let none = p.distance == NONE;
+        let mut r = slot.get();
+        r.distance = if none { out_none } else { p.distance.max(1) };
+        r.aux = p.aux;
+        slot.set(r);
+        // At most the line's points (`i` below its length plus 2^16): no wrap.
+        invalid = invalid.wrapping_add(usize::from(none));
+        taken = taken.wrapping_add(1);
+        i = i.wrapping_add(k);
+    }
+    (taken, invalid)
+}
+
 /// A point into the running minimum `best` (range, intensity): NONE is above every
 /// range, so an invalid point never wins; of equals the first stays.
 #[inline(always)]
@@ -150,12 +173,21 @@ fn min_line(
         return min_count(cells, k, open, o);
     }
     // The open group's rest first (its one missing point when `have` is 1).
+    // (No points leave the group as it is: no call.)
     let (head, rest) = cells.split_at(open.0.min(cells.len()));
-    let open = min_count(head, k, open, o);
+    let open = if head.is_empty() {
+        open
+    } else {
+        min_count(head, k, open, o)
+    };
     // The pairs, then the point left over into a new group (when the line ended in the
     // open group, `rest` is empty and the group stays open).
     let left = min_pairs(rest, o);
-    min_count(left, k, open, o)
+    if left.is_empty() {
+        open
+    } else {
+        min_count(left, k, open, o)
+    }
 }
 
 /// The pairs of `cells` (a pair beginning at the first): their `Min` (the first of
@@ -492,12 +524,10 @@ fn reduce_any(
         DecimationMode::First => {
             // Each group's first point: from the first group that begins in the line
             // (`have` is below `k`: no wrap), every `k`-th.
-            let mut i = if have == 0 { 0 } else { k.wrapping_sub(have) };
-            while let Some(c) = cells.get(i) {
-                o.emit(value(c));
-                // Below the slice's length plus 2^16: no wrap.
-                i = i.wrapping_add(k);
-            }
+            let i = if have == 0 { 0 } else { k.wrapping_sub(have) };
+            let taken;
+            (taken, o.invalid) = firsts(cells, i, k, out_none);
+            o.slots = cells.get(taken..).unwrap_or_default().iter();
             // (`have` + n) mod `k`.
             have.wrapping_add(n).checked_rem(k).unwrap_or(0)
         }
@@ -988,6 +1018,36 @@ mod tests {
             let k = (next() % 4 + 2) as usize;
             let len = (next() % 8 + 1) as usize;
             check(k, &all, len);
+        }
+    }
+
+    /// First of 2 to 4 (with intensities) against the points picked here (every
+    /// `k`-th of the scan from its first): edge ranges and no range, through lines of
+    /// 1 to 8 points (groups across lines).
+    #[test]
+    fn firsts_against_the_picked_points() {
+        const NO: u32 = 0; // an error code (the rule's minimum is 1)
+        let values = [NO, 1, 2, (1 << 30) - 1, 1 << 31, u32::MAX - 1, 5_000];
+        let all: Vec<u32> = (0..61).map(|i| values[(i * 5 + i / 7) % 7]).collect();
+        for k in 2..=4usize {
+            // Each reading's intensity is its position in the scan plus 1.
+            let want: Vec<(Option<u32>, Option<u32>)> = (0..all.len())
+                .step_by(k)
+                .map(|i| match all[i] {
+                    NO => (None, None),
+                    d => (Some(d), Some(i as u32 + 1)),
+                })
+                .collect();
+            for len in 1..=8 {
+                let lines: Vec<&[u32]> = all.chunks(len).collect();
+                let (out, invalid) = decimate_lines(k as u16, DecimationMode::First, true, &lines);
+                // The intensities of the points with a range.
+                let got: Vec<(Option<u32>, Option<u32>)> =
+                    out.iter().map(|&(d, a)| (d, d.map(|_| a))).collect();
+                assert_eq!(got, want, "k {k}, lines of {len}");
+                let none = want.iter().filter(|p| p.0.is_none()).count() as u32;
+                assert_eq!(invalid, none);
+            }
         }
     }
 }
