@@ -277,9 +277,15 @@ impl Sums {
 }
 
 /// The valid ranges of `cells` added to `(sum, valid)` (the open group's: at most the
-/// factor's points, so no wrap).
+/// factor's points, so no wrap). Out of line (code size: a few points a line).
+#[inline(never)]
+fn range_sums(cells: &[Cell<Reading>], sums: (u64, u32)) -> (u64, u32) {
+    sums_of(cells, sums)
+}
+
+/// [`range_sums`] in line (the points left at the end of every line).
 #[inline(always)]
-fn range_sums(cells: &[Cell<Reading>], (mut sum, mut valid): (u64, u32)) -> (u64, u32) {
+fn sums_of(cells: &[Cell<Reading>], (mut sum, mut valid): (u64, u32)) -> (u64, u32) {
     for c in cells {
         let d = c.get().distance;
         if d != NONE {
@@ -301,7 +307,8 @@ fn put(slot: &Cell<Reading>, d: u32) {
 
 /// [`reduce_line`] for `Mean` of points without intensities (the common case), the
 /// whole line in one call: the open group's rest, then the whole groups in a loop of
-/// their own ([`mean_threes`], [`whole_groups`]), then the points left over into a new
+/// their own ([`mean_threes`], [`mean_pairs`]; other factors count each group's points
+/// down), then the points left over into a new
 /// open group.
 #[inline(never)]
 fn mean_plain(
@@ -342,19 +349,33 @@ fn mean_plain(
         body = rest;
     }
     let slots = cells.get(w..).unwrap_or_default();
-    let (taken, none, left) = if k == 3 {
-        mean_threes(body, slots, out_none)
+    // The outputs written, how many have no range, the points left over, and the
+    // open group before them.
+    let (taken, none, left, (have, open)) = if k == 3 {
+        let (taken, none, left) = mean_threes(body, slots, out_none);
+        (taken, none, left, (0, Sums::EMPTY))
     } else {
         let mut o = Written {
             slots: slots.iter(),
             out_none,
             invalid: 0,
         };
-        let left = whole_groups(body, k, &mut o);
-        (slots.len().wrapping_sub(o.slots.len()), o.invalid, left)
+        let (left, open) = if k == 2 {
+            (mean_pairs(body, &mut o), (0, Sums::EMPTY))
+        } else {
+            // Other factors: each group's points counted down.
+            (&[][..], mean_count(body, k, (0, Sums::EMPTY), 0, &mut o))
+        };
+        (
+            slots.len().wrapping_sub(o.slots.len()),
+            o.invalid,
+            left,
+            open,
+        )
     };
-    (dec.sum, dec.valid) = range_sums(left, (0, 0));
-    let pos = left.len();
+    (dec.sum, dec.valid) = sums_of(left, (open.sum, open.valid));
+    // Below `k`: no wrap.
+    let pos = have.wrapping_add(left.len());
     // Fewer than `k` points: fits.
     dec.count = u16::try_from(pos).unwrap_or(0);
     if pos > 0 {
@@ -366,32 +387,21 @@ fn mean_plain(
     (w.wrapping_add(taken), invalid.wrapping_add(none))
 }
 
-/// The whole groups of `k` of `cells` (a group beginning at the first), the points
-/// without intensities: their `Mean`, in a loop writing the output points behind them
-/// (pairs in one of their own, without a division; threes take [`mean_threes`]).
-/// Returns the points left over.
-#[inline(never)]
-fn whole_groups<'c>(
-    cells: &'c [Cell<Reading>],
-    k: usize,
-    o: &mut Written<'_>,
-) -> &'c [Cell<Reading>] {
-    if k == 2 {
-        return o.groups(cells, 2, |g| match g {
-            [a, b] => {
-                let (a, b) = (a.get().distance, b.get().distance);
-                // A point without a range takes the other's: the mean of the valid
-                // ones, no range when neither is (the mean of two ranges is a range).
-                let a = if a == NONE { b } else { a };
-                let b = if b == NONE { a } else { b };
-                (mean2(a, b), 0)
-            }
-            _ => EMPTY,
-        });
-    }
-    o.groups(cells, k, |g| match range_sums(g, (0, 0)) {
-        (_, 0) => EMPTY,
-        (sum, valid) => (mean(sum, valid), 0),
+/// The whole pairs of `cells` (a pair beginning at the first), the points without
+/// intensities: their `Mean`, by the rounded mean of two without a division, in a loop
+/// writing the output points behind them. Returns the point left over, if any.
+#[inline(always)]
+fn mean_pairs<'c>(cells: &'c [Cell<Reading>], o: &mut Written<'_>) -> &'c [Cell<Reading>] {
+    o.groups(cells, 2, |g| match g {
+        [a, b] => {
+            let (a, b) = (a.get().distance, b.get().distance);
+            // A point without a range takes the other's: the mean of the valid ones,
+            // no range when neither is (the mean of two ranges is a range).
+            let a = if a == NONE { b } else { a };
+            let b = if b == NONE { a } else { b };
+            (mean2(a, b), 0)
+        }
+        _ => EMPTY,
     })
 }
 
@@ -400,7 +410,7 @@ fn whole_groups<'c>(
 /// `out_none`, a range of 0 as 1), in one loop without a check per output (each slot
 /// behind its group: `slots` begin at most one cell before `cells`). Three ranges
 /// below 2^30 (the usual group; no range is not) take the rounded mean `(sum + 1) / 3`
-/// in 32 bits, a multiply by the reciprocal; other groups [`mean3_wide`]. Returns the
+/// in 32 bits, a multiply by the reciprocal; other groups [`group_mean`]. Returns the
 /// outputs written, how many of them have no range, and the points left over.
 #[inline(always)]
 fn mean_threes<'c>(
@@ -418,7 +428,7 @@ fn mean_threes<'c>(
             // Below 3 × 2^30 + 1: no wrap; a range of 0 as 1.
             (a.wrapping_add(b).wrapping_add(c).wrapping_add(1) / 3).max(1)
         } else {
-            match mean3_wide(a, b, c) {
+            match group_mean(g) {
                 NONE => {
                     // At most the line's points.
                     invalid = invalid.wrapping_add(1);
@@ -434,20 +444,14 @@ fn mean_threes<'c>(
     (taken, invalid, left)
 }
 
-/// The rounded mean of the valid ones of three distances (no range as [`NONE`]), some
-/// of them from 2^30 (or no range): [`NONE`] when none is valid, else the sum in 64
-/// bits (three u32s: no wrap) over their count.
+/// The rounded mean of the valid ranges of `group` (no range as [`NONE`]), [`NONE`]
+/// when there is none: the rare groups of [`mean_threes`].
 #[cold]
 #[inline(never)]
-fn mean3_wide(a: u32, b: u32, c: u32) -> u32 {
-    let valid = u32::from(a != NONE)
-        .wrapping_add(u32::from(b != NONE))
-        .wrapping_add(u32::from(c != NONE));
-    let r = |d: u32| u64::from(if d == NONE { 0 } else { d });
-    if valid == 0 {
-        NONE
-    } else {
-        mean(r(a).wrapping_add(r(b)).wrapping_add(r(c)), valid)
+fn group_mean(group: &[Cell<Reading>]) -> u32 {
+    match range_sums(group, (0, 0)) {
+        (_, 0) => NONE,
+        (sum, valid) => mean(sum, valid),
     }
 }
 
