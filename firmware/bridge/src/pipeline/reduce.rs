@@ -6,16 +6,19 @@
 //! state, so that it gives exactly what [`Decimator::push`] gives point by point (the
 //! groups span lines; the end of the scan flushes the last one with
 //! [`Decimator::flush`]). A loop per mode, the group's state in registers: `First`
-//! copies every `factor`-th point (from the first group that begins in the line);
-//! `Min` keeps a running minimum (the first of equals), counting each group's points
-//! down; pairs, after the open group's rest, take a loop of their own that writes each
-//! output through a zip with the cells behind it (no check per output). `Mean` of
-//! points without intensities (the common case) completes the group the line before
-//! left open the same way, then takes the whole groups in a loop of their own that
-//! writes its outputs the same way: pairs by the rounded mean of two without a division (`(a | b) -
-//! ((a ^ b) >> 1)`), other factors a sum and a count with one division per group;
-//! with intensities every group counts down. The points are read and written through
-//! a slice of [`Cell`]s, each output over a cell already read.
+//! copies every `factor`-th point (from the first group that begins in the line) in a
+//! loop of its own; `Min` keeps a running minimum (the first of equals), counting each
+//! group's points down; pairs, after the open group's rest, take a loop of their own
+//! that writes each output through a zip with the cells behind it (no check per
+//! output). `Mean` of points without intensities (the common case) takes the whole
+//! line in one call ([`mean_plain`]): the rest of the group the line before left open,
+//! then the whole groups in a loop of their own that writes its outputs the same way
+//! (threes by `(sum + 1) / 3` in 32 bits, a multiply by the reciprocal, when their
+//! ranges are below 2^30; pairs by the rounded mean of two without a division, `(a |
+//! b) - ((a ^ b) >> 1)`; other factors counting each group's points down), then the
+//! points left into the new open group; with intensities every group counts down. The
+//! points are read and written through a slice of [`Cell`]s, each output over a cell
+//! already read.
 
 use core::cell::Cell;
 
@@ -488,9 +491,9 @@ fn mean_count(
 /// encoder's form (no range as `out_none`, a range of 0 as 1), exactly what
 /// [`Decimator::push`] gives point by point. `step` is the step of the first point,
 /// the next ones `cluster` apart, `intensity` whether they carry intensities. Returns
-/// the number of output points and how many of them have no range.
-/// `Mean` of points without intensities takes [`mean_plain`] straight from the caller.
-#[inline(always)]
+/// the number of output points and how many of them have no range. `Mean` of points
+/// without intensities takes [`mean_plain`] (before this function's own set-up).
+#[inline(never)]
 pub(super) fn reduce_line(
     dec: &mut Decimator,
     cells: &mut [Reading],
@@ -499,20 +502,8 @@ pub(super) fn reduce_line(
 ) -> (usize, usize) {
     let cells = Cell::from_mut(cells).as_slice_of_cells();
     if dec.mode == DecimationMode::Mean && !intensity && dec.intensities == 0 {
-        mean_plain(dec, cells, (step, cluster), out_none)
-    } else {
-        reduce_any(dec, cells, (step, cluster, intensity), out_none)
+        return mean_plain(dec, cells, (step, cluster), out_none);
     }
-}
-
-/// [`reduce_line`] but for `Mean` of points without intensities.
-#[inline(never)]
-fn reduce_any(
-    dec: &mut Decimator,
-    cells: &[Cell<Reading>],
-    (step, cluster, intensity): (u32, u32, bool),
-    out_none: u32,
-) -> (usize, usize) {
     let n = cells.len();
     let k = usize::from(dec.factor.max(1));
     let mut o = Written {
