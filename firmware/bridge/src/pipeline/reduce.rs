@@ -15,7 +15,7 @@
 //! then the whole groups in a loop of their own that writes its outputs the same way
 //! (threes by `(sum + 1) / 3` in 32 bits, a multiply by the reciprocal, when their
 //! ranges are below 2^30; pairs by the rounded mean of two without a division, `(a |
-//! b) - ((a ^ b) >> 1)`; other factors counting each group's points down), then the
+//! b) - ((a ^ b) >> 1)`; other factors a sum and a count with one division a group), then the
 //! points left into the new open group; with intensities every group counts down. The
 //! points are read and written through a slice of [`Cell`]s, each output over a cell
 //! already read.
@@ -310,8 +310,8 @@ fn put(slot: &Cell<Reading>, d: u32) {
 
 /// [`reduce_line`] for `Mean` of points without intensities (the common case), the
 /// whole line in one call: the open group's rest, then the whole groups in a loop of
-/// their own ([`mean_threes`], [`mean_pairs`]; other factors count each group's points
-/// down), then the points left over into a new
+/// their own ([`mean_threes`], [`mean_pairs`]; other factors a sum and a count a group),
+/// then the points left over into a new
 /// open group.
 #[inline(never)]
 fn mean_plain(
@@ -352,33 +352,28 @@ fn mean_plain(
         body = rest;
     }
     let slots = cells.get(w..).unwrap_or_default();
-    // The outputs written, how many have no range, the points left over, and the
-    // open group before them.
-    let (taken, none, left, (have, open)) = if k == 3 {
-        let (taken, none, left) = mean_threes(body, slots, out_none);
-        (taken, none, left, (0, Sums::EMPTY))
+    // The outputs written, how many have no range, and the points left over.
+    let (taken, none, left) = if k == 3 {
+        mean_threes(body, slots, out_none)
     } else {
         let mut o = Written {
             slots: slots.iter(),
             out_none,
             invalid: 0,
         };
-        let (left, open) = if k == 2 {
-            (mean_pairs(body, &mut o), (0, Sums::EMPTY))
+        let left = if k == 2 {
+            mean_pairs(body, &mut o)
         } else {
-            // Other factors: each group's points counted down.
-            (&[][..], mean_count(body, k, (0, Sums::EMPTY), 0, &mut o))
+            // Other factors: each group's sum and count, one division.
+            o.groups(body, k, |g| match range_sums(g, (0, 0)) {
+                (_, 0) => EMPTY,
+                (sum, valid) => (mean(sum, valid), 0),
+            })
         };
-        (
-            slots.len().wrapping_sub(o.slots.len()),
-            o.invalid,
-            left,
-            open,
-        )
+        (slots.len().wrapping_sub(o.slots.len()), o.invalid, left)
     };
-    (dec.sum, dec.valid) = sums_of(left, (open.sum, open.valid));
-    // Below `k`: no wrap.
-    let pos = have.wrapping_add(left.len());
+    (dec.sum, dec.valid) = sums_of(left, (0, 0));
+    let pos = left.len();
     // Fewer than `k` points: fits.
     dec.count = u16::try_from(pos).unwrap_or(0);
     if pos > 0 {
