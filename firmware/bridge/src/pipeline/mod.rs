@@ -591,12 +591,13 @@ impl Pipeline {
         if line.decimate {
             // Points held back by the windows (steps count back from `last_step`).
             let held = |on: bool, r: &window::Regs| if on { r.np } else { 0 };
-            let lag = held(line.jump.is_some(), sp).saturating_add(held(line.half2 > 0, md));
-            let lag = u32::try_from(lag).unwrap_or(0);
+            // A few points each, and the line's points: no wrap.
+            let lag = held(line.jump.is_some(), sp).wrapping_add(held(line.half2 > 0, md));
             let part = buf.get_mut(..m).unwrap_or_default();
-            // Step of the first point the decimator gets.
-            let back = lag.saturating_add(u32::try_from(m).unwrap_or(0).saturating_sub(1));
-            let step = last_step.saturating_sub(back.saturating_mul(cluster));
+            // Step of the first point the decimator gets (a step of the scan, so no
+            // wrap; not used when `m` is 0: no group opens in an empty line).
+            let back = u32::try_from(lag.wrapping_add(m).wrapping_sub(1)).unwrap_or(0);
+            let step = last_step.wrapping_sub(back.wrapping_mul(cluster));
             (m, invalid) = reduce::reduce_line(
                 &mut self.decimator,
                 part,

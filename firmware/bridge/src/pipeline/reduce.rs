@@ -6,16 +6,19 @@
 //! state, so that it gives exactly what [`Decimator::push`] gives point by point (the
 //! groups span lines; the end of the scan flushes the last one with
 //! [`Decimator::flush`]). A loop per mode, the group's state in registers: `First`
-//! copies every `factor`-th point (from the first group that begins in the line);
-//! `Min` keeps a running minimum (the first of equals), counting each group's points
-//! down; pairs, after the open group's rest, take a loop of their own that writes each
-//! output through a zip with the cells behind it (no check per output). `Mean` of
-//! points without intensities (the common case) completes the group the line before
-//! left open the same way, then takes the whole groups in a loop of their own that
-//! writes its outputs the same way: pairs by the rounded mean of two without a division (`(a | b) -
-//! ((a ^ b) >> 1)`), other factors a sum and a count with one division per group;
-//! with intensities every group counts down. The points are read and written through
-//! a slice of [`Cell`]s, each output over a cell already read.
+//! copies every `factor`-th point (from the first group that begins in the line) in a
+//! loop of its own; `Min` keeps a running minimum (the first of equals), counting each
+//! group's points down; pairs, after the open group's rest, take a loop of their own
+//! that writes each output through a zip with the cells behind it (no check per
+//! output). `Mean` of points without intensities (the common case) takes the whole
+//! line in one call ([`mean_plain`]): the rest of the group the line before left open,
+//! then the whole groups in a loop of their own that writes its outputs the same way
+//! (threes by `(sum + 1) / 3` in 32 bits, a multiply by the reciprocal, when their
+//! ranges are below 2^30; pairs by the rounded mean of two without a division, `(a |
+//! b) - ((a ^ b) >> 1)`; other factors a sum and a count with one division a group), then the
+//! points left into the new open group; with intensities every group counts down. The
+//! points are read and written through a slice of [`Cell`]s, each output over a cell
+//! already read.
 
 use core::cell::Cell;
 
@@ -115,6 +118,29 @@ impl Written<'_> {
     }
 }
 
+/// `First` over the line (see [`reduce_line`]): the points of `cells` from the `i`-th,
+/// every `k`-th (`k` at least 1), to the front in the encoder's form (no range as
+/// `out_none`, a range of 0 as 1), intensity kept. Returns the outputs written and
+/// how many of them have no range.
+#[inline(never)]
+fn firsts(cells: &[Cell<Reading>], mut i: usize, k: usize, out_none: u32) -> (usize, usize) {
+    let (mut taken, mut invalid) = (0usize, 0usize);
+    // Each output's slot is at or before its point (`i` is at least `taken`).
+    while let (Some(c), Some(slot)) = (cells.get(i), cells.get(taken)) {
+        let p = c.get();
+        let none = p.distance == NONE;
+        let mut r = slot.get();
+        r.distance = if none { out_none } else { p.distance.max(1) };
+        r.aux = p.aux;
+        slot.set(r);
+        // At most the line's points (`i` below its length plus 2^16): no wrap.
+        invalid = invalid.wrapping_add(usize::from(none));
+        taken = taken.wrapping_add(1);
+        i = i.wrapping_add(k);
+    }
+    (taken, invalid)
+}
+
 /// A point into the running minimum `best` (range, intensity): NONE is above every
 /// range, so an invalid point never wins; of equals the first stays.
 #[inline(always)]
@@ -150,12 +176,21 @@ fn min_line(
         return min_count(cells, k, open, o);
     }
     // The open group's rest first (its one missing point when `have` is 1).
+    // (No points leave the group as it is: no call.)
     let (head, rest) = cells.split_at(open.0.min(cells.len()));
-    let open = min_count(head, k, open, o);
+    let open = if head.is_empty() {
+        open
+    } else {
+        min_count(head, k, open, o)
+    };
     // The pairs, then the point left over into a new group (when the line ended in the
     // open group, `rest` is empty and the group stays open).
     let left = min_pairs(rest, o);
-    min_count(left, k, open, o)
+    if left.is_empty() {
+        open
+    } else {
+        min_count(left, k, open, o)
+    }
 }
 
 /// The pairs of `cells` (a pair beginning at the first): their `Min` (the first of
@@ -244,102 +279,184 @@ impl Sums {
     }
 }
 
-/// `Mean` over the line (see [`reduce_line`]): the open group's `have` points (below
-/// `k`) and their sums in, the same of the group left open out. `aux_mask` is
-/// `u32::MAX` when the points carry intensities, 0 otherwise.
-#[inline(always)]
-fn mean_line(
-    cells: &[Cell<Reading>],
-    k: usize,
-    open: (usize, Sums),
-    aux_mask: u32,
-    o: &mut Written<'_>,
-) -> (usize, Sums) {
-    // Points without intensities (the common case): whole groups in a loop of their
-    // own, a quick one for pairs.
-    if aux_mask != 0 || open.1.auxes != 0 {
-        return mean_count(cells, k, open, aux_mask, o);
-    }
-    // The open group's rest first (`have` is below `k`).
-    let rest = if open.0 == 0 {
-        0
-    } else {
-        k.wrapping_sub(open.0)
-    };
-    let (head, rest) = cells.split_at(rest.min(cells.len()));
-    let open = mean_count(head, k, open, aux_mask, o);
-    if open.0 > 0 {
-        // (The line ended in the open group.)
-        return open;
-    }
-    let left = whole_groups(rest, k, o);
-    let s = left.iter().fold(Sums::EMPTY, |s, c| s.add(value(c), 0));
-    (left.len(), s)
+/// The valid ranges of `cells` added to `(sum, valid)` (the open group's: at most the
+/// factor's points, so no wrap). Out of line (code size: a few points a line).
+#[inline(never)]
+fn range_sums(cells: &[Cell<Reading>], sums: (u64, u32)) -> (u64, u32) {
+    sums_of(cells, sums)
 }
 
-/// The whole groups of `k` of `cells` (a group beginning at the first), the points
-/// without intensities: their `Mean`, in a loop writing the output points behind them
-/// (pairs in one of their own, without a division; threes unrolled). Returns the points
-/// left over.
-#[inline(never)]
-fn whole_groups<'c>(
-    cells: &'c [Cell<Reading>],
-    k: usize,
-    o: &mut Written<'_>,
-) -> &'c [Cell<Reading>] {
-    if k == 2 {
-        return o.groups(cells, 2, |g| match g {
-            [a, b] => {
-                let (a, b) = (a.get().distance, b.get().distance);
-                // A point without a range takes the other's: the mean of the valid
-                // ones, no range when neither is (the mean of two ranges is a range).
-                let a = if a == NONE { b } else { a };
-                let b = if b == NONE { a } else { b };
-                (mean2(a, b), 0)
-            }
-            _ => EMPTY,
-        });
+/// [`range_sums`] in line (the points left at the end of every line).
+#[inline(always)]
+fn sums_of(cells: &[Cell<Reading>], (mut sum, mut valid): (u64, u32)) -> (u64, u32) {
+    for c in cells {
+        let d = c.get().distance;
+        if d != NONE {
+            sum = sum.wrapping_add(u64::from(d));
+            valid = valid.wrapping_add(1);
+        }
     }
-    o.groups(cells, k, |g| match g {
-        [a, b, c] => {
-            let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
-            // Three ranges below 2^30 (the usual group; no range is not): the rounded
-            // mean `(sum + 1) / 3` in 32 bits, a multiply by the reciprocal, no call.
-            if (a | b | c) < 1 << 30 {
-                // Below 3 × 2^30 + 1: no wrap.
-                return (a.wrapping_add(b).wrapping_add(c).wrapping_add(1) / 3, 0);
-            }
-            // Threes unrolled: the ranges (0 for none) and their count, the sum in 64
-            // bits (three u32s: no wrap).
-            let valid = u32::from(a != NONE)
-                .wrapping_add(u32::from(b != NONE))
-                .wrapping_add(u32::from(c != NONE));
-            let r = |d: u32| u64::from(if d == NONE { 0 } else { d });
-            if valid == 0 {
-                EMPTY
-            } else {
-                (mean(r(a).wrapping_add(r(b)).wrapping_add(r(c)), valid), 0)
-            }
+    (sum, valid)
+}
+
+/// A cell's range set to `d` (in the encoder's form) and its intensity to 0.
+#[inline(always)]
+fn put(slot: &Cell<Reading>, d: u32) {
+    let mut r = slot.get();
+    r.distance = d;
+    r.aux = 0;
+    slot.set(r);
+}
+
+/// [`reduce_line`] for `Mean` of points without intensities (the common case), the
+/// whole line in one call: the open group's rest, then the whole groups in a loop of
+/// their own ([`mean_threes`], [`mean_pairs`]; other factors a sum and a count a group),
+/// then the points left over into a new
+/// open group.
+#[inline(never)]
+fn mean_plain(
+    dec: &mut Decimator,
+    cells: &[Cell<Reading>],
+    (step, cluster): (u32, u32),
+    out_none: u32,
+) -> (usize, usize) {
+    let n = cells.len();
+    let k = usize::from(dec.factor.max(1));
+    let have = usize::from(dec.count);
+    // The outputs written, and how many of them have no range (at most the line's
+    // points: no wrap).
+    let (mut w, mut invalid) = (0usize, 0usize);
+    let mut body = cells;
+    if have > 0 {
+        // The open group's rest (`have` is below `k`: no wrap).
+        let need = k.wrapping_sub(have);
+        let (head, rest) = cells.split_at(need.min(n));
+        let (sum, valid) = range_sums(head, (dec.sum, dec.valid));
+        if head.len() < need {
+            // The line ended in the open group (`have + n` below `k`: no wrap).
+            (dec.sum, dec.valid) = (sum, valid);
+            dec.count = u16::try_from(have.wrapping_add(n)).unwrap_or(0);
+            return (0, 0);
         }
-        g => {
-            let (mut sum, mut valid) = (0u64, 0u32);
-            for c in g {
-                let d = c.get().distance;
-                let range = d != NONE;
-                // At most the factor's u32s: no wrap.
-                sum = sum.wrapping_add(u64::from(if range { d } else { 0 }));
-                valid = valid.wrapping_add(u32::from(range));
-            }
-            if valid == 0 {
-                EMPTY
+        // Its output over the line's first cell (read).
+        if let Some(slot) = cells.first() {
+            let d = if valid == 0 {
+                invalid = 1;
+                out_none
             } else {
-                (mean(sum, valid), 0)
-            }
+                mean(sum, valid).max(1)
+            };
+            put(slot, d);
+            w = 1;
         }
+        body = rest;
+    }
+    let slots = cells.get(w..).unwrap_or_default();
+    // The outputs written, how many have no range, and the points left over.
+    let (taken, none, left) = if k == 3 {
+        mean_threes(body, slots, out_none)
+    } else {
+        let mut o = Written {
+            slots: slots.iter(),
+            out_none,
+            invalid: 0,
+        };
+        let left = if k == 2 {
+            mean_pairs(body, &mut o)
+        } else {
+            // Other factors: each group's sum and count, one division.
+            o.groups(body, k, |g| match range_sums(g, (0, 0)) {
+                (_, 0) => EMPTY,
+                (sum, valid) => (mean(sum, valid), 0),
+            })
+        };
+        (slots.len().wrapping_sub(o.slots.len()), o.invalid, left)
+    };
+    (dec.sum, dec.valid) = sums_of(left, (0, 0));
+    let pos = left.len();
+    // Fewer than `k` points: fits.
+    dec.count = u16::try_from(pos).unwrap_or(0);
+    if pos > 0 {
+        // The open group's first point is in this line (`pos` is at most `n`).
+        let at = u32::try_from(n.wrapping_sub(pos)).unwrap_or(0);
+        let first = step.wrapping_add(at.wrapping_mul(cluster));
+        dec.first_step = u16::try_from(first).unwrap_or(u16::MAX);
+    }
+    (w.wrapping_add(taken), invalid.wrapping_add(none))
+}
+
+/// The whole pairs of `cells` (a pair beginning at the first), the points without
+/// intensities: their `Mean`, by the rounded mean of two without a division, in a loop
+/// writing the output points behind them. Returns the point left over, if any.
+#[inline(always)]
+fn mean_pairs<'c>(cells: &'c [Cell<Reading>], o: &mut Written<'_>) -> &'c [Cell<Reading>] {
+    o.groups(cells, 2, |g| match g {
+        [a, b] => {
+            let (a, b) = (a.get().distance, b.get().distance);
+            // A point without a range takes the other's: the mean of the valid ones,
+            // no range when neither is (the mean of two ranges is a range).
+            let a = if a == NONE { b } else { a };
+            let b = if b == NONE { a } else { b };
+            (mean2(a, b), 0)
+        }
+        _ => EMPTY,
     })
 }
 
-/// [`mean_line`]'s loop for any factor, counting each group's points down.
+/// The whole threes of `cells` (a group beginning at the first), the points without
+/// intensities: their `Mean` into `slots` in the encoder's form (no range as
+/// `out_none`, a range of 0 as 1), in one loop without a check per output (each slot
+/// behind its group: `slots` begin at most one cell before `cells`). Three ranges
+/// below 2^30 (the usual group; no range is not) take the rounded mean `(sum + 1) / 3`
+/// in 32 bits, a multiply by the reciprocal; other groups [`group_mean`]. Returns the
+/// outputs written, how many of them have no range, and the points left over.
+#[inline(always)]
+fn mean_threes<'c>(
+    cells: &'c [Cell<Reading>],
+    slots: &[Cell<Reading>],
+    out_none: u32,
+) -> (usize, usize, &'c [Cell<Reading>]) {
+    let groups = cells.chunks_exact(3);
+    let left = groups.remainder();
+    let (mut taken, mut invalid) = (0usize, 0usize);
+    for (slot, g) in slots.iter().zip(groups) {
+        let [a, b, c] = g else { break };
+        let (a, b, c) = (a.get().distance, b.get().distance, c.get().distance);
+        let d = if (a | b | c) < 1 << 30 {
+            // Below 3 × 2^30 + 1: no wrap; a range of 0 as 1.
+            (a.wrapping_add(b).wrapping_add(c).wrapping_add(1) / 3).max(1)
+        } else {
+            match group_mean(g) {
+                NONE => {
+                    // At most the line's points.
+                    invalid = invalid.wrapping_add(1);
+                    out_none
+                }
+                d => d.max(1),
+            }
+        };
+        put(slot, d);
+        // At most the line's points.
+        taken = taken.wrapping_add(1);
+    }
+    (taken, invalid, left)
+}
+
+/// The rounded mean of the valid ranges of `group` (no range as [`NONE`]), [`NONE`]
+/// when there is none: the rare groups of [`mean_threes`].
+#[cold]
+#[inline(never)]
+fn group_mean(group: &[Cell<Reading>]) -> u32 {
+    match range_sums(group, (0, 0)) {
+        (_, 0) => NONE,
+        (sum, valid) => mean(sum, valid),
+    }
+}
+
+/// `Mean` over the line (see [`reduce_line`]) for any factor, counting each group's
+/// points down: the open group's `have` points (below `k`) and their sums in, the same
+/// of the group left open out. `aux_mask` is `u32::MAX` when the points carry
+/// intensities, 0 otherwise.
 #[inline(never)]
 fn mean_count(
     cells: &[Cell<Reading>],
@@ -369,7 +486,8 @@ fn mean_count(
 /// encoder's form (no range as `out_none`, a range of 0 as 1), exactly what
 /// [`Decimator::push`] gives point by point. `step` is the step of the first point,
 /// the next ones `cluster` apart, `intensity` whether they carry intensities. Returns
-/// the number of output points and how many of them have no range.
+/// the number of output points and how many of them have no range. `Mean` of points
+/// without intensities takes [`mean_plain`] (before this function's own set-up).
 #[inline(never)]
 pub(super) fn reduce_line(
     dec: &mut Decimator,
@@ -377,8 +495,11 @@ pub(super) fn reduce_line(
     (step, cluster, intensity): (u32, u32, bool),
     out_none: u32,
 ) -> (usize, usize) {
-    let n = cells.len();
     let cells = Cell::from_mut(cells).as_slice_of_cells();
+    if dec.mode == DecimationMode::Mean && !intensity && dec.intensities == 0 {
+        return mean_plain(dec, cells, (step, cluster), out_none);
+    }
+    let n = cells.len();
     let k = usize::from(dec.factor.max(1));
     let mut o = Written {
         slots: cells.iter(),
@@ -393,12 +514,10 @@ pub(super) fn reduce_line(
         DecimationMode::First => {
             // Each group's first point: from the first group that begins in the line
             // (`have` is below `k`: no wrap), every `k`-th.
-            let mut i = if have == 0 { 0 } else { k.wrapping_sub(have) };
-            while let Some(c) = cells.get(i) {
-                o.emit(value(c));
-                // Below the slice's length plus 2^16: no wrap.
-                i = i.wrapping_add(k);
-            }
+            let i = if have == 0 { 0 } else { k.wrapping_sub(have) };
+            let taken;
+            (taken, o.invalid) = firsts(cells, i, k, out_none);
+            o.slots = cells.get(taken..).unwrap_or_default().iter();
             // (`have` + n) mod `k`.
             have.wrapping_add(n).checked_rem(k).unwrap_or(0)
         }
@@ -418,7 +537,7 @@ pub(super) fn reduce_line(
                 aux_sum: dec.intensity_sum,
                 auxes: dec.intensities,
             };
-            let (have, s) = mean_line(cells, k, (have, open), aux_mask, &mut o);
+            let (have, s) = mean_count(cells, k, (have, open), aux_mask, &mut o);
             (dec.sum, dec.valid) = (s.sum, s.valid);
             (dec.intensity_sum, dec.intensities) = (s.aux_sum, s.auxes);
             have
@@ -787,6 +906,133 @@ mod tests {
             let len = (next() % 7 + 1) as usize;
             let lines: Vec<&[u32]> = all.chunks(len).collect();
             assert_eq!(run(&lines), want(&all));
+        }
+    }
+
+    /// Mean of 2 to 5, with and without intensities, against the 64-bit rounded means
+    /// computed here (of the valid ranges, and of their intensities), through lines of
+    /// 1 to 8 points (groups across lines, open groups carried): every triple of edge
+    /// values (no range in each position, 1, ranges near 2^30, 2^31 and u32::MAX - 1),
+    /// then random groups of them and of real ranges.
+    #[test]
+    fn means_against_the_64_bit_reference() {
+        const NO: u32 = 0; // an error code (the rule's minimum is 1)
+        const Q: u32 = 1 << 30;
+        const HALF: u32 = 1 << 31;
+        const TOP: u32 = u32::MAX - 1;
+        let edges = [
+            NO,
+            1,
+            2,
+            Q - 2,
+            Q - 1,
+            Q,
+            Q + 1,
+            HALF - 1,
+            HALF,
+            TOP - 1,
+            TOP,
+        ];
+        // Each reading's intensity is its position in the scan plus 1 (decimate_lines).
+        let want = |k: usize, intensity: bool, all: &[u32]| -> Vec<(Option<u32>, u32)> {
+            let mean = |v: &[u64]| {
+                let n = v.len() as u64;
+                ((v.iter().sum::<u64>() + n / 2) / n) as u32
+            };
+            all.chunks(k)
+                .enumerate()
+                .map(|(g, group)| {
+                    let at = |j: usize| (g * k + j + 1) as u64;
+                    let valid: Vec<usize> = (0..group.len()).filter(|&j| group[j] != NO).collect();
+                    if valid.is_empty() {
+                        return (None, 0);
+                    }
+                    let r: Vec<u64> = valid.iter().map(|&j| group[j].into()).collect();
+                    let i: Vec<u64> = valid.iter().map(|&j| at(j)).collect();
+                    (Some(mean(&r)), if intensity { mean(&i) } else { 0 })
+                })
+                .collect()
+        };
+        let check = |k: usize, all: &[u32], len: usize| {
+            let lines: Vec<&[u32]> = all.chunks(len).collect();
+            for intensity in [false, true] {
+                let (out, invalid) =
+                    decimate_lines(k as u16, DecimationMode::Mean, intensity, &lines);
+                let w = want(k, intensity, all);
+                assert_eq!(out, w, "k {k}, lines of {len}, intensity {intensity}");
+                let none = w.iter().filter(|p| p.0.is_none()).count() as u32;
+                assert_eq!(invalid, none);
+            }
+        };
+        // Every triple of edge values, one scan, as groups of three (aligned) and of
+        // two, four and five (across the triples).
+        let mut all = Vec::new();
+        for a in edges {
+            for b in edges {
+                for c in edges {
+                    all.extend([a, b, c]);
+                }
+            }
+        }
+        for k in 2..=5 {
+            for len in [1, 2, 3, 5, 7, 8, 64] {
+                check(k, &all, len);
+            }
+        }
+        // A fixed-seed xorshift: edge values and real ranges, lines of 1 to 8 points,
+        // scans of 1 to 40 points (short last groups).
+        let mut r = 0x5DEE_CE66_D1B5_4A32u64;
+        let mut next = || {
+            r ^= r << 13;
+            r ^= r >> 7;
+            r ^= r << 17;
+            r
+        };
+        for _ in 0..500 {
+            let n = (next() % 40 + 1) as usize;
+            let all: Vec<u32> = (0..n)
+                .map(|_| {
+                    let x = next();
+                    if x % 2 == 0 {
+                        edges[(x >> 8) as usize % edges.len()]
+                    } else {
+                        ((x >> 8) as u32 % 60_000).max(1)
+                    }
+                })
+                .collect();
+            let k = (next() % 4 + 2) as usize;
+            let len = (next() % 8 + 1) as usize;
+            check(k, &all, len);
+        }
+    }
+
+    /// First of 2 to 4 (with intensities) against the points picked here (every
+    /// `k`-th of the scan from its first): edge ranges and no range, through lines of
+    /// 1 to 8 points (groups across lines).
+    #[test]
+    fn firsts_against_the_picked_points() {
+        const NO: u32 = 0; // an error code (the rule's minimum is 1)
+        let values = [NO, 1, 2, (1 << 30) - 1, 1 << 31, u32::MAX - 1, 5_000];
+        let all: Vec<u32> = (0..61).map(|i| values[(i * 5 + i / 7) % 7]).collect();
+        for k in 2..=4usize {
+            // Each reading's intensity is its position in the scan plus 1.
+            let want: Vec<(Option<u32>, Option<u32>)> = (0..all.len())
+                .step_by(k)
+                .map(|i| match all[i] {
+                    NO => (None, None),
+                    d => (Some(d), Some(i as u32 + 1)),
+                })
+                .collect();
+            for len in 1..=8 {
+                let lines: Vec<&[u32]> = all.chunks(len).collect();
+                let (out, invalid) = decimate_lines(k as u16, DecimationMode::First, true, &lines);
+                // The intensities of the points with a range.
+                let got: Vec<(Option<u32>, Option<u32>)> =
+                    out.iter().map(|&(d, a)| (d, d.map(|_| a))).collect();
+                assert_eq!(got, want, "k {k}, lines of {len}");
+                let none = want.iter().filter(|p| p.0.is_none()).count() as u32;
+                assert_eq!(invalid, none);
+            }
         }
     }
 }
