@@ -1207,28 +1207,33 @@ mod tests {
             let made = u32::from(round % 2 == 1);
             let mut pick = || vals[next() as usize % vals.len()];
             let stream: Vec<u32> = (0..len + 2).map(|_| pick()).collect();
-            // stream[0] is the older of the two distances before the line.
-            let mut s = cells(&stream[2..]);
-            let mut b = [stream[1], stream[0]];
-            let (diff, invalid) = median5_made(&mut s, &mut b, 9, made);
-            let outs = len.saturating_sub(2);
-            let want: Vec<u32> = (0..outs)
-                .map(|i| median_reference(&stream[i..i + 5], 2))
-                .collect();
-            let shown: Vec<u32> = want
-                .iter()
-                .map(|&x| if x == NONE { 9 } else { x })
-                .collect();
-            assert_eq!(dist(&s[..outs]), shown, "{stream:?}");
-            assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
-            assert_eq!(
-                diff != 0,
-                made != 0 || want.iter().zip(&stream[2..]).any(|(x, c)| x != c)
-            );
-            // The cells after the outputs stay; the two before the next centre move on.
-            assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
-            assert_eq!(b, [stream[outs + 1], stream[outs]]);
+            median5_line_follows_the_plain_rule(&stream, made);
         }
+    }
+
+    /// `median5` over the line `stream[2..]`, the two distances before it `stream[0]`
+    /// (the older) and `stream[1]` held, `made` a change already made: every output
+    /// against the rule written plainly (no range shown as 9), the count of outputs
+    /// without a range, the change flag; the cells after the outputs stay, and the two
+    /// before the next centre move on.
+    fn median5_line_follows_the_plain_rule(stream: &[u32], made: u32) {
+        let mut s = cells(&stream[2..]);
+        let mut b = [stream[1], stream[0]];
+        let (diff, invalid) = median5_made(&mut s, &mut b, 9, made);
+        let outs = stream.len().saturating_sub(4);
+        let want: Vec<u32> = (0..outs)
+            .map(|i| median_reference(&stream[i..i + 5], 2))
+            .collect();
+        let shown: Vec<u32> = want
+            .iter()
+            .map(|&x| if x == NONE { 9 } else { x })
+            .collect();
+        assert_eq!(dist(&s[..outs]), shown, "{stream:?} {made}");
+        assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
+        let any = want.iter().zip(&stream[2..]).any(|(x, c)| x != c);
+        assert_eq!(diff != 0, made != 0 || any, "{stream:?} {made}");
+        assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
+        assert_eq!(b, [stream[outs + 1], stream[outs]], "{stream:?}");
     }
 
     #[test]
@@ -1248,23 +1253,7 @@ mod tests {
                         if let Some(v) = stream.get_mut(spot) {
                             *v = odd;
                         }
-                        let mut s = cells(&stream[2..]);
-                        let mut b = [stream[1], stream[0]];
-                        let (diff, invalid) = median5_made(&mut s, &mut b, 9, made);
-                        let outs = n - 2;
-                        let want: Vec<u32> = (0..outs)
-                            .map(|i| median_reference(&stream[i..i + 5], 2))
-                            .collect();
-                        let shown: Vec<u32> = want
-                            .iter()
-                            .map(|&x| if x == NONE { 9 } else { x })
-                            .collect();
-                        assert_eq!(dist(&s[..outs]), shown, "{stream:?} {made}");
-                        assert_eq!(invalid, want.iter().filter(|&&x| x == NONE).count());
-                        let any = want.iter().zip(&stream[2..]).any(|(x, c)| x != c);
-                        assert_eq!(diff != 0, made != 0 || any, "{stream:?} {made}");
-                        assert_eq!(dist(&s[outs..]), stream[2 + outs..]);
-                        assert_eq!(b, [stream[outs + 1], stream[outs]], "{stream:?}");
+                        median5_line_follows_the_plain_rule(&stream, made);
                     }
                 }
             }
