@@ -735,9 +735,7 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32, diff0: u32) -> (u32,
                     if (qh | c3) >= SMALL {
                         break;
                     }
-                    let (u, w) = (pl.max(ql), ph.min(qh));
-                    let (s2, s3) = (u.min(w), u.max(w));
-                    let (x0, x1) = (s3.min(e).max(s2), s3.min(c3).max(s2));
+                    let (x0, x1) = quick_pair(e, (pl, ph), (ql, qh), c3);
                     diff = (x0 ^ c0) | (x1 ^ c1);
                     (o0.distance, o1.distance) = (x0, x1);
                     (e, pl, ph) = (c0, ql, qh);
@@ -786,6 +784,18 @@ fn median5(s: &mut [Reading], md: &mut Regs, out_none: u32, diff0: u32) -> (u32,
     (diff, slow.0)
 }
 
+/// The quick rule's step of [`median5`]: the medians of the centres `c0` and `c1`
+/// (the distances around them ranges below [`SMALL`]: `e` before `P = (pl, ph)`, the
+/// sorted pair before `c0`; `(ql, qh)` the sorted pair `c1`, `c2`; `c3` after), each
+/// the middle two of the four shared distances (`P` and `Q` merged) clamped to its own
+/// outer one (`e` for `c0`, `c3` for `c1`).
+#[inline(always)]
+fn quick_pair(e: u32, (pl, ph): (u32, u32), (ql, qh): (u32, u32), c3: u32) -> (u32, u32) {
+    let (u, w) = (pl.max(ql), ph.min(qh));
+    let (s2, s3) = (u.min(w), u.max(w));
+    (s3.min(e).max(s2), s3.min(c3).max(s2))
+}
+
 /// The quick rule of [`median5`] without tracking changes, four centres a turn (two,
 /// then one, at the end of the line), from the first centre of `rest` with `e` and
 /// `P = (pl, ph)` ranges below [`SMALL`] as [`median5`] holds them: up to the first
@@ -805,9 +815,7 @@ fn median5_quads(
         if (qh | c3) >= SMALL {
             break;
         }
-        let (u, w) = (pl.max(ql), ph.min(qh));
-        let (s2, s3) = (u.min(w), u.max(w));
-        (o0.distance, o1.distance) = (s3.min(e).max(s2), s3.min(c3).max(s2));
+        (o0.distance, o1.distance) = quick_pair(e, (pl, ph), (ql, qh), c3);
         (e, pl, ph) = (c0, ql, qh);
         let pass = match tail {
             [r4, r5, ..] => Some((r4.distance, r5.distance)),
@@ -822,9 +830,7 @@ fn median5_quads(
             rest = core::mem::take(&mut rest).get_mut(2..).unwrap_or_default();
             break;
         }
-        let (u, w) = (ql.max(rl), qh.min(rh));
-        let (s2, s3) = (u.min(w), u.max(w));
-        (o2.distance, o3.distance) = (s3.min(c0).max(s2), s3.min(v5).max(s2));
+        (o2.distance, o3.distance) = quick_pair(c0, (ql, qh), (rl, rh), v5);
         (e, pl, ph) = (c2, rl, rh);
         rest = core::mem::take(&mut rest).get_mut(4..).unwrap_or_default();
     }
