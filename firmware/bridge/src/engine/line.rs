@@ -58,7 +58,7 @@ impl<const Q: usize> Core<Q> {
             // stages in place, and the output points, as readings so that the encoder
             // runs the same code as for a line's readings, onto the batch that goes into
             // the encoder as one run ([`Core::flush_batch`]).
-            let none = self.checked_none();
+            let (none, _) = self.checked_coding();
             // The line's cells after the batch's points (the batch goes first when they
             // would not hold the line and the windows' headroom).
             let room = line
@@ -85,14 +85,21 @@ impl<const Q: usize> Core<Q> {
         pipeline.push_iter(points, &mut |p: Point| out.emit(p));
     }
 
-    /// The encoder's value for a filtered point without a range: 0 for the fixed-width
-    /// encodings (invalid to the rule "at least 1"), a value no sensor sends for the
-    /// lossless coding (coded invalid, not as the sensor's error code 0).
-    fn checked_none(&self) -> u32 {
+    /// How the encoder takes filtered points: the value of a point without a range, and
+    /// the rule of their run. 0 and "at least 1" for the fixed-width encodings (0
+    /// invalid, any other value a range); for the lossless coding a value no sensor
+    /// sends (coded invalid, not as the sensor's error code 0), excluded by the rule.
+    fn checked_coding(&self) -> (u32, can_wire::RangeRule) {
+        let rule = can_wire::RangeRule::at_least(1);
         if self.encoder.lossless_progress().is_some() {
-            can_wire::lossless::code::NO_SENSOR_VALUE
+            let none = can_wire::lossless::code::NO_SENSOR_VALUE;
+            let rule = can_wire::RangeRule {
+                band: Some(none),
+                ..rule
+            };
+            (none, rule)
         } else {
-            0
+            (0, rule)
         }
     }
 
@@ -113,11 +120,7 @@ impl<const Q: usize> Core<Q> {
     #[inline(never)]
     fn encode_batch(&mut self) {
         let (n, no_range) = core::mem::take(&mut self.batch);
-        let none = self.checked_none();
-        let rule = can_wire::RangeRule {
-            band: (none != 0).then_some(none),
-            ..can_wire::RangeRule::at_least(1)
-        };
+        let (_, rule) = self.checked_coding();
         let (_, cells, mut out) = self.split();
         if !*out.overflow {
             let points = cells.get(..n).unwrap_or_default();
