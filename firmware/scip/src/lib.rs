@@ -31,7 +31,7 @@ pub use command::{
 };
 pub use decoder::{
     DataLine, Decoder, DecoderStats, Event, Field, Indexed, IndexedReading, Reading, Summary,
-    LINE_CAP, MAX_READINGS,
+    LINE_CAP, MAX_READINGS, MAX_RUN_READINGS,
 };
 pub use error::{Error, ErrorKind};
 pub use info::{

@@ -8,7 +8,8 @@ use super::{Core, BATCH_CELLS};
 use crate::pipeline::{Point, RawPoint};
 
 impl<const Q: usize> Core<Q> {
-    /// One data line of the scan being published. With every pipeline stage off, the
+    /// One data event of the scan being published: a data line, or a run of them
+    /// ([`scip::Decoder::feed_runs`]). With every pipeline stage off, the
     /// line's readings go straight to the encoder in one run (the pipeline only counts
     /// them); otherwise they go through every stage in one loop
     /// ([`Pipeline::filter_run`]) and the line's output points onto the batch of the

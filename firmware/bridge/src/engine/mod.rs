@@ -41,9 +41,10 @@ use crate::pipeline::{Pipeline, PipelineConfig};
 use crate::queue::FrameQueue;
 use crate::session::{Action, Notice, Session, SessionConfig, SessionError};
 
-/// Cells of the filtered lines' output buffer: two data lines' output points waiting for
-/// the encoder as one run, and a line's cells with the windows' headroom after them.
-const BATCH_CELLS: usize = 2 * scip::MAX_READINGS + crate::pipeline::LINE_HEADROOM;
+/// Cells of the filtered lines' output buffer: the output points of the data events
+/// before waiting for the encoder as one run, and a data event's cells (a run of lines,
+/// [`scip::Decoder::feed_runs`]) with the windows' headroom after them.
+const BATCH_CELLS: usize = scip::MAX_RUN_READINGS + crate::pipeline::LINE_HEADROOM;
 
 mod control;
 mod line;
@@ -462,7 +463,9 @@ impl<const Q: usize> Bridge<Q> {
         self.core.chunk_end_us = now_us;
         let mut rest = bytes;
         while !rest.is_empty() {
-            let (used, event) = self.decoder.feed(rest);
+            // The full data lines of the chunk in runs: the pipeline's and the encoder's
+            // set-up once a run, not once a line.
+            let (used, event) = self.decoder.feed_runs(rest);
             rest = rest.get(used..).unwrap_or(&[]);
             if let Some(event) = event {
                 // The event's time is worked out only where it is used.

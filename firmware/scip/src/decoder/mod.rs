@@ -35,6 +35,9 @@ pub const DATA_CHARS: usize = 64;
 /// Most readings one data line can complete: 64 chars of 2-char values, plus one value
 /// begun on the previous line.
 pub const MAX_READINGS: usize = DATA_CHARS / 2 + 1;
+/// Most readings one [`Event::Data`] of [`Decoder::feed_runs`] carries: the readings of
+/// a run of consecutive data lines (three full lines of 3-char distances at most).
+pub const MAX_RUN_READINGS: usize = 2 * MAX_READINGS;
 /// Most echoes per step in a multi-echo response.
 pub const MAX_ECHOES: u8 = 3;
 /// The largest timestamp step from one intact stream frame to the next that passes the
@@ -80,7 +83,8 @@ impl IndexedReading {
     }
 }
 
-/// The readings completed by one data line.
+/// The readings completed by one data line, or by a run of consecutive data lines
+/// ([`Decoder::feed_runs`]).
 ///
 /// In a single-echo line (`echoes` empty) reading `i` is the first (only) echo of step
 /// `first + i`. In a multi-echo line `echoes` has one entry per reading: a reading of
@@ -284,7 +288,7 @@ struct Shape {
     expected: u16,
 }
 
-/// The streaming SCIP 2.x response decoder. About 460 bytes of RAM; no allocation.
+/// The streaming SCIP 2.x response decoder. About 720 bytes of RAM; no allocation.
 #[derive(Debug, Clone)]
 pub struct Decoder {
     buf: [u8; LINE_CAP],
@@ -322,7 +326,9 @@ pub struct Decoder {
     values: u16,
     extra_echoes: u16,
     short_line_seen: bool,
-    readings: [Reading; MAX_READINGS],
+    /// The readings of the line (or, for [`Decoder::feed_runs`], the run of lines) just
+    /// decoded.
+    readings: [Reading; MAX_RUN_READINGS],
     /// The echo number of each reading of a multi-echo line (unused otherwise).
     echoes: [u8; MAX_READINGS],
     /// Every reading slot has aux 0 (see [`Self::decode_steps`]).
@@ -393,7 +399,7 @@ impl Decoder {
             readings: [Reading {
                 distance: 0,
                 aux: 0,
-            }; MAX_READINGS],
+            }; MAX_RUN_READINGS],
             echoes: [0; MAX_READINGS],
             readings_plain: true,
             n_readings: 0,
@@ -505,6 +511,30 @@ impl Decoder {
     /// an LF search either. The events are the same.
     #[inline]
     pub fn feed(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
+        self.feed_as::<false>(input)
+    }
+
+    /// [`Decoder::feed`] for a caller that takes a scan's readings as a stream: an
+    /// [`Event::Data`] may carry the readings of several consecutive data lines (at
+    /// most [`MAX_RUN_READINGS`]), the line that ends first in `input` and the full data
+    /// lines of 3-char distances that follow it whole in `input`, each checked as
+    /// [`Decoder::feed`] checks it. `line` is then the last one's number, `readings` and
+    /// `first` cover them all. A line that fails a check is not joined to the run: the
+    /// next call takes it alone and reports it, so every other event, and every error
+    /// with its line and offset, is the one [`Decoder::feed`] gives, and the readings in
+    /// order are the same for any chunking. Lines that do not lie whole in one call's
+    /// `input` are not joined, so an event never waits for more input.
+    ///
+    /// For a caller with a per-line cost (a filter pipeline, an encoder's set-up), the
+    /// run pays it once for the lines of a UART chunk.
+    #[inline]
+    pub fn feed_runs(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
+        self.feed_as::<true>(input)
+    }
+
+    /// [`Decoder::feed`] (`RUNS` false) or [`Decoder::feed_runs`].
+    #[inline(always)]
+    fn feed_as<const RUNS: bool>(&mut self, input: &[u8]) -> (usize, Option<Event<'_>>) {
         // 64-bit hosts, in a data line: with the state, the overflow flag and the line's
         // length so far tested once, either a full data line ends in `input` or all of
         // `input` continues the line without reaching a full line's LF.
@@ -517,11 +547,15 @@ impl Decoder {
                 match input.get(rest) {
                     Some(&b'\n') => {
                         if let Some((used, decoded)) = self.full_data_line(input, buffered, rest) {
-                            let ev = match decoded {
-                                Ok(()) => Some(self.data_event()),
-                                Err(kind) => self.fail(kind),
+                            return match decoded {
+                                Ok(()) => {
+                                    let more = input.get(used..).unwrap_or_default();
+                                    let joined = if RUNS { self.join_plain_lines(more) } else { 0 };
+                                    // Both at most `input`'s length: no wrap.
+                                    (used.wrapping_add(joined), Some(self.data_event()))
+                                }
+                                Err(kind) => (used, self.fail(kind)),
                             };
-                            return (used, ev);
                         }
                     }
                     // All of `input` fits before the LF: `buffered + input.len()` is at
@@ -535,8 +569,17 @@ impl Decoder {
         // of `input` when it ends before, copied and checked a word at a time.
         if self.state == State::Payload(Payload::Data) && !self.overflow && self.on_m4_paths() {
             if let Some((used, ends)) = self.take_data_words(input) {
-                let ev = if ends { self.full_line_event() } else { None };
-                return (used, ev);
+                if !ends {
+                    return (used, None);
+                }
+                let more = if RUNS {
+                    input.get(used..).unwrap_or_default()
+                } else {
+                    &[]
+                };
+                let (joined, ev) = self.full_line_event(more);
+                // Both at most `input`'s length: no wrap.
+                return (used.wrapping_add(joined), ev);
             }
         }
         let mut consumed: usize = 0;

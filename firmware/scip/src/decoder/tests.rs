@@ -954,3 +954,158 @@ fn indexed_follows_first_and_the_echo_table() {
     };
     assert_eq!(empty.indexed().count(), 0);
 }
+
+/// Every event of `stream` fed in `chunk`-byte pieces through [`Decoder::feed_runs`]
+/// (`runs`) or [`Decoder::feed`], each reading of a data event as an entry of its own
+/// (so that a run's entries are those of its lines), and the most readings one event
+/// carried.
+fn flat(mut dec: Decoder, stream: &[u8], chunk: usize, runs: bool) -> (Vec<String>, usize) {
+    let mut log = Vec::new();
+    let mut most = 0;
+    for piece in stream.chunks(chunk.max(1)) {
+        let mut rest = piece;
+        while !rest.is_empty() {
+            let (used, ev) = if runs {
+                dec.feed_runs(rest)
+            } else {
+                dec.feed(rest)
+            };
+            assert!(used > 0 || ev.is_some(), "no progress");
+            rest = &rest[used..];
+            match ev {
+                Some(Event::Data(line)) => {
+                    most = most.max(line.readings.len());
+                    log.extend(
+                        line.indexed()
+                            .map(|r| format!("{r:?} {:?} {:?}", line.data, line.limits)),
+                    );
+                }
+                Some(ev) => log.push(format!("{ev:?}")),
+                None => {}
+            }
+        }
+    }
+    if let Some(ev) = dec.finish() {
+        log.push(format!("{ev:?}"));
+    }
+    log.push(format!("{:?}", dec.stats()));
+    (log, most)
+}
+
+/// `feed_runs` on both paths and in pieces of many sizes gives the events and
+/// readings of `feed` a byte at a time (one line per data event), every run within
+/// [`MAX_RUN_READINGS`]; returns the most readings one run carried.
+fn assert_runs_read_as_lines(stream: &[u8]) -> usize {
+    let mut most = 0;
+    let chunks = [
+        1, 2, 7, 64, 65, 66, 67, 100, 128, 131, 132, 133, 197, 200, 1000,
+    ];
+    for make in [Decoder::new, Decoder::m4_paths] {
+        let (reference, one) = flat(make(), stream, 1, false);
+        assert!(one <= MAX_READINGS);
+        for chunk in chunks.into_iter().chain([stream.len()]) {
+            let (got, m) = flat(make(), stream, chunk, true);
+            assert_eq!(
+                got,
+                reference,
+                "chunk {chunk}, stream {:?}",
+                stream.escape_ascii().to_string()
+            );
+            assert!(m <= MAX_RUN_READINGS, "{m} readings in one event");
+            most = most.max(m);
+        }
+    }
+    most
+}
+
+/// Runs join the full lines of 3-char distances that lie whole in one call's input
+/// (three lines' readings at most), and read as the lines do; other data sets and
+/// short scans read as lines too.
+#[test]
+fn runs_join_whole_full_lines_and_read_as_lines() {
+    for n in [1, 20, 21, 22, 23, 43, 44, 64, 65, 66, 67, 100, 200, 682] {
+        let (stream, _) = scan(DataSet::Distance, n);
+        let most = assert_runs_read_as_lines(&stream);
+        // The first three full lines complete 21, 21 and 22 steps (the 22nd and the
+        // 43rd begun on the line before); a scan of three full lines or more joins
+        // them in the largest pieces (64 readings), fewer lines join as many. The
+        // short last line is never joined.
+        let full_lines = usize::from(n) * 3 / 64;
+        let want = [usize::from(n), 21, 42, 64][full_lines.min(3)];
+        assert!(
+            most >= want,
+            "{n} steps: {most} readings at most in one event"
+        );
+    }
+    for data in SETS {
+        let (stream, _) = scan(data, 100);
+        assert_runs_read_as_lines(&stream);
+    }
+}
+
+/// A line that fails a check is not joined: it is reported alone, at its line and
+/// offset, as `feed` reports it, whatever the chunking, and no reading of it is
+/// given. Damage at every char of a scan's data lines: a char that is not a value
+/// char, another value char (a bad sum), an `&`, a lost byte, a stray LF.
+#[test]
+fn runs_leave_damaged_lines_to_be_reported_alone() {
+    let (stream, _) = scan(DataSet::Distance, 120);
+    let first = stream
+        .iter()
+        .enumerate()
+        .filter(|&(_, &b)| b == b'\n')
+        .nth(2)
+        .map(|(i, _)| i + 1)
+        .unwrap();
+    for at in first..stream.len() - 2 {
+        for c in [Some(b'/'), Some(b'&'), Some(b'\n'), None] {
+            assert_runs_read_as_lines(&damage(&stream, at, c));
+        }
+        // A bad sum (the char changed, its line's sum left).
+        let mut s = stream.clone();
+        s[at] = if s[at] == b'0' { b'1' } else { b'0' };
+        assert_runs_read_as_lines(&s);
+    }
+}
+
+/// A run stops before a line that would complete more values than the echo asked
+/// for: that line is reported alone as `TooManyValues`.
+#[test]
+fn runs_stop_before_a_line_with_too_many_values() {
+    let (stream, _) = scan(DataSet::Distance, 130);
+    let text = String::from_utf8(stream).unwrap();
+    for asked in [22, 43, 44, 64, 65, 66, 86] {
+        let echo = format!("GD{:04}{:04}01", 0, asked - 1);
+        let damaged = text.replacen("GD0000012901", &echo, 1);
+        assert_ne!(damaged, text);
+        assert_runs_read_as_lines(damaged.as_bytes());
+        let (log, _) = flat(Decoder::m4_paths(), damaged.as_bytes(), 1000, true);
+        assert!(
+            log.iter().any(|l| l.contains("TooManyValues")),
+            "{asked}: {log:?}"
+        );
+    }
+}
+
+/// Stream frames back to back (each a response of its own) read as lines in runs.
+#[test]
+fn runs_read_stream_frames_as_lines() {
+    let values: Vec<u32> = (0..300).map(|i| 20 + i * 37 % 4000).collect();
+    let mut stream = Vec::new();
+    for (k, count) in (90..99u8).rev().enumerate() {
+        let ts = 1000 + 25 * k as u32;
+        let request = Request::new(Command::Scan(ScanRequest {
+            count,
+            ..ScanRequest::distance(ScanMode::Continuous, 0, 299)
+        }));
+        let mut w = ResponseWriter::new(|b: &[u8]| stream.extend_from_slice(b));
+        w.echo(&request);
+        w.status(*b"99");
+        w.timestamp(ts);
+        for &d in &values {
+            w.step(d, 0);
+        }
+        w.end();
+    }
+    assert!(assert_runs_read_as_lines(&stream) >= 64);
+}

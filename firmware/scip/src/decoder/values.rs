@@ -41,52 +41,115 @@ impl Decoder {
     /// [`Self::take_data_words`]): [`Self::line_event`]'s bookkeeping, then, for a line
     /// of 3-char distances whose readings are plain, its sum checked from the
     /// accumulators and its steps decoded with the line's lengths fixed
-    /// ([`Self::plain_full_line`]); anything else (a bad sum, a line after a short
-    /// one, another data set ...) goes to [`Self::data_line`] as the general path
-    /// would. Same events, readings and state.
+    /// ([`Self::plain_full_line`]), and the plain full lines after it at the start of
+    /// `more` joined to it ([`Self::join_plain_lines`]; `more` is empty but for
+    /// [`Decoder::feed_runs`]); anything else (a bad sum, a line after a short one,
+    /// another data set ...) goes to [`Self::data_line`] as the general path would.
+    /// Same events, readings and state. Returns the bytes of `more` taken, and the event.
     #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
     #[inline(never)]
-    pub(super) fn full_line_event(&mut self) -> Option<Event<'_>> {
+    pub(super) fn full_line_event(&mut self, more: &[u8]) -> (usize, Option<Event<'_>>) {
         let len = self.len;
         self.len = 0;
         self.current_line = self.line_start;
         self.line_start = self.stats.bytes;
         self.line_no = self.line_no.saturating_add(1);
-        #[cfg(any(test, fuzzing))]
-        let plain = self.readings_plain && !self.char_by_char;
-        #[cfg(not(any(test, fuzzing)))]
-        let plain = self.readings_plain;
-        let sum_ok = match self.buf.get(DATA_CHARS) {
+        if len == DATA_CHARS + 1 && self.full_sum_ok() && self.bad & 0xC0 == 0 && self.plain_lines()
+        {
+            return match self.plain_full_line(0) {
+                Ok(()) => (self.join_plain_lines(more), Some(self.data_event())),
+                Err(kind) => (0, self.fail(kind)),
+            };
+        }
+        (0, self.data_line(len))
+    }
+
+    /// True when the full line in the line buffer ends with the sum char of its 64 data
+    /// chars, as summed by [`Self::take_data_words`].
+    #[inline(always)]
+    fn full_sum_ok(&self) -> bool {
+        match self.buf.get(DATA_CHARS) {
             // 0x30..=0x6F: no wrap.
             Some(&s) => {
                 ((self.sum.wrapping_sub(u32::from(s)) & 0x3F) as u8).wrapping_add(0x30) == s
             }
             None => false,
-        };
-        if len == DATA_CHARS + 1
-            && sum_ok
-            && self.bad & 0xC0 == 0
-            && plain
+        }
+    }
+
+    /// True when a full line of valid value chars with a good sum is decoded by
+    /// [`Self::plain_full_line`]: 3-char distances only, in a scan whose lines so far
+    /// were full, with plain readings.
+    #[inline(always)]
+    fn plain_lines(&self) -> bool {
+        #[cfg(any(test, fuzzing))]
+        let plain = self.readings_plain && !self.char_by_char;
+        #[cfg(not(any(test, fuzzing)))]
+        let plain = self.readings_plain;
+        plain
             && !self.short_line_seen
             && self.shape.data == DataSet::Distance
             && !self.shape.multi_echo
+    }
+
+    /// For [`Decoder::feed_runs`], after a full data line just decoded into the readings
+    /// (its event not yet given): the full data lines of 3-char distances at the start
+    /// of `more`, each whole there (its LF where a full line's is), copied and checked
+    /// by [`Self::take_data_words`] and decoded after the readings before them by
+    /// [`Self::plain_full_line`], with the bookkeeping of [`Self::full_line_event`], while
+    /// [`MAX_RUN_READINGS`] hold another line. A line that is not a plain full line, or
+    /// has a bad char or sum, or would complete more values than the scan has, is left
+    /// untaken (its bytes counted back): the next call takes it alone and reports it.
+    /// Returns the bytes taken.
+    #[inline(never)]
+    pub(super) fn join_plain_lines(&mut self, more: &[u8]) -> usize {
+        // Readings a full line of 3-char distances completes at most: 21 whole steps
+        // and the one begun on the line before.
+        const LINE_MOST: usize = DATA_CHARS / 3 + 1;
+        let mut taken: usize = 0;
+        while self.n_readings.saturating_add(LINE_MOST) <= MAX_RUN_READINGS
+            && self.plain_lines()
+            && more.get(taken.wrapping_add(DATA_CHARS + 1)) == Some(&b'\n')
         {
-            return match self.plain_full_line() {
-                Ok(()) => Some(self.data_event()),
-                Err(kind) => self.fail(kind),
+            let rest = more.get(taken..).unwrap_or_default();
+            // The line before is complete (`len` is 0): the line's bytes from the start.
+            let Some((used, true)) = self.take_data_words(rest) else {
+                break;
             };
+            // The steps the line completes: 21, or 22 when it ends one begun with two
+            // chars on the line before (see `plain_full_line`).
+            let total = usize::from(self.carry_n >= 2).wrapping_add(21);
+            let fits =
+                usize::from(self.values).wrapping_add(total) <= usize::from(self.shape.expected);
+            if !self.full_sum_ok() || !fits {
+                // Untaken: as before the copy (the next call copies it again).
+                self.len = 0;
+                self.stats.bytes = self.stats.bytes.wrapping_sub(used as u64);
+                break;
+            }
+            self.len = 0;
+            self.current_line = self.line_start;
+            self.line_start = self.stats.bytes;
+            self.line_no = self.line_no.saturating_add(1);
+            if self.plain_full_line(self.n_readings).is_err() {
+                // Not reached: the count was checked above.
+                break;
+            }
+            // At most `more`'s length: no wrap.
+            taken = taken.wrapping_add(used);
         }
-        self.data_line(len)
+        taken
     }
 
     /// [`Self::decode_steps`] for 3-char distances on a full line of valid value chars
-    /// in the line buffer, the readings plain (aux 0 in every slot): the
-    /// step begun on the previous line (0, 1 or 2 chars carried) completed, the 20 or
-    /// 21 whole steps after it, the 0 to 2 chars left carried: every length follows
-    /// from the chars carried. Same readings, state and errors.
+    /// in the line buffer, the readings plain (aux 0 in every slot), written from slot
+    /// `at` on (0 for a line of its own, after the readings of the lines before for a
+    /// run): the step begun on the previous line (0, 1 or 2 chars carried) completed,
+    /// the 20 or 21 whole steps after it, the 0 to 2 chars left carried: every length
+    /// follows from the chars carried. Same readings, state and errors.
     #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
     #[inline(always)]
-    fn plain_full_line(&mut self) -> Result<(), ErrorKind> {
+    fn plain_full_line(&mut self, at: usize) -> Result<(), ErrorKind> {
         const D: usize = 3;
         let Some(chars) = self.buf.first_chunk::<DATA_CHARS>() else {
             return Ok(());
@@ -114,13 +177,16 @@ impl Decoder {
         if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
             return Err(self.too_many());
         }
-        let (first, slots) = self.readings.split_at_mut(usize::from(head.is_some()));
+        // `at` is at most MAX_RUN_READINGS - 22 (see `join_plain_lines`): no wrap.
+        let Some(line) = self.readings.get_mut(at..at.wrapping_add(total)) else {
+            return Err(self.too_many());
+        };
+        let (first, slots) = line.split_at_mut(usize::from(head.is_some()));
         if let (Some(slot), Some(distance)) = (first.first_mut(), head) {
             slot.distance = distance;
         }
         // `off + 3 * 21` is at most 64: within the line.
         let mid = chars.get(off..).unwrap_or(&[]);
-        let slots = slots.get_mut(..whole).unwrap_or(&mut []);
         // The chars' address hidden from the optimiser: known as the line buffer's, the
         // loop indexes chars and slots by one counter (15 instructions a step on a
         // Cortex-M4) instead of walking two pointers (11). Their count taken again
@@ -132,7 +198,8 @@ impl Decoder {
         self.echo_no = 0;
         // At most `expected` (checked above): no wrap.
         self.values = self.values.wrapping_add(total as u16);
-        self.n_readings = total;
+        // At most MAX_RUN_READINGS: no wrap.
+        self.n_readings = at.wrapping_add(total);
         self.carry = carry;
         self.carry_n = carry_n;
         Ok(())
@@ -161,7 +228,7 @@ impl Decoder {
             self.multi_echo_line()
         } else {
             // Every reading began a step, the last of them `values - 1`: at most
-            // MAX_READINGS of at most `values`, no wrap.
+            // MAX_RUN_READINGS of at most `values`, no wrap.
             (self.values.wrapping_sub(n as u16), &[][..])
         };
         Event::Data(DataLine {
@@ -611,7 +678,7 @@ impl Decoder {
 /// values left are cleared, so that distance-only lines write less.
 #[inline(always)]
 fn begin_steps<const A: usize>(
-    readings: &mut [Reading; MAX_READINGS],
+    readings: &mut [Reading; MAX_RUN_READINGS],
     plain: &mut bool,
     values: u16,
     expected: u16,
@@ -621,7 +688,7 @@ fn begin_steps<const A: usize>(
         return Err(ErrorKind::TooManyValues { expected });
     }
     if A == 0 && !*plain {
-        *readings = [Reading::default(); MAX_READINGS];
+        *readings = [Reading::default(); MAX_RUN_READINGS];
         *plain = true;
     } else if A > 0 {
         *plain = false;

@@ -52,10 +52,24 @@ fn digest(ev: &Event<'_>) -> u64 {
     h.0
 }
 
+/// The digest of one reading of a data event, with the line's data set and limits
+/// (not its line number): the entry of a reading in [`Checker::flat`].
+fn reading_digest(line: &scip::DataLine<'_>, r: &scip::IndexedReading) -> u64 {
+    let mut h = Fnv(0xcbf2_9ce4_8422_2325);
+    h.word(0x8EAD);
+    let _ = write!(h, "{:?}{:?}", line.data, line.limits);
+    h.word(u64::from(r.index) | u64::from(r.echo) << 16);
+    h.word(u64::from(r.distance) | u64::from(r.aux) << 32);
+    h.0
+}
+
 /// Checks the event order rules while recording every event's digest.
 #[derive(Default)]
 struct Checker {
     log: Vec<u64>,
+    /// The events with each data event's readings as entries of their own: the same for
+    /// `feed` and `feed_runs`, whose data events may carry several lines.
+    flat: Vec<u64>,
     /// A response started and has not ended (End or its first Error).
     open: bool,
     /// The open response already reported its first Error.
@@ -70,6 +84,14 @@ struct Checker {
 impl Checker {
     fn event(&mut self, ev: &Event<'_>) {
         self.log.push(digest(ev));
+        match ev {
+            Event::Data(line) => {
+                assert!(line.readings.len() <= scip::MAX_RUN_READINGS);
+                self.flat
+                    .extend(line.indexed().map(|r| reading_digest(line, &r)));
+            }
+            other => self.flat.push(digest(other)),
+        }
         let live = self.open && !self.failed;
         match ev {
             Event::Start { .. } => {
@@ -117,11 +139,24 @@ fn run(stream: &[u8], sizes: impl FnMut() -> usize) -> (Vec<u64>, DecoderStats) 
     run_with(Decoder::new(), stream, sizes)
 }
 
-fn run_with(
+fn run_with(dec: Decoder, stream: &[u8], sizes: impl FnMut() -> usize) -> (Vec<u64>, DecoderStats) {
+    let (ck, stats) = run_checked(dec, stream, sizes, false);
+    (ck.log, stats)
+}
+
+/// As [`run_with`] through [`Decoder::feed_runs`]: the events with each data event's
+/// readings as entries of their own ([`Checker::flat`]), and the counters.
+fn run_runs(dec: Decoder, stream: &[u8], sizes: impl FnMut() -> usize) -> (Vec<u64>, DecoderStats) {
+    let (ck, stats) = run_checked(dec, stream, sizes, true);
+    (ck.flat, stats)
+}
+
+fn run_checked(
     mut dec: Decoder,
     stream: &[u8],
     mut sizes: impl FnMut() -> usize,
-) -> (Vec<u64>, DecoderStats) {
+    runs: bool,
+) -> (Checker, DecoderStats) {
     let mut ck = Checker::default();
     let mut rest = stream;
     while !rest.is_empty() {
@@ -129,7 +164,11 @@ fn run_with(
         let (mut chunk, tail) = rest.split_at(n);
         rest = tail;
         while !chunk.is_empty() {
-            let (used, ev) = dec.feed(chunk);
+            let (used, ev) = if runs {
+                dec.feed_runs(chunk)
+            } else {
+                dec.feed(chunk)
+            };
             assert!(used >= 1, "feed made no progress");
             assert!(used <= chunk.len(), "feed consumed more than it got");
             ck.fed += used as u64;
@@ -150,7 +189,7 @@ fn run_with(
     assert!(dec.is_idle(), "not idle after finish");
     let stats = *dec.stats();
     assert_eq!(stats.bytes, stream.len() as u64);
-    (ck.log, stats)
+    (ck, stats)
 }
 
 /// Checks one input: the first byte selects the chunking, the rest is the stream.
@@ -181,6 +220,27 @@ pub fn check(data: &[u8]) {
         whole, m4,
         "the 32-bit paths (selector {sel}) differ from one-shot"
     );
+    // Runs of lines, on both paths: the same events and readings, line by line, as
+    // one-shot feeding line by line gives them; in pieces three times the selector's
+    // (runs join the full lines that lie whole in one piece) and one-shot.
+    let (ck, stats) = run_checked(Decoder::new(), stream, || usize::MAX, false);
+    let lines = (ck.flat, stats);
+    for (paths, make) in [
+        ("host", Decoder::new as fn() -> Decoder),
+        ("32-bit", Decoder::m4_paths),
+    ] {
+        let mut sizes = chunking(sel);
+        let runs = run_runs(make(), stream, move || sizes().saturating_mul(3));
+        assert_eq!(
+            lines, runs,
+            "runs of lines on the {paths} paths (selector {sel}) differ from lines"
+        );
+        let runs = run_runs(make(), stream, || usize::MAX);
+        assert_eq!(
+            lines, runs,
+            "runs of lines on the {paths} paths one-shot differ from lines"
+        );
+    }
 }
 
 /// The chunk sizes of selector `sel`: fixed chunks of 1..=128 bytes below 0x80, else
