@@ -42,9 +42,11 @@ use crate::queue::FrameQueue;
 use crate::session::{Action, Notice, Session, SessionConfig, SessionError};
 
 /// Cells of the filtered lines' output buffer: the output points of the data events
-/// before waiting for the encoder as one run, and a data event's cells (a run of lines,
-/// [`scip::Decoder::feed_runs`]) with the windows' headroom after them.
-const BATCH_CELLS: usize = scip::MAX_RUN_READINGS + crate::pipeline::LINE_HEADROOM;
+/// before waiting for the encoder as one run, and a data event's cells (a line, or a
+/// run of lines: [`scip::Decoder::feed_runs`]) with the windows' headroom after them.
+/// Two lines' readings: a run's, or two lines of 2-char values.
+const BATCH_CELLS: usize = 2 * scip::MAX_READINGS + crate::pipeline::LINE_HEADROOM;
+const _: () = assert!(scip::MAX_RUN_READINGS <= 2 * scip::MAX_READINGS);
 
 mod control;
 mod line;

@@ -36,8 +36,9 @@ pub const DATA_CHARS: usize = 64;
 /// begun on the previous line.
 pub const MAX_READINGS: usize = DATA_CHARS / 2 + 1;
 /// Most readings one [`Event::Data`] of [`Decoder::feed_runs`] carries: the readings of
-/// a run of consecutive data lines (three full lines of 3-char distances at most).
-pub const MAX_RUN_READINGS: usize = 2 * MAX_READINGS;
+/// a run of consecutive data lines, two full lines of 3-char distances (21 or 22 steps
+/// each) at most. (A UART chunk of 128 bytes holds the ends of two lines at most.)
+pub const MAX_RUN_READINGS: usize = 2 * (DATA_CHARS / 3 + 1);
 /// Most echoes per step in a multi-echo response.
 pub const MAX_ECHOES: u8 = 3;
 /// The largest timestamp step from one intact stream frame to the next that passes the
@@ -550,7 +551,11 @@ impl Decoder {
                             return match decoded {
                                 Ok(()) => {
                                     let more = input.get(used..).unwrap_or_default();
-                                    let joined = if RUNS { self.join_plain_lines(more) } else { 0 };
+                                    let joined = if RUNS {
+                                        self.join_plain_lines(more, false).0
+                                    } else {
+                                        0
+                                    };
                                     // Both at most `input`'s length: no wrap.
                                     (used.wrapping_add(joined), Some(self.data_event()))
                                 }

@@ -40,12 +40,12 @@ impl Decoder {
     /// completed in the line buffer (64 value chars and the sum char, see
     /// [`Self::take_data_words`]): [`Self::line_event`]'s bookkeeping, then, for a line
     /// of 3-char distances whose readings are plain, its sum checked from the
-    /// accumulators and its steps decoded with the line's lengths fixed
-    /// ([`Self::plain_full_line`]), and the plain full lines after it at the start of
-    /// `more` joined to it ([`Self::join_plain_lines`]; `more` is empty but for
-    /// [`Decoder::feed_runs`]); anything else (a bad sum, a line after a short one,
-    /// another data set ...) goes to [`Self::data_line`] as the general path would.
-    /// Same events, readings and state. Returns the bytes of `more` taken, and the event.
+    /// accumulators and its steps decoded with the line's lengths fixed, with the plain
+    /// full lines after it at the start of `more` joined to it ([`Self::plain_lines`];
+    /// `more` is empty but for [`Decoder::feed_runs`]); anything else (a bad sum, a
+    /// line after a short one, another data set ...) goes to [`Self::data_line`] as the
+    /// general path would. Same events, readings and state. Returns the bytes of `more`
+    /// taken, and the event.
     #[cfg_attr(not(target_pointer_width = "32"), allow(dead_code))]
     #[inline(never)]
     pub(super) fn full_line_event(&mut self, more: &[u8]) -> (usize, Option<Event<'_>>) {
@@ -56,9 +56,9 @@ impl Decoder {
         self.line_no = self.line_no.saturating_add(1);
         if len == DATA_CHARS + 1 && self.full_sum_ok() && self.bad & 0xC0 == 0 && self.plain_lines()
         {
-            return match self.plain_full_line(0) {
-                Ok(()) => (self.join_plain_lines(more), Some(self.data_event())),
-                Err(kind) => (0, self.fail(kind)),
+            return match self.join_plain_lines(more, true) {
+                (taken, Ok(())) => (taken, Some(self.data_event())),
+                (taken, Err(kind)) => (taken, self.fail(kind)),
             };
         }
         (0, self.data_line(len))
@@ -92,53 +92,75 @@ impl Decoder {
             && !self.shape.multi_echo
     }
 
-    /// For [`Decoder::feed_runs`], after a full data line just decoded into the readings
-    /// (its event not yet given): the full data lines of 3-char distances at the start
-    /// of `more`, each whole there (its LF where a full line's is), copied and checked
-    /// by [`Self::take_data_words`] and decoded after the readings before them by
-    /// [`Self::plain_full_line`], with the bookkeeping of [`Self::full_line_event`], while
-    /// [`MAX_RUN_READINGS`] hold another line. A line that is not a plain full line, or
-    /// has a bad char or sum, or would complete more values than the scan has, is left
-    /// untaken (its bytes counted back): the next call takes it alone and reports it.
-    /// Returns the bytes taken.
+    /// The full line of 3-char distances in the line buffer decoded into the readings
+    /// when `buffered` (else it is decoded already), then, for [`Decoder::feed_runs`],
+    /// the full data lines of 3-char distances at the start of `more` joined to it
+    /// ([`Self::take_plain_line`]), each decoded after the readings before it by
+    /// [`Self::plain_full_line`]. Returns the bytes of `more` taken, and the outcome
+    /// (an error only for the buffered line: a joined line is checked before it is
+    /// taken).
     #[inline(never)]
-    pub(super) fn join_plain_lines(&mut self, more: &[u8]) -> usize {
+    pub(super) fn join_plain_lines(
+        &mut self,
+        more: &[u8],
+        buffered: bool,
+    ) -> (usize, Result<(), ErrorKind>) {
+        let mut taken: usize = 0;
+        let mut at = buffered.then_some(0);
+        loop {
+            if let Some(at) = at {
+                if let Err(kind) = self.plain_full_line(at) {
+                    return (taken, Err(kind));
+                }
+            }
+            let Some(used) = self.take_plain_line(more.get(taken..).unwrap_or_default()) else {
+                return (taken, Ok(()));
+            };
+            // At most `more`'s length: no wrap.
+            taken = taken.wrapping_add(used);
+            at = Some(self.n_readings);
+        }
+    }
+
+    /// After a full data line just decoded into the readings (its event not yet
+    /// given): the full data line of 3-char distances at the start of `more`, when all
+    /// of it is there (its LF where a full line's is), copied and checked by
+    /// [`Self::take_data_words`], with the bookkeeping of [`Self::full_line_event`], for
+    /// [`Self::plain_full_line`] to decode after the readings, while
+    /// [`MAX_RUN_READINGS`] hold it. A line that is not a plain full line, or has a bad
+    /// char or sum, or would complete more values than the scan has, is left untaken
+    /// (its bytes counted back): the next call takes it alone and reports it. Returns
+    /// the bytes taken.
+    #[inline(always)]
+    fn take_plain_line(&mut self, more: &[u8]) -> Option<usize> {
         // Readings a full line of 3-char distances completes at most: 21 whole steps
         // and the one begun on the line before.
         const LINE_MOST: usize = DATA_CHARS / 3 + 1;
-        let mut taken: usize = 0;
-        while self.n_readings.saturating_add(LINE_MOST) <= MAX_RUN_READINGS
-            && self.plain_lines()
-            && more.get(taken.wrapping_add(DATA_CHARS + 1)) == Some(&b'\n')
+        if self.n_readings.saturating_add(LINE_MOST) > MAX_RUN_READINGS
+            || !self.plain_lines()
+            || more.get(DATA_CHARS + 1) != Some(&b'\n')
         {
-            let rest = more.get(taken..).unwrap_or_default();
-            // The line before is complete (`len` is 0): the line's bytes from the start.
-            let Some((used, true)) = self.take_data_words(rest) else {
-                break;
-            };
-            // The steps the line completes: 21, or 22 when it ends one begun with two
-            // chars on the line before (see `plain_full_line`).
-            let total = usize::from(self.carry_n >= 2).wrapping_add(21);
-            let fits =
-                usize::from(self.values).wrapping_add(total) <= usize::from(self.shape.expected);
-            if !self.full_sum_ok() || !fits {
-                // Untaken: as before the copy (the next call copies it again).
-                self.len = 0;
-                self.stats.bytes = self.stats.bytes.wrapping_sub(used as u64);
-                break;
-            }
-            self.len = 0;
-            self.current_line = self.line_start;
-            self.line_start = self.stats.bytes;
-            self.line_no = self.line_no.saturating_add(1);
-            if self.plain_full_line(self.n_readings).is_err() {
-                // Not reached: the count was checked above.
-                break;
-            }
-            // At most `more`'s length: no wrap.
-            taken = taken.wrapping_add(used);
+            return None;
         }
-        taken
+        // The line before is complete (`len` is 0): the line's bytes from the start.
+        let Some((used, true)) = self.take_data_words(more) else {
+            return None;
+        };
+        // The steps the line completes: 21, or 22 when it ends one begun with two chars
+        // on the line before (see `plain_full_line`).
+        let total = usize::from(self.carry_n >= 2).wrapping_add(21);
+        let fits = usize::from(self.values).wrapping_add(total) <= usize::from(self.shape.expected);
+        if !self.full_sum_ok() || !fits {
+            // Untaken: as before the copy (the next call copies it again).
+            self.len = 0;
+            self.stats.bytes = self.stats.bytes.wrapping_sub(used as u64);
+            return None;
+        }
+        self.len = 0;
+        self.current_line = self.line_start;
+        self.line_start = self.stats.bytes;
+        self.line_no = self.line_no.saturating_add(1);
+        Some(used)
     }
 
     /// [`Self::decode_steps`] for 3-char distances on a full line of valid value chars
@@ -177,7 +199,7 @@ impl Decoder {
         if usize::from(self.values).wrapping_add(total) > usize::from(self.shape.expected) {
             return Err(self.too_many());
         }
-        // `at` is at most MAX_RUN_READINGS - 22 (see `join_plain_lines`): no wrap.
+        // `at` is at most MAX_RUN_READINGS - 22 (see `take_plain_line`): no wrap.
         let Some(line) = self.readings.get_mut(at..at.wrapping_add(total)) else {
             return Err(self.too_many());
         };
