@@ -608,18 +608,23 @@ fn damage(stream: &[u8], at: usize, c: Option<u8>) -> Vec<u8> {
     s
 }
 
+/// Where the data lines of a measurement response start: after its echo, status and
+/// timestamp lines.
+fn first_data_byte(stream: &[u8]) -> usize {
+    stream
+        .iter()
+        .enumerate()
+        .filter(|&(_, &b)| b == b'\n')
+        .nth(2)
+        .map(|(i, _)| i + 1)
+        .unwrap()
+}
+
 #[test]
 fn fast_path_matches_char_by_char_on_damaged_values() {
     for data in SETS {
         let (stream, _) = scan(data, 40);
-        // The data lines start after echo, status and timestamp lines.
-        let first = stream
-            .iter()
-            .enumerate()
-            .filter(|&(_, &b)| b == b'\n')
-            .nth(2)
-            .map(|(i, _)| i + 1)
-            .unwrap();
+        let first = first_data_byte(&stream);
         for at in first..stream.len() - 2 {
             if stream[at] == b'\n' || stream.get(at + 1) == Some(&b'\n') {
                 continue;
@@ -1050,13 +1055,7 @@ fn runs_join_whole_full_lines_and_read_as_lines() {
 #[test]
 fn runs_leave_damaged_lines_to_be_reported_alone() {
     let (stream, _) = scan(DataSet::Distance, 120);
-    let first = stream
-        .iter()
-        .enumerate()
-        .filter(|&(_, &b)| b == b'\n')
-        .nth(2)
-        .map(|(i, _)| i + 1)
-        .unwrap();
+    let first = first_data_byte(&stream);
     for at in first..stream.len() - 2 {
         for c in [Some(b'/'), Some(b'&'), Some(b'\n'), None] {
             assert_runs_read_as_lines(&damage(&stream, at, c));
