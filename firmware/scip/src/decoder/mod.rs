@@ -108,7 +108,7 @@ pub struct DataLine<'a> {
     pub data: DataSet,
     /// DMIN and model family in force, to tell ranges from error codes.
     pub limits: RangeLimits,
-    /// Line number within the response.
+    /// Line number within the response (of a run's last line, [`Decoder::feed_runs`]).
     pub line: u16,
 }
 
