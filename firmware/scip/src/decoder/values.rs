@@ -203,7 +203,9 @@ impl Decoder {
         let Some(line) = self.readings.get_mut(at..at.wrapping_add(total)) else {
             return Err(self.too_many());
         };
-        let (first, slots) = line.split_at_mut(usize::from(head.is_some()));
+        let Some((first, slots)) = line.split_at_mut_checked(usize::from(head.is_some())) else {
+            return Err(self.too_many());
+        };
         if let (Some(slot), Some(distance)) = (first.first_mut(), head) {
             slot.distance = distance;
         }
