@@ -41,7 +41,7 @@ impl Decoder {
     /// [`Self::take_data_words`]): [`Self::line_event`]'s bookkeeping, then, for a line
     /// of 3-char distances whose readings are plain, its sum checked from the
     /// accumulators and its steps decoded with the line's lengths fixed, with the plain
-    /// full lines after it at the start of `more` joined to it ([`Self::plain_lines`];
+    /// full lines after it at the start of `more` joined to it ([`Self::join_plain_lines`];
     /// `more` is empty but for [`Decoder::feed_runs`]); anything else (a bad sum, a
     /// line after a short one, another data set ...) goes to [`Self::data_line`] as the
     /// general path would. Same events, readings and state. Returns the bytes of `more`
