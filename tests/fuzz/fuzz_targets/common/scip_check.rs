@@ -197,7 +197,11 @@ pub fn check(data: &[u8]) {
     let Some((&sel, stream)) = data.split_first() else {
         return;
     };
-    let whole = run(stream, || usize::MAX);
+    // One-shot: its events, and the same with each data event's readings as entries of
+    // their own (what runs of lines are compared with below).
+    let (ck, stats) = run_checked(Decoder::new(), stream, || usize::MAX, false);
+    let lines = (ck.flat, stats);
+    let whole = (ck.log, stats);
     let reference = run_with(Decoder::char_by_char(), stream, || usize::MAX);
     assert_eq!(
         whole, reference,
@@ -223,8 +227,6 @@ pub fn check(data: &[u8]) {
     // Runs of lines, on both paths: the same events and readings, line by line, as
     // one-shot feeding line by line gives them; in pieces three times the selector's
     // (runs join the full lines that lie whole in one piece) and one-shot.
-    let (ck, stats) = run_checked(Decoder::new(), stream, || usize::MAX, false);
-    let lines = (ck.flat, stats);
     for (paths, make) in [
         ("host", Decoder::new as fn() -> Decoder),
         ("32-bit", Decoder::m4_paths),
