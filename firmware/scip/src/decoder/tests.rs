@@ -1029,8 +1029,27 @@ fn assert_runs_read_as_lines(stream: &[u8]) -> usize {
 #[test]
 fn runs_join_whole_full_lines_and_read_as_lines() {
     for n in [1, 20, 21, 22, 23, 43, 44, 64, 65, 66, 67, 100, 200, 682] {
-        let (stream, _) = scan(DataSet::Distance, n);
+        let (stream, values) = scan(DataSet::Distance, n);
         let most = assert_runs_read_as_lines(&stream);
+        // And the readings are the values the writer wrote, at their steps.
+        for make in [Decoder::new, Decoder::m4_paths] {
+            for chunk in [128, stream.len()] {
+                let mut dec = make();
+                let mut got = Vec::new();
+                for piece in stream.chunks(chunk) {
+                    let mut rest = piece;
+                    while !rest.is_empty() {
+                        let (used, ev) = dec.feed_runs(rest);
+                        rest = &rest[used..];
+                        if let Some(Event::Data(line)) = ev {
+                            got.extend(line.indexed().map(|r| (r.index, r.distance)));
+                        }
+                    }
+                }
+                let want: Vec<(u16, u32)> = (0..n).zip(values.iter().map(|&(d, _)| d)).collect();
+                assert_eq!(got, want, "{n} steps, chunk {chunk}");
+            }
+        }
         // The first four full lines complete 21, 21, 22 and 21 steps (the 22nd and
         // the 43rd begun on the line before); in the largest pieces two lines join
         // (42 readings, then 43), fewer lines as many. The short last line is never
